@@ -1,0 +1,179 @@
+"""The Run: everything the filter consumes, stacked as arrays before the jitted scan starts.
+
+A Run is produced by a source (simulator, dataset adapter, native ``.npz`` log) after the
+front-end (VO, local-map builder) has processed every frame, so the whole sequence is known when
+the filter is compiled. The native file format is exactly the fields below (see README).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["Run", "RunError", "load_run", "save_run", "validate_run", "integrate_controls"]
+
+
+class RunError(ValueError):
+    """A Run (or a Run file) is malformed; the message names the file, field and frame."""
+
+
+class Run(NamedTuple):
+    """A whole log, ready for the filter.
+
+    Attributes:
+        controls: [T, 3] VO increments u_t = (dx, dy, dtheta) in the robot frame at t-1
+            (metres, radians); ``controls[0]`` moves from the initial pose to frame 0.
+        obs_index: [T] int; index into ``local_maps`` of the local map completed at frame t,
+            or -1 where frame t carries no local map (prediction only).
+        local_maps: [M, L, L, 3] per-cell sufficient statistics (n, sum z, sum z^2) of a
+            robot-centred grid at frame ``obs_index == m``; cell (i, j) covers robot-frame
+            x in [(i - L/2) res, (i - L/2 + 1) res), y likewise with j.
+        resolution: local-map cell side in metres (must equal the filter's map resolution).
+        timestamps: [T] seconds.
+        ground_truth: [T, 3] true poses (x, y, theta) or None.
+        vo_failed: [T] bool, frames whose control came from the wheel/IMU fallback.
+        initial_pose: [3] pose before frame 0 (ground-truth frame; zeros if unknown).
+    """
+
+    controls: np.ndarray
+    obs_index: np.ndarray
+    local_maps: np.ndarray
+    resolution: float
+    timestamps: np.ndarray
+    ground_truth: np.ndarray | None = None
+    vo_failed: np.ndarray | None = None
+    initial_pose: np.ndarray | None = None
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.controls.shape[0])
+
+    @property
+    def num_local_maps(self) -> int:
+        return int(self.local_maps.shape[0])
+
+    @property
+    def has_obs(self) -> np.ndarray:
+        return self.obs_index >= 0
+
+    def start_pose(self) -> np.ndarray:
+        if self.initial_pose is None:
+            return np.zeros(3)
+        return np.asarray(self.initial_pose, dtype=np.float64)
+
+    def vo_poses(self) -> np.ndarray:
+        """[T, 3] poses from integrating the VO controls alone (the VO-only trajectory)."""
+        return integrate_controls(self.controls, self.start_pose())
+
+    def distance(self) -> float:
+        """Distance travelled according to the controls, metres."""
+        return float(np.sum(np.hypot(self.controls[:, 0], self.controls[:, 1])))
+
+
+def integrate_controls(controls: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+    """Compose robot-frame increments into world poses (noise-free eq. 1), float64."""
+    controls = np.asarray(controls, dtype=np.float64)
+    pose = np.zeros(3) if start is None else np.array(start, dtype=np.float64)
+    out = np.empty_like(controls)
+    for t, (dx, dy, dth) in enumerate(controls):
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        pose = np.array([pose[0] + c * dx - s * dy, pose[1] + s * dx + c * dy, pose[2] + dth])
+        out[t] = pose
+    return out
+
+
+def validate_run(run: Run, source: str = "<run>") -> Run:
+    """Check shapes, types and values; raise RunError naming the field and frame."""
+
+    def fail(field: str, msg: str) -> None:
+        raise RunError(f"{source}: field '{field}': {msg}")
+
+    controls = np.asarray(run.controls)
+    if controls.ndim != 2 or controls.shape[1] != 3:
+        fail("controls", f"expected shape [T, 3], got {controls.shape}")
+    T = controls.shape[0]
+    if T == 0:
+        fail("controls", "the run has no frames")
+    bad = ~np.isfinite(controls).all(axis=1)
+    if bad.any():
+        fail("controls", f"non-finite value (NaN or inf) at frame {int(np.argmax(bad))}"
+             f" ({int(bad.sum())} frames in all)")
+    obs_index = np.asarray(run.obs_index)
+    if obs_index.shape != (T,):
+        fail("obs_index", f"expected shape [{T}], got {obs_index.shape}")
+    if not np.issubdtype(obs_index.dtype, np.integer):
+        fail("obs_index", f"expected integers, got {obs_index.dtype}")
+    maps = np.asarray(run.local_maps)
+    if maps.ndim != 4 or maps.shape[3] != 3 or maps.shape[1] != maps.shape[2]:
+        fail("local_maps", f"expected shape [M, L, L, 3], got {maps.shape}")
+    M = maps.shape[0]
+    used = obs_index[obs_index >= 0]
+    if (obs_index < -1).any():
+        fail("obs_index", f"value below -1 at frame {int(np.argmax(obs_index < -1))}")
+    if used.size and used.max() >= M:
+        frame = int(np.argmax(obs_index >= M))
+        fail("obs_index", f"frame {frame} refers to local map {obs_index[frame]} but only {M} exist")
+    if not np.isfinite(maps).all():
+        m = int(np.argmax(~np.isfinite(maps).reshape(M, -1).all(axis=1)))
+        fail("local_maps", f"non-finite statistics in local map {m}")
+    if (maps[..., 0] < 0).any():
+        fail("local_maps", "negative point count n")
+    if not (np.isfinite(run.resolution) and run.resolution > 0):
+        fail("resolution", f"must be a positive number of metres, got {run.resolution}")
+    ts = np.asarray(run.timestamps)
+    if ts.shape != (T,):
+        fail("timestamps", f"expected shape [{T}], got {ts.shape}")
+    if run.ground_truth is not None and np.asarray(run.ground_truth).shape != (T, 3):
+        fail("ground_truth", f"expected shape [{T}, 3], got {np.asarray(run.ground_truth).shape}")
+    if run.vo_failed is not None and np.asarray(run.vo_failed).shape != (T,):
+        fail("vo_failed", f"expected shape [{T}], got {np.asarray(run.vo_failed).shape}")
+    if run.initial_pose is not None and np.asarray(run.initial_pose).shape != (3,):
+        fail("initial_pose", f"expected shape [3], got {np.asarray(run.initial_pose).shape}")
+    return run
+
+
+_REQUIRED = ("controls", "obs_index", "local_maps", "resolution", "timestamps")
+_OPTIONAL = ("ground_truth", "vo_failed", "initial_pose")
+
+
+def save_run(path: str | Path, run: Run) -> None:
+    """Write a Run as a native ``.npz`` file (the format documented in README)."""
+    validate_run(run, str(path))
+    arrays = {name: np.asarray(getattr(run, name)) for name in _REQUIRED}
+    for name in _OPTIONAL:
+        value = getattr(run, name)
+        if value is not None:
+            arrays[name] = np.asarray(value)
+    np.savez_compressed(path, **arrays)
+
+
+def load_run(path: str | Path) -> Run:
+    """Read and validate a native ``.npz`` Run file."""
+    path = Path(path)
+    if not path.exists():
+        raise RunError(f"{path}: no such file")
+    try:
+        data = np.load(path, allow_pickle=False)
+    except Exception as err:  # numpy raises several types for corrupt archives
+        raise RunError(f"{path}: not a readable .npz archive ({err})") from err
+    with data:
+        missing = [k for k in _REQUIRED if k not in data.files]
+        if missing:
+            raise RunError(f"{path}: missing field(s) {', '.join(missing)}")
+        unknown = sorted(set(data.files) - set(_REQUIRED) - set(_OPTIONAL))
+        if unknown:
+            raise RunError(f"{path}: unknown field(s) {', '.join(unknown)}")
+        fields = {k: data[k] for k in data.files}
+    run = Run(
+        controls=fields["controls"].astype(np.float64),
+        obs_index=fields["obs_index"],
+        local_maps=fields["local_maps"].astype(np.float64),
+        resolution=float(fields["resolution"]),
+        timestamps=fields["timestamps"].astype(np.float64),
+        ground_truth=fields.get("ground_truth"),
+        vo_failed=fields.get("vo_failed"),
+        initial_pose=fields.get("initial_pose"),
+    )
+    return validate_run(run, str(path))
