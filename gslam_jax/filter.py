@@ -1,0 +1,382 @@
+"""The Gamma-SLAM Rao-Blackwellized particle filter on dense per-particle maps (paper 6.1-6.2).
+
+Every particle carries a pose and a dense variance grid map stored as (k, S) arrays [J, H, W]
+(``cells``). One frame of the filter is:
+
+* ``predict`` at every frame: sample the motion model (eqs. 1-3, 24).
+* ``update`` at frames that carry a local map: for each particle, the local map is rotated and
+  translated into a window of its global map by nearest-cell lookup from every window cell back
+  into the robot-centred grid (so each global cell receives at most one observation cell); the
+  log-gamma importance factors of the observed cells (eq. 26) and their tempered combination
+  (eq. 30 or 31) are one fused computation; the window gets the conjugate update (eq. 14); the
+  weights are multiplied (eq. 27) and normalised; the particles are resampled when the ESS
+  (eq. 23) drops below ``resample_ratio * J``.
+
+The whole Run is a ``lax.scan`` over frames (``run_filter``); poses and resampling ancestors are
+kept per frame so the best particle's full path survives resampling (``backtrack_path``).
+Random numbers come from ``motion_noise`` and ``update_noise`` so that another implementation
+can be driven with exactly the same draws.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array, lax
+
+from gslam_jax import cells, resampling, unknown
+from gslam_jax.motion import MotionParams, apply_motion
+
+__all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepInfo", "RunOutput",
+           "init", "predict", "update", "step", "run_filter", "backtrack_path", "motion_noise",
+           "update_noise", "window_origin", "observation_in_window", "log_importance"]
+
+UNKNOWN_MODES = ("ignore", "sample")
+
+
+class FilterConfig(NamedTuple):
+    """Static settings: shapes and discrete choices (hashable, a jit static argument).
+
+    map_origin is the world (x, y) of the corner of cell (0, 0); cell (i, j) covers
+    x in [x0 + i res, x0 + (i+1) res), y likewise with j. map_shape entries are multiples of 8.
+    """
+
+    num_particles: int
+    map_shape: tuple[int, int]
+    map_origin: tuple[float, float]
+    resolution: float
+    local_size: int
+    resampler: str = "multinomial"
+    resample_ratio: float = 0.5
+    unknown_cells: str = "sample"
+    unknown_samples: int = 1024
+    update_map: bool = True
+
+    @property
+    def block(self) -> int:
+        """Window alignment: bitmask blocks in "sample" mode, single cells otherwise."""
+        return unknown.BLOCK if self.unknown_cells == "sample" else 1
+
+    @property
+    def window(self) -> int:
+        """Side of the square global-map window that holds a rotated local map."""
+        radius = math.ceil(self.local_size / math.sqrt(2.0)) + 1
+        side = 2 * (radius + self.block)
+        return int(unknown.BLOCK * math.ceil(side / unknown.BLOCK))
+
+    def validate(self) -> "FilterConfig":
+        H, W = self.map_shape
+        if self.resampler not in resampling.RESAMPLERS:
+            raise ValueError(f"resampler '{self.resampler}' unknown; choose one of "
+                             f"{sorted(resampling.RESAMPLERS)}")
+        if self.unknown_cells not in UNKNOWN_MODES:
+            raise ValueError(f"unknown_cells '{self.unknown_cells}' unknown; choose one of "
+                             f"{list(UNKNOWN_MODES)}")
+        if H % unknown.BLOCK or W % unknown.BLOCK:
+            raise ValueError(f"map_shape {self.map_shape} must be multiples of {unknown.BLOCK}")
+        if min(H, W) < self.window:
+            raise ValueError(f"map_shape {self.map_shape} is smaller than the update window "
+                             f"{self.window} cells")
+        if self.unknown_samples < 1:
+            raise ValueError("unknown_samples must be at least 1")
+        if self.num_particles < 1:
+            raise ValueError("num_particles must be at least 1")
+        return self
+
+
+class FilterParams(NamedTuple):
+    """The continuous (tunable, differentiable) parameters."""
+
+    motion: MotionParams = MotionParams()
+    beta_prev: Array | float = 0.05
+    beta_new: Array | float = 0.05
+
+
+class FilterState(NamedTuple):
+    """Particle set. known_bits is the unknown-cell sampler's state ([J, 0, 0, 2] if unused)."""
+
+    pose: Array        # [J, 3]
+    log_w: Array       # [J] normalised
+    kmap: Array        # [J, H, W] degrees of freedom k
+    smap: Array        # [J, H, W] sums of squared deviations S
+    known_bits: Array  # [J, H/8, W/8, 2] uint32
+
+
+class UpdateNoise(NamedTuple):
+    """Random numbers of one update: unknown-cell choices and resampling uniforms."""
+
+    unknown_u: Array   # [J, unknown_samples] uniforms ([J, 0] in "ignore" mode)
+    resample_u: Array  # [J]
+
+
+class StepInfo(NamedTuple):
+    """Per-frame outputs of ``step`` (stacked to [T, ...] by ``run_filter``)."""
+
+    pose: Array          # [J, 3] after resampling
+    ancestors: Array     # [J] index of each particle's parent before this frame's resampling
+    log_w: Array         # [J] normalised weights after the frame
+    ess: Array           # ESS after the weight update, before resampling (eq. 23)
+    resampled: Array     # bool
+    updated: Array       # bool: the frame carried a local map
+    log_lik: Array       # log mean weight increment (log marginal likelihood term), 0 if none
+    extent_violations: Array  # particles whose update window left the map extent
+    empty_obs: Array     # bool: the local map had no informative cell
+
+
+def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
+    """All particles at ``start_pose`` with equal weights and empty maps."""
+    cfg.validate()
+    J = cfg.num_particles
+    H, W = cfg.map_shape
+    start = jnp.zeros(3, jnp.float32) if start_pose is None else jnp.asarray(start_pose, jnp.float32)
+    nb = (H // unknown.BLOCK, W // unknown.BLOCK) if cfg.unknown_cells == "sample" else (0, 0)
+    return FilterState(
+        pose=jnp.broadcast_to(start, (J, 3)),
+        log_w=jnp.full((J,), -math.log(J), jnp.float32),
+        kmap=jnp.zeros((J, H, W), jnp.float32),
+        smap=jnp.zeros((J, H, W), jnp.float32),
+        known_bits=jnp.zeros((J,) + nb + (2,), jnp.uint32),
+    )
+
+
+def motion_noise(key: Array, cfg: FilterConfig) -> Array:
+    """Standard-normal motion draws [J, 2] for one frame (along-track, heading)."""
+    return jax.random.normal(key, (cfg.num_particles, 2), jnp.float32)
+
+
+def update_noise(key: Array, cfg: FilterConfig) -> UpdateNoise:
+    """Uniforms for one update (unknown-cell sampling, then resampling)."""
+    k_unknown, k_resample = jax.random.split(key)
+    n = cfg.unknown_samples if cfg.unknown_cells == "sample" else 0
+    return UpdateNoise(
+        unknown_u=jax.random.uniform(k_unknown, (cfg.num_particles, n), jnp.float32),
+        resample_u=resampling.draw_uniforms(k_resample, cfg.num_particles),
+    )
+
+
+def predict(pose: Array, u: Array, eps: Array, params: FilterParams) -> Array:
+    """Prediction step (eq. 24) for all particles, given their standard-normal draws."""
+    return apply_motion(pose, u, eps, params.motion)
+
+
+def window_origin(pose: Array, cfg: FilterConfig) -> tuple[Array, Array, Array]:
+    """Top-left cell (i, j) of a particle's update window, and whether it left the map.
+
+    The ideal window is centred on the particle's cell (aligned to ``cfg.block``); a window
+    that would leave the map is shifted back inside and flagged, never wrapped.
+    """
+    H, W = cfg.map_shape
+    Wn, b = cfg.window, cfg.block
+    ci = jnp.floor((pose[0] - cfg.map_origin[0]) / cfg.resolution).astype(jnp.int32)
+    cj = jnp.floor((pose[1] - cfg.map_origin[1]) / cfg.resolution).astype(jnp.int32)
+    oi = ((ci - Wn // 2) // b) * b
+    oj = ((cj - Wn // 2) // b) * b
+    ci_, cj_ = jnp.clip(oi, 0, H - Wn), jnp.clip(oj, 0, W - Wn)
+    return ci_, cj_, (ci_ != oi) | (cj_ != oj)
+
+
+def observation_in_window(pose: Array, oi: Array, oj: Array, local_obs: Array,
+                          cfg: FilterConfig) -> tuple[Array, Array]:
+    """The local map (k, S) [L, L, 2] seen from ``pose``, resampled onto the window [Wn, Wn].
+
+    Every window cell centre is moved into the robot frame and takes the local cell it falls in
+    (nearest-cell rotation; paper 6.1 "rotate and translate the observation").
+    """
+    L, Wn, res = cfg.local_size, cfg.window, cfg.resolution
+    # Window cell centres relative to the particle, in cells (small numbers: float32-safe).
+    px = (pose[0] - cfg.map_origin[0]) / res
+    py = (pose[1] - cfg.map_origin[1]) / res
+    dx = (oi + jnp.arange(Wn, dtype=jnp.float32) + 0.5) - px
+    dy = (oj + jnp.arange(Wn, dtype=jnp.float32) + 0.5) - py
+    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+    lx = c * dx[:, None] + s * dy[None, :]
+    ly = -s * dx[:, None] + c * dy[None, :]
+    li = jnp.floor(lx).astype(jnp.int32) + L // 2
+    lj = jnp.floor(ly).astype(jnp.int32) + L // 2
+    inside = (li >= 0) & (li < L) & (lj >= 0) & (lj < L)
+    flat = jnp.where(inside, li * L + lj, 0)
+    # Scalar gathers with in-bounds indices: several times faster on CPU than row gathers.
+    k = local_obs[..., 0].reshape(-1).at[flat].get(mode="promise_in_bounds")
+    S = local_obs[..., 1].reshape(-1).at[flat].get(mode="promise_in_bounds")
+    return jnp.where(inside, k, 0.0), jnp.where(inside, S, 0.0)
+
+
+def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
+                   k_borrow: Array, S_borrow: Array, can_borrow: Array,
+                   params: FilterParams, unknown_cells: str) -> Array:
+    """Tempered log importance factor of one particle, eqs. 26 and 30 / 31.
+
+    All inputs are window arrays; (k_borrow, S_borrow) are the sampled known cells used for
+    unknown cells in "sample" mode. Masked cells get harmless stand-ins so that neither the
+    value nor the gradient sees a log(0).
+    """
+    has = k_obs > 0
+    prev = has & (k_prior > 0)
+    one = jnp.ones_like(k_obs)
+    ko, So = jnp.where(has, k_obs, one), jnp.where(has, S_obs, one)
+    lam_prev = cells.log_predictive_integer(ko, So, jnp.where(prev, k_prior, one), jnp.where(prev, S_prior, one))
+    sum_prev = jnp.sum(jnp.where(prev, lam_prev, 0.0))
+    if unknown_cells == "ignore":  # eq. 30
+        n_prev = jnp.sum(prev)
+        return jnp.where(n_prev > 0, sum_prev / (params.beta_prev * jnp.maximum(n_prev, 1)), 0.0)
+    new = has & ~prev & can_borrow & (k_borrow > 0)
+    lam_new = cells.log_predictive_integer(ko, So, jnp.where(new, k_borrow, one), jnp.where(new, S_borrow, one))
+    sum_new = jnp.sum(jnp.where(new, lam_new, 0.0))
+    n_obs = jnp.maximum(jnp.sum(has), 1)
+    return (sum_prev / params.beta_prev + sum_new / params.beta_new) / n_obs  # eq. 31
+
+
+def _particle_update(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_u: Array,
+                     local_obs: Array, params: FilterParams, cfg: FilterConfig):
+    """Map update and log importance factor of one particle (vmapped over particles)."""
+    Wn = cfg.window
+    oi, oj, left_map = window_origin(pose, cfg)
+    k_obs, S_obs = observation_in_window(pose, oi, oj, local_obs, cfg)
+    k_win = lax.dynamic_slice(kmap, (oi, oj), (Wn, Wn))
+    S_win = lax.dynamic_slice(smap, (oi, oj), (Wn, Wn))
+    if cfg.unknown_cells == "sample":
+        # unknown_samples uniform known cells; window cell c borrows draw c mod unknown_samples,
+        # so every unknown cell borrows a uniformly random known cell (draws are shared between
+        # cells unknown_samples apart, which keeps the search cost independent of the window).
+        idx, total = unknown.sample_known_cells(bits, unknown_u)
+        share = jnp.arange(Wn * Wn, dtype=jnp.int32).reshape(Wn, Wn) % cfg.unknown_samples
+        idx = idx.at[share].get(mode="promise_in_bounds")
+        k_borrow = kmap.reshape(-1).at[idx].get(mode="promise_in_bounds")
+        S_borrow = smap.reshape(-1).at[idx].get(mode="promise_in_bounds")
+        can_borrow = total > 0
+    else:
+        k_borrow = S_borrow = k_obs
+        can_borrow = jnp.bool_(False)
+    log_lam = log_importance(k_obs, S_obs, k_win, S_win, k_borrow, S_borrow, can_borrow,
+                             params, cfg.unknown_cells)
+    if cfg.update_map:
+        k_new, S_new = cells.conjugate_update(k_win, S_win, k_obs, S_obs)
+        kmap = lax.dynamic_update_slice(kmap, k_new, (oi, oj))
+        smap = lax.dynamic_update_slice(smap, S_new, (oi, oj))
+        if cfg.unknown_cells == "sample":
+            b = unknown.BLOCK
+            bits = lax.dynamic_update_slice(bits, unknown.pack_known(k_new > 0), (oi // b, oj // b, 0))
+    return kmap, smap, bits, log_lam, left_map
+
+
+def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: FilterParams,
+           cfg: FilterConfig) -> tuple[FilterState, StepInfo]:
+    """Map update, importance weights (eq. 27), normalisation and ESS-gated resampling.
+
+    local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred.
+    """
+    J = cfg.num_particles
+    per_particle = partial(_particle_update, local_obs=local_obs, params=params, cfg=cfg)
+    kmap, smap, bits, log_lam, left_map = jax.vmap(per_particle)(
+        state.pose, state.kmap, state.smap, state.known_bits, noise.unknown_u)
+    unnorm = state.log_w + log_lam
+    log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
+    log_w = unnorm - log_lik
+    ess = resampling.ess(log_w)
+    do_resample = ess < cfg.resample_ratio * J
+
+    def resample_branch(args):
+        pose, kmap, smap, bits, log_w = args
+        anc = resampling.resample(cfg.resampler, jnp.exp(log_w), noise.resample_u)
+        take = lambda x: jnp.take(x, anc, axis=0)
+        return (take(pose), take(kmap), take(smap), take(bits),
+                jnp.full((J,), -math.log(J), log_w.dtype), anc)
+
+    def keep_branch(args):
+        pose, kmap, smap, bits, log_w = args
+        return pose, kmap, smap, bits, log_w, jnp.arange(J, dtype=jnp.int32)
+
+    pose, kmap, smap, bits, log_w, anc = lax.cond(
+        do_resample, resample_branch, keep_branch, (state.pose, kmap, smap, bits, log_w))
+    new_state = FilterState(pose, log_w, kmap, smap, bits)
+    info = StepInfo(pose=pose, ancestors=anc, log_w=log_w, ess=ess, resampled=do_resample,
+                    updated=jnp.bool_(True), log_lik=log_lik,
+                    extent_violations=jnp.sum(left_map).astype(jnp.int32),
+                    empty_obs=~jnp.any(local_obs[..., 0] > 0))
+    return new_state, info
+
+
+def step(key: Array, state: FilterState, u: Array, local_obs: Array | None, params: FilterParams,
+         cfg: FilterConfig) -> tuple[FilterState, StepInfo]:
+    """One frame: predict, then update if ``local_obs`` is given (Python-level choice)."""
+    k_motion, k_update = jax.random.split(key)
+    pose = predict(state.pose, u, motion_noise(k_motion, cfg), params)
+    state = state._replace(pose=pose)
+    if local_obs is None:
+        return state, _no_update_info(state, cfg)
+    return update(state, local_obs, update_noise(k_update, cfg), params, cfg)
+
+
+def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
+    J = cfg.num_particles
+    return StepInfo(pose=state.pose, ancestors=jnp.arange(J, dtype=jnp.int32), log_w=state.log_w,
+                    ess=resampling.ess(state.log_w), resampled=jnp.bool_(False),
+                    updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
+                    extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False))
+
+
+class RunOutput(NamedTuple):
+    """What ``run_filter`` returns."""
+
+    final_state: FilterState
+    infos: StepInfo         # stacked per frame: pose [T, J, 3], ancestors [T, J], ess [T], ...
+    best_pose: Array        # [T, 3] highest-weight particle at each frame
+    mean_pose: Array        # [T, 3] weighted mean (circular mean for theta)
+    best_path: Array        # [T, 3] path of the final best particle, through its ancestry
+
+
+def _summaries(info: StepInfo) -> tuple[Array, Array]:
+    w = jnp.exp(info.log_w)
+    best = info.pose[jnp.argmax(info.log_w)]
+    xy = w @ info.pose[:, :2]
+    th = jnp.arctan2(w @ jnp.sin(info.pose[:, 2]), w @ jnp.cos(info.pose[:, 2]))
+    return best, jnp.concatenate([xy, th[None]])
+
+
+def backtrack_path(poses: Array, ancestors: Array, last: Array) -> Array:
+    """Follow ancestry back from particle ``last`` at the final frame: [T, J, 3] -> [T, 3]."""
+
+    def back(j, xs):
+        pose_t, anc_t = xs
+        return anc_t[j], pose_t[j]
+
+    _, path = lax.scan(back, last, (poses, ancestors), reverse=True)
+    return path
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Array,
+               local_obs: Array, cfg: FilterConfig, start_pose: Array | None = None) -> RunOutput:
+    """The whole filter as one ``lax.scan`` over frames.
+
+    Args:
+        key: PRNG key; frame t uses ``jax.random.split(key, T)[t]``.
+        params: FilterParams (differentiable).
+        controls: [T, 3] VO increments; obs_index: [T] index into local_obs or -1;
+        local_obs: [M, L, L, 2] observations (k, S) (``cells.obs_from_stats``), M >= 1.
+        cfg: static FilterConfig.
+    """
+    state = init(cfg, start_pose)
+    keys = jax.random.split(key, controls.shape[0])
+
+    def frame(state, xs):
+        k, u, idx = xs
+        k_motion, k_update = jax.random.split(k)
+        pose = predict(state.pose, u, motion_noise(k_motion, cfg), params)
+        state = state._replace(pose=pose)
+        obs = local_obs[jnp.maximum(idx, 0)]
+        state, info = lax.cond(
+            idx >= 0,
+            lambda s: update(s, obs, update_noise(k_update, cfg), params, cfg),
+            lambda s: (s, _no_update_info(s, cfg)),
+            state)
+        best, mean = _summaries(info)
+        return state, (info, best, mean)
+
+    final, (infos, best, mean) = lax.scan(frame, state, (keys, controls, obs_index))
+    path = backtrack_path(infos.pose, infos.ancestors, jnp.argmax(final.log_w))
+    return RunOutput(final, infos, best, mean, path)

@@ -1,0 +1,69 @@
+"""Sampler of known cells for the unknown-cell model (paper 6.2.2, eq. 31).
+
+Each cell of an observation that a particle has never seen borrows the statistics (k', S') of a
+uniformly random *known* cell of that particle's map. Scanning a dense [H, W] map for its known
+cells at every update would cost O(H W); instead each particle keeps a bitmask of its known cells
+in 8 x 8 blocks (two uint32 words per block), maintained for the updated window only. A uniform
+known cell is then: a uniform rank r in [0, #known), the block holding rank r by binary search on
+the cumulative block counts, and the r-th set bit of that block's 64-bit mask by popcounts.
+The draw is exact: every known cell has probability 1 / #known.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array, lax
+
+__all__ = ["BLOCK", "pack_known", "sample_known_cells"]
+
+BLOCK = 8  # block side in cells; 64 cells = two uint32 words
+
+
+def pack_known(known: Array) -> Array:
+    """Bool [H, W] (H, W multiples of 8) -> uint32 [H/8, W/8, 2] bitmasks (bit = r * 8 + c)."""
+    H, W = known.shape
+    blocks = known.reshape(H // BLOCK, BLOCK, W // BLOCK, BLOCK).transpose(0, 2, 1, 3)
+    bits = blocks.reshape(H // BLOCK, W // BLOCK, 2, 32).astype(jnp.uint32)
+    shifts = jnp.arange(32, dtype=jnp.uint32)
+    # Disjoint bits, so the sum is the bitwise OR.
+    return jnp.sum(bits << shifts, axis=-1, dtype=jnp.uint32)
+
+
+def _select_bit(word: Array, rank: Array) -> Array:
+    """Position of the ``rank``-th (0-based) set bit of each uint32 ``word``."""
+    pos = jnp.zeros_like(rank)
+    for width in (16, 8, 4, 2, 1):
+        low = lax.population_count(word & jnp.uint32((1 << width) - 1)).astype(rank.dtype)
+        go = rank >= low
+        rank = jnp.where(go, rank - low, rank)
+        word = jnp.where(go, word >> jnp.uint32(width), word)
+        pos = jnp.where(go, pos + width, pos)
+    return pos
+
+
+def sample_known_cells(bits: Array, u: Array) -> tuple[Array, Array]:
+    """Uniform known cells of one map from its block bitmasks.
+
+    Args:
+        bits: uint32 [Hb, Wb, 2] from ``pack_known`` (map of [8 Hb, 8 Wb] cells).
+        u: uniforms in [0, 1), any shape; one cell per uniform.
+    Returns:
+        (flat cell indices into the [H, W] map with the shape of u, number of known cells).
+        Where the map has no known cell the indices are meaningless; callers mask on the count.
+    """
+    Hb, Wb, _ = bits.shape
+    lo = bits[..., 0].reshape(-1)
+    hi = bits[..., 1].reshape(-1)
+    count_lo = lax.population_count(lo).astype(jnp.int32)
+    counts = count_lo + lax.population_count(hi).astype(jnp.int32)
+    cum = jnp.cumsum(counts)
+    total = cum[-1]
+    r = jnp.clip(jnp.floor(u * total.astype(u.dtype)).astype(jnp.int32), 0, jnp.maximum(total - 1, 0))
+    block = jnp.clip(jnp.searchsorted(cum, r, side="right"), 0, cum.shape[0] - 1)
+    rank = r - (cum[block] - counts[block])
+    in_lo = rank < count_lo[block]
+    pos = jnp.where(in_lo, _select_bit(lo[block], rank),
+                    32 + _select_bit(hi[block], rank - count_lo[block]))
+    row = (block // Wb) * BLOCK + pos // BLOCK
+    col = (block % Wb) * BLOCK + pos % BLOCK
+    return row * (Wb * BLOCK) + col, total
