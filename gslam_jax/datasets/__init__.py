@@ -1,0 +1,1 @@
+"""Dataset adapters: each turns a recorded log into the Run the filter consumes."""

@@ -1,0 +1,1 @@
+"""OpenCV stereo front-end: rectification, dense stereo, stereo VO, fallback fusion."""

@@ -1,0 +1,90 @@
+"""Dense stereo: rectified pair -> disparity -> 3-D points (paper section 4 "stereo correlator").
+
+The dense range data feeds the local maps (paper 6.3). Points are returned in the rectified left
+camera frame; :func:`to_robot_frame` moves them into the gravity-aligned robot frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .calib import RectifiedRig
+
+__all__ = ["DenseStereoParams", "dense_disparity", "disparity_to_points", "to_robot_frame"]
+
+
+@dataclass(frozen=True)
+class DenseStereoParams:
+    """StereoSGBM settings (``algorithm="bm"`` picks the faster, noisier StereoBM).
+
+    num_disparities: search range in pixels (multiple of 16); block: matching window side;
+    min_disparity_px: disparities below this (far points) are dropped; stride: keep every
+    ``stride``-th pixel in each direction when making points.
+    """
+
+    algorithm: str = "sgbm"
+    num_disparities: int = 64
+    block: int = 5
+    uniqueness: int = 10
+    speckle_window: int = 100
+    speckle_range: int = 2
+    min_disparity_px: float = 1.0
+    stride: int = 2
+
+    def matcher(self) -> cv2.StereoMatcher:
+        if self.num_disparities % 16:
+            raise ValueError(f"num_disparities must be a multiple of 16, got {self.num_disparities}")
+        if self.algorithm == "bm":
+            m = cv2.StereoBM_create(self.num_disparities, max(5, self.block | 1))
+            m.setUniquenessRatio(self.uniqueness)
+            m.setSpeckleWindowSize(self.speckle_window)
+            m.setSpeckleRange(self.speckle_range)
+            return m
+        if self.algorithm != "sgbm":
+            raise ValueError(f"unknown stereo algorithm {self.algorithm!r} (use 'sgbm' or 'bm')")
+        area = self.block * self.block
+        return cv2.StereoSGBM_create(
+            minDisparity=0, numDisparities=self.num_disparities, blockSize=self.block,
+            P1=8 * area, P2=32 * area, uniquenessRatio=self.uniqueness,
+            speckleWindowSize=self.speckle_window, speckleRange=self.speckle_range,
+            mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
+def dense_disparity(left: np.ndarray, right: np.ndarray,
+                    params: DenseStereoParams = DenseStereoParams(),
+                    matcher: cv2.StereoMatcher | None = None) -> np.ndarray:
+    """Disparity in pixels (float32), NaN where the matcher found none."""
+    m = matcher if matcher is not None else params.matcher()
+    raw = m.compute(left, right).astype(np.float32) / 16.0  # OpenCV returns fixed-point x16
+    raw[raw < max(params.min_disparity_px, 1e-3)] = np.nan
+    return raw
+
+
+def disparity_to_points(disparity: np.ndarray, rig: RectifiedRig, stride: int = 1,
+                        max_range: float = np.inf) -> np.ndarray:
+    """Triangulate valid disparities into [N, 3] points in the rectified left camera frame."""
+    d = disparity[::stride, ::stride]
+    v, u = np.mgrid[0:disparity.shape[0]:stride, 0:disparity.shape[1]:stride]
+    ok = np.isfinite(d) & (d > 0)
+    d, u, v = d[ok].astype(np.float64), u[ok], v[ok]
+    z = rig.fx * rig.baseline / d
+    x = (u - rig.cx) * z / rig.fx
+    y = (v - rig.cy) * z / rig.fy
+    pts = np.stack([x, y, z], axis=1)
+    return pts[z <= max_range]
+
+
+def to_robot_frame(points_cam: np.ndarray, t_robot_cam: np.ndarray,
+                   r_level: np.ndarray | None = None) -> np.ndarray:
+    """Camera-frame points -> gravity-aligned robot frame.
+
+    ``t_robot_cam`` is the 4x4 camera mount in the robot body frame (origin on the ground under
+    the robot); ``r_level`` (3x3) removes the body's current roll and pitch (tilt correction).
+    """
+    r, t = t_robot_cam[:3, :3], t_robot_cam[:3, 3]
+    if r_level is not None:
+        r, t = r_level @ r, r_level @ t
+    return points_cam @ r.T + t
