@@ -32,7 +32,7 @@ from gslam_jax import cells, resampling, unknown
 from gslam_jax.motion import MotionParams, apply_motion
 
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepInfo", "RunOutput",
-           "init", "predict", "update", "step", "run_filter", "backtrack_path", "motion_noise",
+           "init", "predict", "update", "step", "scan_frames", "frame_keys", "run_filter", "backtrack_path", "motion_noise",
            "update_noise", "window_origin", "observation_in_window", "log_importance"]
 
 UNKNOWN_MODES = ("ignore", "sample")
@@ -348,20 +348,16 @@ def backtrack_path(poses: Array, ancestors: Array, last: Array) -> Array:
     return path
 
 
-@partial(jax.jit, static_argnames=("cfg",))
-def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Array,
-               local_obs: Array, cfg: FilterConfig, start_pose: Array | None = None) -> RunOutput:
-    """The whole filter as one ``lax.scan`` over frames.
+@partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
+def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Array,
+                local_obs: Array, params: FilterParams, cfg: FilterConfig
+                ) -> tuple[FilterState, tuple[StepInfo, Array, Array]]:
+    """``lax.scan`` of predict (every frame) and update (frames with obs_index >= 0).
 
-    Args:
-        key: PRNG key; frame t uses ``jax.random.split(key, T)[t]``.
-        params: FilterParams (differentiable).
-        controls: [T, 3] VO increments; obs_index: [T] index into local_obs or -1;
-        local_obs: [M, L, L, 2] observations (k, S) (``cells.obs_from_stats``), M >= 1.
-        cfg: static FilterConfig.
+    keys [T], controls [T, 3], obs_index [T] (index into local_obs or -1), local_obs
+    [M, L, L, 2] observations (k, S) from ``cells.obs_from_stats`` with M >= 1.
+    Returns the final state and per-frame (StepInfo, best pose, weighted-mean pose).
     """
-    state = init(cfg, start_pose)
-    keys = jax.random.split(key, controls.shape[0])
 
     def frame(state, xs):
         k, u, idx = xs
@@ -377,6 +373,21 @@ def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Arr
         best, mean = _summaries(info)
         return state, (info, best, mean)
 
-    final, (infos, best, mean) = lax.scan(frame, state, (keys, controls, obs_index))
+    return lax.scan(frame, state, (keys, controls, obs_index))
+
+
+def frame_keys(key: Array, num_frames: int) -> Array:
+    """Per-frame keys: frame t always uses the same key, however the run is chunked."""
+    return jax.random.split(key, num_frames)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Array,
+               local_obs: Array, cfg: FilterConfig, start_pose: Array | None = None) -> RunOutput:
+    """The whole filter in one jitted call (see ``scan_frames``); vmappable and differentiable
+    in ``params``."""
+    state = init(cfg, start_pose)
+    final, (infos, best, mean) = scan_frames(
+        state, frame_keys(key, controls.shape[0]), controls, obs_index, local_obs, params, cfg)
     path = backtrack_path(infos.pose, infos.ancestors, jnp.argmax(final.log_w))
     return RunOutput(final, infos, best, mean, path)

@@ -1,0 +1,168 @@
+"""Command line: ``gslam run``, ``gslam bench`` and friends."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["main"]
+
+
+class ProgressBar:
+    """A one-line console progress bar (stderr), quiet when stderr is not a terminal."""
+
+    def __init__(self, label: str, stream=sys.stderr):
+        self.label, self.stream = label, stream
+        self.start = time.perf_counter()
+        self.last = -1.0
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.perf_counter()
+        if done < total and now - self.last < 0.2:
+            return
+        self.last = now
+        frac = done / max(total, 1)
+        bar = "#" * int(30 * frac)
+        end = "\n" if done >= total else ""
+        self.stream.write(f"\r{self.label} [{bar:<30}] {done}/{total} "
+                          f"{now - self.start:6.1f}s{end}")
+        self.stream.flush()
+
+
+def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int], None]):
+    """Return (Run, description) for the chosen source."""
+    from gslam_jax.localmap import LocalMapParams
+    from gslam_jax.run import load_run
+
+    lm = config.localmap
+    params = LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
+                            max_range=lm.max_range, min_height=lm.min_height,
+                            max_height=lm.max_height, travel=lm.travel)
+    if args.run_file is not None:
+        return load_run(args.run_file), str(args.run_file), None
+    if args.source == "sim":
+        from gslam_jax.datasets.sim import simulate_run
+        run, info = simulate_run(args.course, seed=args.seed, params=params, progress=progress)
+        return run, f"simulated course {args.course} (seed {args.seed})", info
+    if args.source == "kitti":
+        from gslam_jax.datasets.kitti import load_kitti
+        return load_kitti(args.path, params), f"KITTI {args.path}", None
+    if args.source == "euroc":
+        from gslam_jax.datasets.euroc import load_euroc
+        return load_euroc(args.path, params), f"EuRoC {args.path}", None
+    raise SystemExit(f"unknown source {args.source!r}")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from gslam_jax import slam
+    from gslam_jax.config import apply_overrides, config_to_toml, load_config
+    from gslam_jax.io import save_map, write_kitti, write_tum
+
+    config = apply_overrides(load_config(args.config), args.set or [])
+    run, description, sim_info = _load_source(args, config, ProgressBar("front-end"))
+    print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps, "
+          f"{run.distance():.1f} m")
+    result = slam.run_slam(run, config, progress=ProgressBar("gamma-slam"))
+    out = Path(args.out) if args.out else Path("results") / time.strftime("run-%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.toml").write_text(config_to_toml(config))
+    write_tum(out / "trajectory_tum.txt", run.timestamps, result.best_path)
+    write_kitti(out / "trajectory_kitti.txt", result.best_path)
+    write_tum(out / "vo_tum.txt", run.timestamps, result.vo_path)
+    save_map(out / "map.npz", result.kmap, result.smap, result.map_origin, result.resolution)
+    np.savez_compressed(out / "trace.npz", ess=result.ess, resampled=result.resampled,
+                        updated=result.updated, log_lik=result.log_lik,
+                        best_pose=result.best_pose, mean_pose=result.mean_pose)
+    summary = {
+        "source": description,
+        "frames": run.num_frames,
+        "local_maps": run.num_local_maps,
+        "distance_m": run.distance(),
+        "particles": config.filter.particles,
+        "resampling_events": int(np.sum(result.resampled)),
+        "extent_violations": result.extent_violations,
+        "empty_observations": result.empty_observations,
+        "vo_failures": int(np.sum(run.vo_failed)) if run.vo_failed is not None else 0,
+        "filter_seconds": result.seconds,
+        "compile_seconds": result.compile_seconds,
+    }
+    if run.ground_truth is not None:
+        from gslam_jax import metrics
+        gt = np.asarray(run.ground_truth)
+        summary["vo_rms_m"] = metrics.rms_after_rigid_fit(result.vo_path[:, :2], gt[:, :2])
+        summary["slam_rms_m"] = metrics.rms_after_rigid_fit(result.best_path[:, :2], gt[:, :2])
+        summary["slam_final_error_m"] = metrics.final_position_error(result.best_path[:, :2], gt[:, :2])
+    try:
+        from gslam_jax import plots
+        plots.write_run_figures(out, run, result)
+    except ImportError:
+        pass
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print(f"distance: {summary['distance_m']:.1f} m")
+    if "vo_rms_m" in summary:
+        print(f"VO-only RMS: {summary['vo_rms_m']:.3f} m")
+        print(f"Gamma-SLAM RMS: {summary['slam_rms_m']:.3f} m")
+    print(f"resampling events: {summary['resampling_events']}, filter time "
+          f"{result.seconds:.1f} s (+{result.compile_seconds:.1f} s first chunk incl. compile)")
+    if result.extent_violations:
+        print(f"WARNING: {result.extent_violations} particle updates reached the map edge")
+    if result.empty_observations:
+        print(f"note: {result.empty_observations} local maps had no informative cell (weights unchanged)")
+    print(f"results: {out}")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from gslam_jax.bench import main as bench_main
+    return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="gslam", description="Gamma-SLAM in JAX "
+                                     "(Marks et al., Journal of Field Robotics 2009)")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run Gamma-SLAM on a Run file, a simulated course or a dataset")
+    p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (see README)")
+    p.add_argument("--source", choices=["sim", "kitti", "euroc"], default="sim",
+                   help="where frames come from when no Run file is given (default: sim)")
+    p.add_argument("--course", default="mars-yard-a", help="simulated course (default mars-yard-a)")
+    p.add_argument("--path", type=Path, help="dataset folder for --source kitti/euroc")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed")
+    p.add_argument("--config", type=Path, help="TOML config (defaults: the paper's settings)")
+    p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
+                   help="override one config value (repeatable)")
+    p.add_argument("--out", type=Path, help="results directory (default results/run-<time>)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("bench", help="microseconds per particle per local-map update")
+    p.add_argument("--particles", type=int, nargs="+", default=[50, 200, 1000])
+    p.add_argument("--local", type=int, default=64, help="local map side, cells")
+    p.add_argument("--map", type=int, default=640, help="global map side, cells")
+    p.add_argument("--repeats", type=int, default=10)
+    p.add_argument("--mode", choices=["ignore", "sample"], nargs="+", default=["ignore", "sample"])
+    p.add_argument("--json", type=Path, help="also write the figures as JSON")
+    p.set_defaults(func=cmd_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gslam_jax.config import ConfigError
+    from gslam_jax.run import RunError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ConfigError, RunError, FileNotFoundError) as err:
+        print(f"gslam: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,183 @@
+"""Configuration: TOML files with the paper's settings as defaults.
+
+Every field has a default; an unknown section or key, or a value of the wrong type, is an error
+that names the file, the section and the key. ``--set section.key=value`` overrides use the same
+checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
+           "Config", "load_config", "parse_config", "apply_overrides", "config_to_toml"]
+
+
+class ConfigError(ValueError):
+    """A configuration problem; the message names the file, section and key."""
+
+
+@dataclass(frozen=True)
+class FilterSection:
+    """Particle filter (paper 6.1-6.2)."""
+
+    particles: int = 200
+    resampler: str = "multinomial"
+    resample_ratio: float = 0.5
+    unknown_cells: str = "sample"
+    unknown_samples: int = 1024
+    beta_prev: float = 0.05
+    beta_new: float = 0.05
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class MotionSection:
+    """VO error constants of eqs. 2-3."""
+
+    alpha_d: float = 0.05
+    alpha_theta_d: float = 0.01
+    alpha_theta: float = 0.05
+
+
+@dataclass(frozen=True)
+class MapSection:
+    """Global variance grid map."""
+
+    resolution: float = 0.16
+    margin: float = 10.0
+    min_variance: float = 1e-6
+
+
+@dataclass(frozen=True)
+class LocalMapSection:
+    """Local-map observations (paper 6.3); see localmap.LocalMapParams."""
+
+    max_range: float = 10.0
+    min_height: float = -2.0
+    max_height: float = 2.0
+    travel: float = 2.0
+    cells: int = 0
+
+
+@dataclass(frozen=True)
+class Config:
+    filter: FilterSection = field(default_factory=FilterSection)
+    motion: MotionSection = field(default_factory=MotionSection)
+    map: MapSection = field(default_factory=MapSection)
+    localmap: LocalMapSection = field(default_factory=LocalMapSection)
+
+    def validate(self, source: str = "<config>") -> "Config":
+        f, m, lm = self.filter, self.map, self.localmap
+        checks = [
+            (f.particles >= 1, "filter", "particles", "must be at least 1"),
+            (f.resampler in ("multinomial", "systematic", "stratified", "residual"), "filter",
+             "resampler", "must be one of multinomial, systematic, stratified, residual"),
+            (0.0 <= f.resample_ratio <= 1.0, "filter", "resample_ratio", "must be in [0, 1]"),
+            (f.unknown_cells in ("ignore", "sample"), "filter", "unknown_cells",
+             "must be 'ignore' (eq. 30) or 'sample' (eq. 31)"),
+            (f.unknown_samples >= 1, "filter", "unknown_samples", "must be at least 1"),
+            (f.beta_prev > 0, "filter", "beta_prev", "must be positive"),
+            (f.beta_new > 0, "filter", "beta_new", "must be positive"),
+            (all(getattr(self.motion, k) >= 0 for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),
+             "motion", "alpha_*", "must be non-negative"),
+            (m.resolution > 0, "map", "resolution", "must be positive"),
+            (m.margin >= 0, "map", "margin", "must be non-negative"),
+            (m.min_variance >= 0, "map", "min_variance", "must be non-negative"),
+            (lm.max_range > 0, "localmap", "max_range", "must be positive"),
+            (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
+            (lm.travel > 0, "localmap", "travel", "must be positive"),
+            (lm.cells >= 0 and lm.cells % 2 == 0, "localmap", "cells", "must be even and >= 0"),
+        ]
+        for ok, section, key, msg in checks:
+            if not ok:
+                raise ConfigError(f"{source}: [{section}] {key} {msg}")
+        return self
+
+
+_SECTION_TYPES = {"filter": FilterSection, "motion": MotionSection, "map": MapSection,
+                  "localmap": LocalMapSection}
+
+
+def _coerce(value: Any, expected: type, where: str) -> Any:
+    if expected is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if expected is int and isinstance(value, bool):
+        raise ConfigError(f"{where}: expected int, got bool")
+    if not isinstance(value, expected):
+        raise ConfigError(f"{where}: expected {expected.__name__}, got {type(value).__name__} "
+                          f"({value!r})")
+    return value
+
+
+def parse_config(data: dict[str, Any], source: str = "<config>", base: Config | None = None) -> Config:
+    """Build a Config from a parsed TOML table, checking every section, key and type."""
+    base = base or Config()
+    sections = {}
+    for name, table in data.items():
+        if name not in _SECTION_TYPES:
+            raise ConfigError(f"{source}: unknown section [{name}]; known sections: "
+                              f"{', '.join(_SECTION_TYPES)}")
+        if not isinstance(table, dict):
+            raise ConfigError(f"{source}: [{name}] must be a table")
+        cls = _SECTION_TYPES[name]
+        types = {f.name: f.type for f in dataclasses.fields(cls)}
+        values = {}
+        for key, value in table.items():
+            if key not in types:
+                raise ConfigError(f"{source}: unknown key '{key}' in [{name}]; known keys: "
+                                  f"{', '.join(types)}")
+            expected = {"int": int, "float": float, "str": str, "bool": bool}[types[key]]
+            values[key] = _coerce(value, expected, f"{source}: [{name}] {key}")
+        sections[name] = dataclasses.replace(getattr(base, name), **values)
+    return dataclasses.replace(base, **sections).validate(source)
+
+
+def load_config(path: str | Path | None) -> Config:
+    """Defaults, or a TOML file over the defaults."""
+    if path is None:
+        return Config()
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"{path}: no such config file")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: malformed TOML: {err}") from err
+    return parse_config(data, str(path))
+
+
+def apply_overrides(config: Config, overrides: list[str]) -> Config:
+    """Apply ``section.key=value`` strings (value parsed as TOML, bare words as strings)."""
+    data: dict[str, dict[str, Any]] = {}
+    for item in overrides:
+        if "=" not in item or "." not in item.split("=", 1)[0]:
+            raise ConfigError(f"--set {item!r}: expected section.key=value")
+        lhs, rhs = item.split("=", 1)
+        section, key = lhs.strip().split(".", 1)
+        try:
+            value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = rhs.strip()
+        data.setdefault(section, {})[key] = value
+    return parse_config(data, "--set", base=config)
+
+
+def config_to_toml(config: Config) -> str:
+    """The full config as TOML text (written beside every run's results)."""
+    lines = []
+    for name in _SECTION_TYPES:
+        lines.append(f"[{name}]")
+        for key, value in dataclasses.asdict(getattr(config, name)).items():
+            if isinstance(value, str):
+                lines.append(f'{key} = "{value}"')
+            elif isinstance(value, bool):
+                lines.append(f"{key} = {'true' if value else 'false'}")
+            else:
+                lines.append(f"{key} = {value!r}")
+        lines.append("")
+    return "\n".join(lines)

@@ -1,0 +1,50 @@
+"""Trajectory files in the TUM and KITTI text formats, and map archives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_tum", "write_kitti", "read_tum", "save_map"]
+
+
+def write_tum(path: str | Path, timestamps: np.ndarray, poses: np.ndarray) -> None:
+    """TUM RGB-D format: ``t x y z qx qy qz qw`` per line; planar poses (z = 0, yaw only)."""
+    poses = np.asarray(poses, dtype=np.float64)
+    half = 0.5 * poses[:, 2]
+    rows = np.column_stack([np.asarray(timestamps, np.float64), poses[:, 0], poses[:, 1],
+                            np.zeros(len(poses)), np.zeros(len(poses)), np.zeros(len(poses)),
+                            np.sin(half), np.cos(half)])
+    np.savetxt(path, rows, fmt="%.9f", header="timestamp tx ty tz qx qy qz qw")
+
+
+def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of ``write_tum`` for planar poses: (timestamps [T], poses [T, 3])."""
+    rows = np.loadtxt(path, ndmin=2)
+    yaw = 2.0 * np.arctan2(rows[:, 6], rows[:, 7])
+    return rows[:, 0], np.column_stack([rows[:, 1], rows[:, 2], yaw])
+
+
+def write_kitti(path: str | Path, poses: np.ndarray) -> None:
+    """KITTI odometry format: the first three rows of the 4x4 pose matrix per line.
+
+    The planar pose is written in the world frame with z up (rotation about z by theta).
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    z = np.zeros(len(poses))
+    o = np.ones(len(poses))
+    rows = np.column_stack([c, -s, z, poses[:, 0], s, c, z, poses[:, 1], z, z, o, z])
+    np.savetxt(path, rows, fmt="%.9e")
+
+
+def save_map(path: str | Path, kmap: np.ndarray, smap: np.ndarray, origin: tuple[float, float],
+             resolution: float, **extra: np.ndarray) -> None:
+    """Variance grid map archive: k, S, origin (world x, y of cell (0, 0)), resolution.
+
+    Axis 0 of the arrays runs along world x, axis 1 along world y.
+    """
+    np.savez_compressed(path, k=np.asarray(kmap, np.float32), S=np.asarray(smap, np.float32),
+                        origin=np.asarray(origin, np.float64), resolution=np.float64(resolution),
+                        **extra)

@@ -1,0 +1,158 @@
+"""Running Gamma-SLAM on a Run: sizing the map, converting observations, chunked scan, results.
+
+This is the host-side driver the CLI, the experiments and the benchmarks share. The filter math
+lives in ``filter``; this module only prepares its inputs and collects its outputs.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gslam_jax import cells, filter as gf
+from gslam_jax.config import Config, ConfigError
+from gslam_jax.motion import MotionParams
+from gslam_jax.run import Run
+
+__all__ = ["MapExtent", "map_extent", "filter_config", "filter_params", "local_observations",
+           "SlamResult", "run_slam", "ExtentWarning"]
+
+
+class ExtentWarning(UserWarning):
+    """Particles tried to update cells outside the map extent (their windows were shifted)."""
+
+
+class MapExtent(NamedTuple):
+    origin: tuple[float, float]
+    shape: tuple[int, int]
+
+
+def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin: float,
+               window: int) -> MapExtent:
+    """Dense map extent from the VO path: its bounding box, plus the reach of a rotated local
+    map, plus ``margin`` metres for drift; sides are multiples of 8 and at least one window."""
+    xy = np.asarray(vo_poses, dtype=np.float64)[:, :2]
+    reach = 0.5 * window * resolution + margin
+    lo = xy.min(axis=0) - reach
+    hi = xy.max(axis=0) + reach
+    cells_needed = np.ceil((hi - lo) / resolution).astype(int)
+    shape = tuple(int(max(window, 8 * math.ceil(n / 8))) for n in cells_needed)
+    return MapExtent((float(lo[0]), float(lo[1])), shape)  # type: ignore[arg-type]
+
+
+def filter_config(config: Config, run: Run) -> gf.FilterConfig:
+    """Static filter settings for this Run (map sized from its VO path)."""
+    if not math.isclose(run.resolution, config.map.resolution, rel_tol=1e-6):
+        raise ConfigError(f"run resolution {run.resolution} m differs from [map] resolution "
+                         f"{config.map.resolution} m; rebuild the local maps or change the config")
+    L = int(run.local_maps.shape[1]) if run.num_local_maps else 8
+    f = config.filter
+    probe = gf.FilterConfig(num_particles=f.particles, map_shape=(8, 8), map_origin=(0.0, 0.0),
+                            resolution=config.map.resolution, local_size=L,
+                            unknown_cells=f.unknown_cells)
+    extent = map_extent(run.vo_poses(), L, config.map.resolution, config.map.margin, probe.window)
+    return gf.FilterConfig(
+        num_particles=f.particles, map_shape=extent.shape, map_origin=extent.origin,
+        resolution=config.map.resolution, local_size=L, resampler=f.resampler,
+        resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
+        unknown_samples=f.unknown_samples).validate()
+
+
+def filter_params(config: Config) -> gf.FilterParams:
+    m = config.motion
+    return gf.FilterParams(
+        motion=MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
+                            jnp.float32(m.alpha_theta)),
+        beta_prev=jnp.float32(config.filter.beta_prev),
+        beta_new=jnp.float32(config.filter.beta_new))
+
+
+def local_observations(run: Run, min_variance: float) -> np.ndarray:
+    """[max(M, 1), L, L, 2] float32 observations (k, S); float64 on the host, then cast."""
+    if run.num_local_maps == 0:
+        return np.zeros((1, 8, 8, 2), np.float32)
+    return cells.obs_from_stats(run.local_maps, min_variance).astype(np.float32)
+
+
+class SlamResult(NamedTuple):
+    """Host-side (NumPy) outputs of one Gamma-SLAM run."""
+
+    best_path: np.ndarray      # [T, 3] the final best particle's path through its ancestry
+    best_pose: np.ndarray      # [T, 3] highest-weight particle per frame
+    mean_pose: np.ndarray      # [T, 3] weighted mean per frame
+    vo_path: np.ndarray        # [T, 3] VO-only trajectory
+    ess: np.ndarray            # [T]
+    resampled: np.ndarray      # [T] bool
+    updated: np.ndarray        # [T] bool
+    log_lik: np.ndarray        # [T] log mean weight increments
+    kmap: np.ndarray           # [H, W] best particle's map
+    smap: np.ndarray           # [H, W]
+    map_origin: tuple[float, float]
+    resolution: float
+    extent_violations: int     # particle-updates whose window left the map
+    empty_observations: int    # local maps with no informative cell
+    seconds: float             # filter wall time after compilation
+    compile_seconds: float
+
+
+def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | None = None,
+             chunk: int = 512, key: jax.Array | None = None) -> SlamResult:
+    """Run the filter over a whole Run in chunks of frames (same numbers as one scan).
+
+    Chunking bounds the per-frame outputs held on device and lets ``progress(done, total)``
+    report; the per-frame PRNG keys are fixed up front, so results do not depend on ``chunk``.
+    """
+    cfg = filter_config(config, run)
+    params = filter_params(config)
+    obs = jnp.asarray(local_observations(run, config.map.min_variance))
+    T = run.num_frames
+    key = jax.random.key(config.filter.seed) if key is None else key
+    keys = gf.frame_keys(key, T)
+    controls = np.asarray(run.controls, np.float32)
+    obs_index = np.asarray(run.obs_index, np.int32)
+    chunk = max(1, min(chunk, T))
+    pad = (-T) % chunk
+    controls = np.concatenate([controls, np.zeros((pad, 3), np.float32)])
+    obs_index = np.concatenate([obs_index, -np.ones(pad, np.int32)])
+    keys = jnp.concatenate([keys, jax.random.split(jax.random.key(0), pad)]) if pad else keys
+
+    state = gf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
+    outputs = []
+    t0 = time.perf_counter()
+    compile_s = 0.0
+    for start in range(0, T + pad, chunk):
+        sl = slice(start, start + chunk)
+        c0 = time.perf_counter()
+        state, out = gf.scan_frames(state, keys[sl], jnp.asarray(controls[sl]),
+                                    jnp.asarray(obs_index[sl]), obs, params, cfg)
+        out = jax.device_get(out)
+        if start == 0:
+            compile_s = time.perf_counter() - c0  # first chunk includes compilation
+        outputs.append(out)
+        if progress is not None:
+            progress(min(start + chunk, T), T)
+    seconds = time.perf_counter() - t0 - compile_s
+    infos = jax.tree.map(lambda *xs: np.concatenate(xs)[:T], *[o[0] for o in outputs])
+    best = np.concatenate([o[1] for o in outputs])[:T]
+    mean = np.concatenate([o[2] for o in outputs])[:T]
+    final_best = int(np.argmax(np.asarray(state.log_w)))
+    path = np.asarray(gf.backtrack_path(jnp.asarray(infos.pose), jnp.asarray(infos.ancestors),
+                                        jnp.int32(final_best)))
+    violations = int(np.sum(infos.extent_violations))
+    if violations:
+        warnings.warn(f"{violations} particle updates reached the edge of the "
+                      f"{cfg.map_shape} map; their windows were shifted inside and observations "
+                      f"beyond the edge were dropped. Increase [map] margin.", ExtentWarning)
+    return SlamResult(
+        best_path=path, best_pose=best, mean_pose=mean, vo_path=run.vo_poses(),
+        ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
+        kmap=np.asarray(state.kmap[final_best]), smap=np.asarray(state.smap[final_best]),
+        map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
+        empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
+        compile_seconds=compile_s)
