@@ -73,7 +73,8 @@ class RectifiedRig:
         size = (int(size[0]), int(size[1]))
         r0, r1, p0, p1, _, _, _ = cv2.stereoRectify(
             np.asarray(k0, float), np.asarray(d0, float), np.asarray(k1, float),
-            np.asarray(d1, float), size, np.asarray(r_10, float), np.asarray(t_10, float),
+            np.asarray(d1, float), size, np.asarray(r_10, float),
+            np.asarray(t_10, float).reshape(3, 1),
             flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
         maps = (*cv2.initUndistortRectifyMap(k0, d0, r0, p0, size, cv2.CV_32FC1),
                 *cv2.initUndistortRectifyMap(k1, d1, r1, p1, size, cv2.CV_32FC1))

@@ -127,7 +127,9 @@ def estimate_motion(cam: Camera, ja: np.ndarray, jb: np.ndarray, gate_px: float 
     jtj = jac.T @ jac
     eig = np.linalg.eigvalsh(jtj)
     cond = float(eig[-1] / max(eig[0], 1e-300))
-    cov = np.linalg.pinv(jtj) * sigma2
+    # Each measurement enters two residuals (directly, and through its triangulated point in the
+    # other frame), so J^T J counts the information twice: hence the factor 2.
+    cov = 2.0 * np.linalg.pinv(jtj) * sigma2
     rms = float(np.sqrt(np.mean(res[:, [0, 1, 3, 4]] ** 2)))
     return MotionEstimate(make_transform(rotvec_to_matrix(params[:3]), params[3:]), cov, rms,
                           keep, cond)
