@@ -488,10 +488,8 @@ def align_to_gps(slam_times: ArrayLike, paths: ArrayLike, gps_time: ArrayLike,
     t0 = float(np.asarray(slam_times)[0])
     st = jnp.asarray(np.asarray(slam_times, np.float64) - t0, jnp.float32)
     gt = jnp.asarray(np.asarray(gps_time, np.float64) - t0, jnp.float32)
-    b = jax.vmap(lambda p: interpolate_path(st, p, gt)[0])(paths)
-    inside = (gt >= st[0]) & (gt <= st[-1])
-    al = jax.vmap(align, in_axes=(0, None, None, None))(
-        b, jnp.asarray(gps_xy, jnp.float32), jnp.asarray(gps_epe, jnp.float32), inside)
+    al, aligned = _align_interpolated(st, paths, gt, jnp.asarray(gps_xy, jnp.float32),
+                                      jnp.asarray(gps_epe, jnp.float32))
     n_used = int(np.max(np.asarray(al.n_used)))
     if n_used < 2:
         raise ValueError(f"GPS alignment needs at least 2 usable readings within the SLAM time "
@@ -500,10 +498,18 @@ def align_to_gps(slam_times: ArrayLike, paths: ArrayLike, gps_time: ArrayLike,
     if not bool(np.all(np.asarray(al.ok))):
         raise ValueError("GPS alignment is undetermined: the SLAM path does not move during "
                          "the GPS readings")
-    aligned = jax.vmap(transform_points)(al, paths)
     if single:
         return jax.tree.map(lambda x: x[0], al), aligned[0]
     return al, aligned
+
+
+@jax.jit
+def _align_interpolated(st: Array, paths: Array, gt: Array, a: Array,
+                        epe: Array) -> tuple[Alignment, Array]:
+    b = jax.vmap(lambda p: interpolate_path(st, p, gt)[0])(paths)
+    inside = (gt >= st[0]) & (gt <= st[-1])
+    al = jax.vmap(align, in_axes=(0, None, None, None))(b, a, epe, inside)
+    return al, jax.vmap(transform_points)(al, paths)
 
 
 def map_corners(map_origin: tuple[float, float], resolution: float,

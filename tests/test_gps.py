@@ -11,24 +11,27 @@ from scipy.optimize import minimize_scalar
 from gslam_jax import gps
 
 
+_align = jax.jit(gps.align)  # eager op-by-op dispatch costs seconds
+
+
 def _rot(theta: float) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     return np.array([[c, -s], [s, c]])
 
 
-def _cost_at(theta: float, b: np.ndarray, a: np.ndarray, w: np.ndarray) -> float:
-    """Eq. A.1 minimised over l for a fixed rotation angle (weighted least squares in l)."""
-    rb = b @ _rot(theta).T
-    l = np.sum(w[:, None] * (a - rb), 0) / w.sum()
-    return float(np.sum(w * np.sum((a - rb - l) ** 2, -1)))
+def _cost_at(theta, b: np.ndarray, a: np.ndarray, w: np.ndarray):
+    """Eq. A.1 minimised over l for fixed rotation angles [K] (weighted least squares in l)."""
+    c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
+    rb = np.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1]], -1)  # [K, T, 2]
+    l = np.sum(w[:, None] * (a - rb), -2, keepdims=True) / w.sum()
+    return np.sum(w * np.sum((a - rb - l) ** 2, -1), -1)
 
 
 def _brute_force(b: np.ndarray, a: np.ndarray, epe: np.ndarray) -> tuple[float, float]:
     w = 1.0 / epe**2
     grid = np.linspace(-np.pi, np.pi, 20001)
-    costs = np.array([_cost_at(t, b, a, w) for t in grid])
-    t0 = grid[np.argmin(costs)]
-    res = minimize_scalar(lambda t: _cost_at(t, b, a, w), bounds=(t0 - 1e-3, t0 + 1e-3),
+    t0 = grid[np.argmin(_cost_at(grid, b, a, w))]
+    res = minimize_scalar(lambda t: float(_cost_at(np.asarray(t), b, a, w)), bounds=(t0 - 1e-3, t0 + 1e-3),
                           method="bounded", options={"xatol": 1e-12})
     return float(res.x), float(res.fun)
 
@@ -91,7 +94,7 @@ def test_reflection_case_gives_proper_rotation_matching_brute_force():
     U, _, Vt = np.linalg.svd((w[:, None] * ac).T @ bc)
     assert np.linalg.det(U @ Vt) < 0
 
-    al = gps.align(b.astype(np.float32), a.astype(np.float32), epe.astype(np.float32))
+    al = _align(b.astype(np.float32), a.astype(np.float32), epe.astype(np.float32))
     R = np.asarray(al.R, np.float64)
     assert abs(np.linalg.det(R) - 1.0) < 1e-5
     theta_bf, cost_bf = _brute_force(b, a, epe)
@@ -111,7 +114,7 @@ def test_generic_case_matches_brute_force_float64():
     a = b @ _rot(-2.1).T + np.array([400.0, 250.0]) + rng.normal(0, 5, (T, 2))
     epe = rng.uniform(3, 10, T)
     with jax.enable_x64(True):
-        al = gps.align(b, a, epe)
+        al = _align(b, a, epe)
         theta = float(jnp.arctan2(al.R[1, 0], al.R[0, 0]))
         cost = float(al.cost)
     theta_bf, cost_bf = _brute_force(b, a, epe)
@@ -152,13 +155,16 @@ def test_float32_online_close_to_float64_batch():
     epe = rng.uniform(3, 10, T)
     step = jax.jit(gps.online_update)
     state = gps.online_init()
-    for t in range(T):
+    for t in range(5):
         state = step(state, b[t], a[t], epe[t])
-    assert step._cache_size() == 1  # one trace for all readings
+    assert step._cache_size() == 1  # one trace for every reading
+    state, _ = jax.lax.scan(lambda st, x: (gps.online_update(st, *x), None), state,
+                            (jnp.asarray(b[5:], jnp.float32), jnp.asarray(a[5:], jnp.float32),
+                             jnp.asarray(epe[5:], jnp.float32)))
     al32 = gps.online_solve(state)
     assert al32.R.dtype == jnp.float32
     with jax.enable_x64(True):
-        al64 = gps.align(b, a, epe)
+        al64 = _align(b, a, epe)
         np.testing.assert_allclose(np.asarray(al32.R), np.asarray(al64.R), atol=5e-5)  # measured 1.5e-5
         np.testing.assert_allclose(np.asarray(al32.l), np.asarray(al64.l), atol=5e-3)
 
@@ -167,12 +173,12 @@ def test_bad_input_flags_and_counts():
     # Fewer than two usable readings: not ok.
     b = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 1.0]], np.float32)
     a = b + 10.0
-    al = gps.align(b, a, np.array([5.0, np.nan, 0.0], np.float32))
+    al = _align(b, a, np.array([5.0, np.nan, 0.0], np.float32))
     assert not bool(al.ok) and int(al.n_used) == 1 and int(al.n_skipped) == 2
     al = gps.online_solve(gps.online_init())
     assert not bool(al.ok) and np.all(np.isfinite(np.asarray(al.R)))
     # A robot that never moves leaves the rotation undetermined.
-    al = gps.align(np.zeros((5, 2), np.float32), np.random.default_rng(0).normal(size=(5, 2)),
+    al = _align(np.zeros((5, 2), np.float32), np.random.default_rng(0).normal(size=(5, 2)),
                    np.full(5, 4.0, np.float32))
     assert not bool(al.ok) and int(al.n_used) == 5
     # Skipped readings change nothing else: same result as dropping them by hand.
@@ -185,7 +191,7 @@ def test_bad_input_flags_and_counts():
     epe_bad[5] = -1.0
     keep = np.ones(12, bool)
     keep[[2, 5]] = False
-    al_bad, al_ref = gps.align(b, a_bad, epe_bad), gps.align(b[keep], a[keep], epe[keep])
+    al_bad, al_ref = _align(b, a_bad, epe_bad), _align(b[keep], a[keep], epe[keep])
     assert int(al_bad.n_skipped) == 2 and int(al_bad.n_used) == 10
     for x, y in zip(al_bad[:3], al_ref[:3]):
         np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-5, atol=1e-5)
