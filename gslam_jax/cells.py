@@ -109,11 +109,35 @@ def lgamma_half(k: Array) -> Array:
     return jnp.where(k < LGAMMA_TABLE_SIZE, looked_up, stirling)
 
 
+def _lgamma_half_difference(k_big: Array, k_small: Array) -> Array:
+    """lgamma((k_big + k_small)/2) - lgamma(k_big/2) without float32 cancellation.
+
+    For x = k_big/2 >= 8 the difference of Stirling's series is taken term by term
+    ((x - 1/2) log1p(a/x) + a log(x + a) - a + ..., error < 1e-7); below, both values are small
+    and the table difference is exact to float32 rounding.
+    """
+    x = jnp.maximum(0.5 * k_big, 8.0)
+    a = 0.5 * k_small
+    y = x + a
+    stirling = ((x - 0.5) * jnp.log1p(a / x) + a * jnp.log(y) - a
+                + (1.0 / 12.0) * (1.0 / y - 1.0 / x) - (1.0 / 360.0) * (1.0 / y**3 - 1.0 / x**3))
+    table = lgamma_half(k_big + k_small) - lgamma_half(k_big)
+    return jnp.where(k_big >= 16.0, stirling, table)
+
+
 def log_predictive_integer(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array) -> Array:
-    """``log_predictive`` (eq. 26) for integer-valued k, k' with the ``lgamma_half`` table."""
-    k2 = k_obs + k_prior
+    """``log_predictive`` (eq. 26) for integer-valued k, k', arranged for float32.
+
+    Eq. 26 is a small difference of large terms (k'' log S'' and lgamma(k''/2) reach 1e4 for
+    well-observed cells). Rewritten with r = S / S'':
+        lgamma(k''/2) - lgamma(k/2) - lgamma(k'/2) + 1/2 [k log r + k' log1p(-r)] - log S + log k,
+    with the lgamma difference taken against the larger of k, k'.
+    """
+    k_big = jnp.maximum(k_obs, k_prior)
+    k_small = jnp.minimum(k_obs, k_prior)
     S2 = S_obs + S_prior
+    r = S_obs / S2
     log_S_obs = jnp.log(S_obs)
-    return (lgamma_half(k2) - lgamma_half(k_obs) - lgamma_half(k_prior)
-            + 0.5 * (k_obs * log_S_obs + k_prior * jnp.log(S_prior) - k2 * jnp.log(S2))
+    return (_lgamma_half_difference(k_big, k_small) - lgamma_half(k_small)
+            + 0.5 * (k_obs * jnp.log(r) + k_prior * jnp.log1p(-r))
             - log_S_obs + jnp.log(k_obs))
