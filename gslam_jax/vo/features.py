@@ -107,6 +107,8 @@ def feature_disparity(left: np.ndarray, right: np.ndarray, uv: np.ndarray,
 def describe(filtered: np.ndarray, uv: np.ndarray, window: int) -> np.ndarray:
     """[N, window^2] float32 pixel windows of the prefiltered image centred on each corner."""
     r = window // 2
+    if len(uv) == 0:
+        return np.zeros((0, window * window), np.float32)
     iu = np.rint(uv[:, 0]).astype(np.int64)
     iv = np.rint(uv[:, 1]).astype(np.int64)
     off = np.arange(-r, r + 1)
