@@ -557,6 +557,7 @@ def write_georeferenced_png(png_path: str | Path, grid: ArrayLike,
 
     png_path = Path(png_path)
     grid = np.asarray(grid, np.float64)
-    imsave(png_path, np.flipud(grid.T), cmap=cmap, vmin=vmin, vmax=vmax)
+    # Masked, so NaN cells are transparent and do not spoil the colour scale.
+    imsave(png_path, np.ma.masked_invalid(np.flipud(grid.T)), cmap=cmap, vmin=vmin, vmax=vmax)
     params = world_file_params(map_origin, resolution, grid.shape, R, l, site_origin)
     return png_path, write_world_file(png_path.with_suffix(".pgw"), params)

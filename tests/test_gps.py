@@ -161,7 +161,7 @@ def test_float32_online_close_to_float64_batch():
     state, _ = jax.lax.scan(lambda st, x: (gps.online_update(st, *x), None), state,
                             (jnp.asarray(b[5:], jnp.float32), jnp.asarray(a[5:], jnp.float32),
                              jnp.asarray(epe[5:], jnp.float32)))
-    al32 = gps.online_solve(state)
+    al32 = jax.jit(gps.online_solve)(state)
     assert al32.R.dtype == jnp.float32
     with jax.enable_x64(True):
         al64 = _align(b, a, epe)
@@ -200,12 +200,12 @@ def test_bad_input_flags_and_counts():
 def test_transform_poses_and_align_to_gps_errors():
     al = gps.Alignment(jnp.asarray(_rot(np.pi / 2), jnp.float32), jnp.array([1.0, 2.0]),
                        jnp.float32(0), jnp.int32(3), jnp.int32(0), jnp.bool_(True))
-    out = np.asarray(gps.transform_poses(al, jnp.array([[1.0, 0.0, 3.0]])))
+    out = np.asarray(jax.jit(gps.transform_poses)(al, jnp.array([[1.0, 0.0, 3.0]])))
     np.testing.assert_allclose(out, [[1.0, 3.0, 3.0 + np.pi / 2 - 2 * np.pi]], atol=1e-5)
     times = np.arange(10.0)
     path = np.stack([times, np.zeros(10)], -1)
     with pytest.raises(ValueError, match="at least 2 usable"):
-        gps.align_to_gps(times, path, np.array([20.0, 21.0, 5.0]), np.zeros((3, 2)),
-                         np.ones(3))
+        gps.align_to_gps(times, path, np.r_[5.0, np.arange(20.0, 29.0)], np.zeros((10, 2)),
+                         np.ones(10))
     with pytest.raises(ValueError, match="does not move"):
         gps.align_to_gps(times, np.zeros((10, 2)), times, np.zeros((10, 2)), np.ones(10))
