@@ -1,0 +1,233 @@
+"""Evaluation (paper 7.1): trajectory error after a 2-D rigid fit, drift, ESS summaries, and the
+map built from a fixed pose sequence (the VO-only map the paper shows beside Gamma-SLAM's).
+
+All NumPy, float64.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .run import Run
+
+__all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
+           "drift_per_distance", "path_length", "trajectory_metrics", "ess_summary", "GridMap",
+           "pose_map", "vo_only_map", "expected_std_np"]
+
+
+class RigidFit(NamedTuple):
+    """est -> reference: p_ref ~ R @ p_est + t."""
+
+    rotation: np.ndarray  # [2, 2]
+    translation: np.ndarray  # [2]
+    angle: float  # rad
+    rms: float  # RMS distance after the fit (m)
+
+
+def _xy(a: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] < 2:
+        raise ValueError(f"{name} must have shape [N, 2] or [N, 3], got {a.shape}")
+    return a[:, :2]
+
+
+def rigid_fit_2d(estimate: np.ndarray, reference: np.ndarray,
+                 weights: np.ndarray | None = None) -> RigidFit:
+    """Least-squares rotation + translation (no scale) taking ``estimate`` onto ``reference``.
+
+    Kabsch/Umeyama in 2-D: centre both point sets, the optimal angle is atan2 of the summed
+    cross and dot products. Inputs are [N, 2] or [N, 3] poses (only x, y are used).
+    """
+    p, q = _xy(estimate, "estimate"), _xy(reference, "reference")
+    if p.shape != q.shape:
+        raise ValueError(f"estimate {p.shape} and reference {q.shape} differ in shape")
+    if p.shape[0] == 0:
+        raise ValueError("estimate and reference are empty")
+    w = np.ones(p.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (p.shape[0],) or (w < 0).any() or w.sum() <= 0:
+        raise ValueError("weights must be [N], non-negative, with a positive sum")
+    w = w / w.sum()
+    mp, mq = w @ p, w @ q
+    pc, qc = p - mp, q - mq
+    dot = np.sum(w * (pc[:, 0] * qc[:, 0] + pc[:, 1] * qc[:, 1]))
+    cross = np.sum(w * (pc[:, 0] * qc[:, 1] - pc[:, 1] * qc[:, 0]))
+    angle = math.atan2(cross, dot)
+    c, s = math.cos(angle), math.sin(angle)
+    R = np.array([[c, -s], [s, c]])
+    t = mq - R @ mp
+    resid = p @ R.T + t - q
+    rms = float(np.sqrt(np.sum(w * np.sum(resid * resid, axis=1))))
+    return RigidFit(R, t, angle, rms)
+
+
+def apply_rigid(poses: np.ndarray, fit: RigidFit) -> np.ndarray:
+    """Move poses [N, 2|3] by the fit (headings rotate by the fit angle)."""
+    poses = np.asarray(poses, dtype=np.float64)
+    out = poses.copy()
+    out[:, :2] = poses[:, :2] @ fit.rotation.T + fit.translation
+    if poses.shape[1] > 2:
+        out[:, 2] = poses[:, 2] + fit.angle
+    return out
+
+
+def rms_after_fit(estimate: np.ndarray, reference: np.ndarray,
+                  frames: np.ndarray | None = None) -> float:
+    """RMS position error (m) after the best 2-D rigid fit (paper 7.1), over ``frames`` if given
+    (e.g. the survey frames), else over all."""
+    p, q = _xy(estimate, "estimate"), _xy(reference, "reference")
+    if frames is not None:
+        p, q = p[frames], q[frames]
+    return rigid_fit_2d(p, q).rms
+
+
+def _align_start(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Estimate moved so that its first pose coincides with the reference's first pose."""
+    est = np.asarray(estimate, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    if est.shape[1] < 3 or ref.shape[1] < 3:
+        dth = 0.0
+    else:
+        dth = ref[0, 2] - est[0, 2]
+    c, s = math.cos(dth), math.sin(dth)
+    R = np.array([[c, -s], [s, c]])
+    t = ref[0, :2] - R @ est[0, :2]
+    return apply_rigid(est, RigidFit(R, t, dth, float("nan")))
+
+
+def final_position_error(estimate: np.ndarray, reference: np.ndarray,
+                         align: str = "start") -> float:
+    """Distance (m) between the last estimated and true positions.
+
+    align="start": the estimate is anchored at the true first pose (dead-reckoning drift);
+    align="fit": after the least-squares rigid fit over the whole trajectory.
+    """
+    if align == "start":
+        est = _align_start(estimate, reference)
+    elif align == "fit":
+        est = apply_rigid(estimate, rigid_fit_2d(estimate, reference))
+    else:
+        raise ValueError(f"align must be 'start' or 'fit', got {align!r}")
+    return float(np.hypot(*(est[-1, :2] - np.asarray(reference, np.float64)[-1, :2])))
+
+
+def path_length(poses: np.ndarray) -> float:
+    """Distance travelled along the positions of ``poses`` (m)."""
+    xy = _xy(poses, "poses")
+    return float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+
+
+def drift_per_distance(estimate: np.ndarray, reference: np.ndarray) -> float:
+    """Start-anchored final position error divided by the true distance travelled."""
+    dist = path_length(reference)
+    if dist <= 0:
+        raise ValueError("reference trajectory does not move; drift per distance is undefined")
+    return final_position_error(estimate, reference, align="start") / dist
+
+
+def trajectory_metrics(estimate: np.ndarray, reference: np.ndarray,
+                       frames: np.ndarray | None = None) -> dict[str, float]:
+    """The figures a run reports: distance, RMS after fit (all frames and ``frames``), final
+    errors, drift per distance."""
+    out = {
+        "distance_m": path_length(reference),
+        "rms_m": rms_after_fit(estimate, reference),
+        "final_error_m": final_position_error(estimate, reference, "start"),
+        "final_error_fit_m": final_position_error(estimate, reference, "fit"),
+        "drift_pct": 100.0 * drift_per_distance(estimate, reference),
+    }
+    if frames is not None and len(frames) >= 2:
+        out["rms_survey_m"] = rms_after_fit(estimate, reference, frames)
+    return out
+
+
+def ess_summary(ess: np.ndarray, num_particles: int,
+                resampled: np.ndarray | None = None) -> dict[str, float]:
+    """Min / mean / final effective sample size, as fractions of J too, and resample count."""
+    ess = np.asarray(ess, dtype=np.float64)
+    if num_particles <= 0:
+        raise ValueError(f"num_particles must be positive, got {num_particles}")
+    out = {"ess_min": float(ess.min()), "ess_mean": float(ess.mean()),
+           "ess_final": float(ess[-1]), "ess_min_frac": float(ess.min() / num_particles)}
+    if resampled is not None:
+        out["resamples"] = int(np.sum(resampled))
+    return out
+
+
+class GridMap(NamedTuple):
+    """A global variance grid map: cell (i, j) covers x in [x0 + i res, x0 + (i+1) res), y
+    likewise with j (axis 0 is x, as in the local maps). k, S as in ``cells.py``."""
+
+    k: np.ndarray
+    S: np.ndarray
+    origin: tuple[float, float]
+    resolution: float
+
+    def expected_std(self) -> np.ndarray:
+        return expected_std_np(self.k, self.S)
+
+
+def expected_std_np(k: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """NumPy twin of ``cells.expected_std``: E[h^-1/2] = sqrt(S/2) G((k-1)/2) / G(k/2) for k > 1,
+    sqrt(S/k) for 0 < k <= 1, NaN where unknown (k = 0)."""
+    k = np.asarray(k, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    out = np.full(k.shape, np.nan)
+    big = k > 1
+    if big.any():
+        kv = k[big]
+        uniq, inv = np.unique(kv, return_inverse=True)
+        lg = np.array([math.lgamma(0.5 * (u - 1.0)) - math.lgamma(0.5 * u) for u in uniq])
+        out[big] = np.sqrt(0.5 * S[big]) * np.exp(lg[inv.ravel()])
+    small = (k > 0) & ~big
+    out[small] = np.sqrt(S[small] / k[small])
+    return out
+
+
+def _local_obs(stats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n, sz, szz = stats[..., 0], stats[..., 1], stats[..., 2]
+    ok = n >= 2
+    safe = np.where(ok, n, 1.0)
+    S = np.where(ok, np.maximum(szz - sz * sz / safe, 0.0), 0.0)
+    return np.where(ok, n - 1.0, 0.0), S
+
+
+def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
+    """Fuse every local map of ``run`` at ``poses`` [T, 3] (one pose per frame) by the conjugate
+    update (eq. 14: (k, S) add up), each local cell dropped into the nearest global cell.
+
+    The extent covers every pose plus the local-map half-width and ``margin`` metres.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.shape != (run.num_frames, 3):
+        raise ValueError(f"poses must have shape [{run.num_frames}, 3], got {poses.shape}")
+    res = float(run.resolution)
+    L = run.local_maps.shape[1]
+    half = 0.5 * L * res * math.sqrt(2.0) + margin
+    lo = np.floor((poses[:, :2].min(0) - half) / res) * res
+    hi = poses[:, :2].max(0) + half
+    shape = tuple(int(v) for v in np.ceil((hi - lo) / res))
+    k_map = np.zeros(shape[0] * shape[1])
+    s_map = np.zeros_like(k_map)
+    centres = (np.arange(L) - L // 2 + 0.5) * res
+    cx, cy = np.meshgrid(centres, centres, indexing="ij")
+    for t in np.flatnonzero(run.obs_index >= 0):
+        k, S = _local_obs(run.local_maps[run.obs_index[t]])
+        m = k > 0
+        x, y, th = poses[t]
+        c, s = math.cos(th), math.sin(th)
+        wx = x + c * cx[m] - s * cy[m]
+        wy = y + s * cx[m] + c * cy[m]
+        i = np.floor((wx - lo[0]) / res).astype(np.int64)
+        j = np.floor((wy - lo[1]) / res).astype(np.int64)
+        flat = i * shape[1] + j
+        k_map += np.bincount(flat, weights=k[m], minlength=k_map.size)
+        s_map += np.bincount(flat, weights=S[m], minlength=s_map.size)
+    return GridMap(k_map.reshape(shape), s_map.reshape(shape), (float(lo[0]), float(lo[1])), res)
+
+
+def vo_only_map(run: Run, margin: float = 2.0) -> GridMap:
+    """The VO-only map (paper 7.1): local maps fused at the poses integrated from the controls."""
+    return pose_map(run, run.vo_poses(), margin)

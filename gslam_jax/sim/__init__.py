@@ -1,0 +1,23 @@
+"""Simulated off-road worlds and courses with ground truth (paper section 7).
+
+courses.py      the Table I courses (seeded smooth paths of the paper's lengths)
+world.py        the raster world and the shapes that populate it
+environments.py the three environments: mars-yard, arroyo, maze
+trajectory.py   speed profile and ground-truth poses at the frame rate
+sensor.py       the stereo point sensor (ray casting, range^2 noise, dropouts, range gate)
+vonoise.py      VO increments with eqs. 1-3 noise, slow bias and failures (true params kept)
+
+``gslam_jax.datasets.sim.simulate_run`` assembles them into a ``Run``.
+"""
+
+from .courses import COURSES, Course, CourseSpec, course_names, make_course
+from .environments import WORLD_KINDS, make_world, world_for_course
+from .sensor import PointSensor, SensorParams, depth_noise_std
+from .trajectory import DriveParams, Trajectory, drive
+from .vonoise import VO_PROFILES, VONoiseDraw, VONoiseParams, apply_vo_noise, true_increments
+from .world import Material, World
+
+__all__ = ["COURSES", "Course", "CourseSpec", "course_names", "make_course", "WORLD_KINDS",
+           "make_world", "world_for_course", "PointSensor", "SensorParams", "depth_noise_std",
+           "DriveParams", "Trajectory", "drive", "VO_PROFILES", "VONoiseDraw", "VONoiseParams",
+           "apply_vo_noise", "true_increments", "Material", "World"]
