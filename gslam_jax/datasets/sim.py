@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Iterator
+from typing import Callable, Iterator, NamedTuple
 
 import numpy as np
 
@@ -24,7 +24,8 @@ from ..sim.trajectory import DriveParams, Trajectory, drive
 from ..sim.vonoise import VO_PROFILES, VONoiseDraw, VONoiseParams, apply_vo_noise, true_increments
 from ..sim.world import World
 
-__all__ = ["SimInfo", "simulate_run", "course_names", "ProgressFn"]
+__all__ = ["SimInfo", "Odometry", "simulate_odometry", "simulate_run", "course_names",
+           "ProgressFn"]
 
 ProgressFn = Callable[[int, int], None]
 """Called as progress(frames_done, frames_total) while the sensor runs."""
@@ -66,6 +67,38 @@ def _stream(seed: int, stage: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), 0x5151, stage]))
 
 
+class Odometry(NamedTuple):
+    """The cheap half of a simulation (no world, no sensor): course, truth and VO."""
+
+    course: Course
+    trajectory: Trajectory
+    controls: np.ndarray  # [T, 3] VO increments
+    vo_draw: VONoiseDraw
+    vo_noise: VONoiseParams
+
+    def vo_poses(self) -> np.ndarray:
+        return integrate_controls(self.controls, self.trajectory.poses[0])
+
+
+def simulate_odometry(course: str, seed: int = 0, *, drive_params: DriveParams | None = None,
+                      vo_noise: VONoiseParams | None = None,
+                      max_frames: int | None = None) -> Odometry:
+    """Course, ground truth and VO increments exactly as ``simulate_run`` draws them (same seed,
+    same numbers), without the world and the sensor: for VO-only statistics in milliseconds."""
+    if course not in COURSES:
+        raise ValueError(f"unknown course {course!r}; valid courses: {', '.join(COURSES)}")
+    if max_frames is not None and max_frames < 1:
+        raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
+    noise = vo_noise or VO_PROFILES[course]
+    crs = make_course(course, seed)
+    traj = drive(crs, drive_params)
+    if max_frames is not None and max_frames < traj.num_frames:
+        traj = Trajectory(traj.timestamps[:max_frames], traj.poses[:max_frames],
+                          traj.s[:max_frames], traj.survey_frames[traj.survey_frames < max_frames])
+    controls, draw = apply_vo_noise(true_increments(traj.poses), noise, _stream(seed, 1))
+    return Odometry(crs, traj, controls, draw, noise)
+
+
 def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = None, *,
                  sensor: SensorParams | None = None, drive_params: DriveParams | None = None,
                  vo_noise: VONoiseParams | None = None, max_frames: int | None = None,
@@ -77,28 +110,19 @@ def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = Non
     max_frames: truncate the course (for quick tests); None drives all of it.
     progress: optional callback ``progress(done, total)`` called every few frames.
     """
-    if course not in COURSES:
-        raise ValueError(f"unknown course {course!r}; valid courses: {', '.join(COURSES)}")
-    if max_frames is not None and max_frames < 1:
-        raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
     params = params or LocalMapParams()
     sensor_params = sensor or SensorParams(max_range=params.max_range)
-    noise = vo_noise or VO_PROFILES[course]
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    crs = make_course(course, seed)
+    odo = simulate_odometry(course, seed, drive_params=drive_params, vo_noise=vo_noise,
+                            max_frames=max_frames)
+    crs, traj, controls, draw, noise = odo
     world = world_for_course(crs, seed)
-    traj = drive(crs, drive_params)
     timings["world_s"] = time.perf_counter() - t0
-    if max_frames is not None and max_frames < traj.num_frames:
-        traj = Trajectory(traj.timestamps[:max_frames], traj.poses[:max_frames],
-                          traj.s[:max_frames], traj.survey_frames[traj.survey_frames < max_frames])
     gt = traj.poses
     T = gt.shape[0]
-
-    controls, draw = apply_vo_noise(true_increments(gt), noise, _stream(seed, 1))
-    vo_poses = integrate_controls(controls, gt[0])
+    vo_poses = odo.vo_poses()
 
     point_sensor = PointSensor(world, sensor_params)
     rng_sensor = _stream(seed, 2)

@@ -61,11 +61,11 @@ class VONoiseParams:
 # Per-environment noise: VO was very good in the open arroyo field, worse in the maze (paper 7).
 VO_PROFILES: dict[str, VONoiseParams] = {
     "mars-yard-a": VONoiseParams(heading_bias_std=0.0035),
-    "mars-yard-b": VONoiseParams(heading_bias_std=0.003),
+    "mars-yard-b": VONoiseParams(heading_bias_std=0.0024),
     "arroyo-a": VONoiseParams(heading_bias_std=0.0003, scale_bias_std=0.004,
                               alpha_theta_d=0.0012, failure_rate=0.002),
     "arroyo-b": VONoiseParams(heading_bias_std=0.0004, alpha_theta_d=0.003),
-    "maze": VONoiseParams(heading_bias_std=0.0009, alpha_theta_d=0.005, failure_rate=0.01),
+    "maze": VONoiseParams(heading_bias_std=0.0011, alpha_theta_d=0.005, failure_rate=0.01),
 }
 
 
