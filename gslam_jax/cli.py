@@ -95,14 +95,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if run.ground_truth is not None:
         from gslam_jax import metrics
         gt = np.asarray(run.ground_truth)
-        summary["vo_rms_m"] = metrics.rms_after_rigid_fit(result.vo_path[:, :2], gt[:, :2])
-        summary["slam_rms_m"] = metrics.rms_after_rigid_fit(result.best_path[:, :2], gt[:, :2])
-        summary["slam_final_error_m"] = metrics.final_position_error(result.best_path[:, :2], gt[:, :2])
-    try:
-        from gslam_jax import plots
-        plots.write_run_figures(out, run, result)
-    except ImportError:
-        pass
+        summary["vo_rms_m"] = metrics.rms_after_fit(result.vo_path, gt)
+        summary["slam_rms_m"] = metrics.rms_after_fit(result.best_path, gt)
+        summary["vo_final_error_m"] = metrics.final_position_error(result.vo_path, gt)
+        summary["slam_final_error_m"] = metrics.final_position_error(result.best_path, gt)
+    _write_figures(out, run, result, config.filter.particles)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"distance: {summary['distance_m']:.1f} m")
     if "vo_rms_m" in summary:
@@ -116,6 +113,21 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"note: {result.empty_observations} local maps had no informative cell (weights unchanged)")
     print(f"results: {out}")
     return 0
+
+
+def _write_figures(out: Path, run, result, num_particles: int) -> None:
+    """Map PNGs (VO-only beside Gamma-SLAM, coloured by expected std) and the ESS plot."""
+    from gslam_jax import cells, metrics, plots
+
+    slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
+    vo_map = metrics.vo_only_map(run)
+    vo_std = np.asarray(cells.expected_std(vo_map.k, vo_map.S))
+    plots.save_map_png(out / "map.png", slam_std, result.map_origin, result.resolution,
+                       path=result.best_path, title="Gamma-SLAM")
+    plots.save_map_comparison_png(out / "maps_vo_vs_slam.png", vo_std, vo_map.origin, slam_std,
+                                  result.map_origin, result.resolution, vo_path=result.vo_path,
+                                  slam_path=result.best_path)
+    plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

@@ -24,7 +24,7 @@ class World:
         d2 = ((xy[:, None, :] - self.centres[None]) ** 2).sum(-1)
         return 0.01 + (self.rough * np.exp(-0.5 * d2 / self.radii ** 2)).sum(-1)
 
-    def observe(self, pose: np.ndarray, rng: np.random.Generator, n: int = 3000,
+    def observe(self, pose: np.ndarray, rng: np.random.Generator, n: int = 12000,
                 max_range: float = 5.0) -> np.ndarray:
         """Robot-frame points around a world pose."""
         r = max_range * np.sqrt(rng.uniform(0, 1, n))

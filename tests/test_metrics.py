@@ -1,4 +1,4 @@
-"""Rigid fit, error figures and the pose map, against independent references (SciPy, brute force)."""
+"""Rigid fit, error figures and the pose map against independent references (SciPy, brute force)."""
 
 from __future__ import annotations
 
@@ -55,7 +55,8 @@ def test_rigid_fit_matches_brute_force_angle_scan() -> None:
 def test_known_rigid_motion_gives_zero_rms() -> None:
     rng = np.random.default_rng(3)
     t = np.linspace(0, 20, 300)
-    traj = np.stack([5 * np.cos(t / 3), 3 * np.sin(t / 2), t / 3], axis=1) + rng.normal(0, 0.01, (300, 3))
+    traj = np.stack([5 * np.cos(t / 3), 3 * np.sin(t / 2), t / 3], axis=1)
+    traj += rng.normal(0, 0.01, (300, 3))
     a, shift = 0.7, np.array([12.0, -4.0])
     c, s = math.cos(a), math.sin(a)
     moved = traj.copy()

@@ -1,0 +1,40 @@
+"""The command line on a native Run file."""
+
+import json
+import subprocess
+import sys
+
+from synthetic import make_run
+
+from gslam_jax.cli import main
+from gslam_jax.run import save_run
+
+
+def test_help_lists_subcommands():
+    out = subprocess.run([sys.executable, "-m", "gslam_jax.cli", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0
+    for cmd in ("run", "bench"):
+        assert cmd in out.stdout
+
+
+def test_run_on_npz_writes_results(tmp_path, capsys):
+    run, _ = make_run(steps=25)
+    save_run(tmp_path / "r.npz", run)
+    rc = main(["run", str(tmp_path / "r.npz"), "--set", "filter.particles=8", "--out", str(tmp_path / "out")])
+    assert rc == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["frames"] == 25 and summary["particles"] == 8
+    for name in ("trajectory_tum.txt", "trajectory_kitti.txt", "map.npz", "config.toml"):
+        assert (tmp_path / "out" / name).exists()
+    assert len((tmp_path / "out" / "trajectory_kitti.txt").read_text().splitlines()) == 25
+
+
+def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "missing.npz")]) == 2
+    assert "missing.npz: no such file" in capsys.readouterr().err
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[filter]\nparticls = 2\n")
+    run, _ = make_run(steps=10)
+    save_run(tmp_path / "r.npz", run)
+    assert main(["run", str(tmp_path / "r.npz"), "--config", str(bad)]) == 2
+    assert "unknown key 'particls'" in capsys.readouterr().err

@@ -1,0 +1,46 @@
+"""TOML configs: defaults, unknown keys, wrong types, malformed files, overrides."""
+
+import pytest
+
+from gslam_jax.config import Config, ConfigError, apply_overrides, config_to_toml, load_config
+
+
+def test_defaults_are_the_papers():
+    c = Config()
+    assert c.map.resolution == 0.16 and c.filter.particles == 200
+    assert c.localmap.max_range == 10.0 and c.filter.resample_ratio == 0.5
+
+
+def test_round_trip_through_toml(tmp_path):
+    c = apply_overrides(Config(), ["filter.particles=50", "filter.unknown_cells=ignore"])
+    p = tmp_path / "c.toml"
+    p.write_text(config_to_toml(c))
+    assert load_config(p) == c
+
+
+@pytest.mark.parametrize("text,match", [
+    ("[filter]\nparticle = 3\n", r"bad\.toml: unknown key 'particle' in \[filter\]"),
+    ("[filtr]\n", r"bad\.toml: unknown section \[filtr\]"),
+    ("[filter]\nparticles = \"many\"\n", r"bad\.toml: \[filter\] particles: expected int, got str"),
+    ("[map]\nresolution = -1.0\n", r"bad\.toml: \[map\] resolution must be positive"),
+    ("[filter]\nresampler = \"best\"\n", r"bad\.toml: \[filter\] resampler must be one of"),
+    ("[filter\nparticles = 3\n", r"bad\.toml: malformed TOML"),
+])
+def test_bad_configs_name_file_section_and_key(tmp_path, text, match):
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=match):
+        load_config(p)
+
+
+def test_missing_file_and_bad_override(tmp_path):
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_config(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match="expected section.key=value"):
+        apply_overrides(Config(), ["particles=3"])
+
+
+def test_shipped_configs_load():
+    from pathlib import Path
+    for path in sorted((Path(__file__).parents[1] / "configs").glob("*.toml")):
+        load_config(path)

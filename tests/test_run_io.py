@@ -1,0 +1,49 @@
+"""Native .npz Run files: round trip and clear errors for bad input."""
+
+import numpy as np
+import pytest
+from synthetic import make_run
+
+from gslam_jax.run import RunError, load_run, save_run
+
+
+def test_round_trip(tmp_path):
+    run, _ = make_run(steps=15)
+    save_run(tmp_path / "r.npz", run)
+    back = load_run(tmp_path / "r.npz")
+    np.testing.assert_array_equal(back.controls, run.controls)
+    np.testing.assert_array_equal(back.local_maps, run.local_maps)
+    np.testing.assert_array_equal(back.ground_truth, run.ground_truth)
+
+
+def test_nan_control_names_the_frame(tmp_path):
+    run, _ = make_run(steps=15)
+    controls = run.controls.copy()
+    controls[7, 1] = np.nan
+    np.savez(tmp_path / "bad.npz", **{**run._asdict(), "controls": controls, "ground_truth": run.ground_truth})
+    with pytest.raises(RunError, match=r"bad\.npz: field 'controls': non-finite value .* at frame 7"):
+        load_run(tmp_path / "bad.npz")
+
+
+def test_missing_and_unknown_fields(tmp_path):
+    run, _ = make_run(steps=15)
+    d = {k: v for k, v in run._asdict().items() if v is not None}
+    np.savez(tmp_path / "a.npz", **{k: v for k, v in d.items() if k != "obs_index"})
+    with pytest.raises(RunError, match="missing field.*obs_index"):
+        load_run(tmp_path / "a.npz")
+    np.savez(tmp_path / "b.npz", **d, colour=np.zeros(2))
+    with pytest.raises(RunError, match="unknown field.*colour"):
+        load_run(tmp_path / "b.npz")
+
+
+def test_out_of_range_obs_index_and_corrupt_file(tmp_path):
+    run, _ = make_run(steps=15)
+    idx = run.obs_index.copy()
+    idx[3] = 99
+    d = {k: v for k, v in run._asdict().items() if v is not None}
+    np.savez(tmp_path / "c.npz", **{**d, "obs_index": idx})
+    with pytest.raises(RunError, match="frame 3 refers to local map 99"):
+        load_run(tmp_path / "c.npz")
+    (tmp_path / "d.npz").write_bytes(b"not a zip")
+    with pytest.raises(RunError, match=r"d\.npz: not a readable \.npz"):
+        load_run(tmp_path / "d.npz")
