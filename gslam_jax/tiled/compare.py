@@ -1,0 +1,199 @@
+"""Dense JAX filter vs tiled copy-on-write reference: agreement, time and memory (``gslam compare``).
+
+Both filters run the same Run with the same per-frame random numbers. Agreement is checked per
+frame (log weights, poses), on resampling decisions, and on the final maps (k, S). Exact
+agreement of the discrete choices (which cell a local cell lands in) needs the dense filter
+compiled without fused multiply-adds: set ``XLA_FLAGS=--xla_cpu_max_isa=AVX`` before JAX starts
+(``experiments/compare_tiled.py --exact``); with FMA a few boundary cells may land differently.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from functools import partial
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gslam_jax import filter as gf
+from gslam_jax.config import Config
+from gslam_jax.run import Run
+from gslam_jax.tiled.reference import DEFAULT_TILE_SIZE, TiledOutput, run_tiled
+
+__all__ = ["TOLERANCES", "default_tile_size", "DenseOutput", "run_dense", "check_agreement",
+           "compare"]
+
+TOLERANCES = {"log_w": 1e-4, "pose": 1e-5, "k": 1e-6, "S_rel": 1e-5}
+
+
+def default_tile_size(resolution: float, metres: float = DEFAULT_TILE_SIZE) -> float:
+    """The whole number of cells nearest the paper's 10 m, in metres."""
+    return max(1, round(metres / resolution)) * resolution
+
+
+class DenseOutput(NamedTuple):
+    pose: np.ndarray          # [T, J, 3]
+    log_w: np.ndarray         # [T, J]
+    ess: np.ndarray           # [T]
+    resampled: np.ndarray     # [T]
+    kmap: np.ndarray          # [J, H, W]
+    smap: np.ndarray
+    state_bytes: int          # bytes of the dense particle state (maps, bitmasks, poses, weights)
+    seconds: float            # whole run after compilation
+    update_seconds: float     # one local-map update (median of repeats, jitted)
+
+
+def _state_bytes(state: gf.FilterState) -> int:
+    return int(sum(np.asarray(x).nbytes for x in state))
+
+
+def run_dense(key: jax.Array, params: gf.FilterParams, run: Run, obs: np.ndarray,
+              cfg: gf.FilterConfig, repeats: int = 5) -> DenseOutput:
+    """The dense filter over the Run (compiled once, then timed), plus a per-update timing."""
+    args = (key, params, jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index, jnp.int32),
+            jnp.asarray(obs), cfg, jnp.asarray(run.start_pose(), jnp.float32))
+    jax.block_until_ready(gf.run_filter(*args))  # compile
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(gf.run_filter(*args))
+    seconds = time.perf_counter() - t0
+    upd = jax.jit(partial(gf.update, cfg=cfg.__class__(**{**cfg._asdict(), "resample_ratio": 0.0})))
+    state = out.final_state
+    noise = gf.update_noise(jax.random.key(1), cfg)
+    local = jnp.asarray(obs[int(np.max(run.obs_index))])
+    jax.block_until_ready(upd(state, local, noise, params))
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(upd(state, local, noise, params))
+        times.append(time.perf_counter() - t)
+    i = jax.device_get(out.infos)
+    return DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(state.kmap),
+                       np.asarray(state.smap), _state_bytes(state), seconds, float(np.median(times)))
+
+
+def check_agreement(dense: DenseOutput, tiled: TiledOutput, cfg: gf.FilterConfig) -> dict:
+    """Largest differences per quantity and whether each is within ``TOLERANCES``."""
+    H, W = cfg.map_shape
+    km = np.stack([m.dense((H, W))[0] for m in tiled.final.maps])
+    sm = np.stack([m.dense((H, W))[1] for m in tiled.final.maps])
+    d = {
+        "log_w": float(np.max(np.abs(dense.log_w - tiled.log_w))),
+        "pose": float(np.max(np.abs(dense.pose - tiled.pose))),
+        "k": float(np.max(np.abs(dense.kmap - km))),
+        "S_rel": float(np.max(np.abs(dense.smap - sm) / np.maximum(np.abs(dense.smap), 1e-6))),
+        "resampling_mismatches": int(np.sum(dense.resampled != tiled.resampled)),
+        "resampling_events": int(np.sum(dense.resampled)),
+    }
+    d["ok"] = bool(all(d[n] <= tol for n, tol in TOLERANCES.items()) and not d["resampling_mismatches"])
+    return d
+
+
+def _plot(path: Path, dense: DenseOutput, tiled: TiledOutput, title: str) -> None:
+    """Paper Fig. 4 style: ESS and map memory over frames."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    a.plot(dense.ess, label="dense (JAX)")
+    a.plot(tiled.ess, "--", label="tiled reference")
+    a.set_ylabel("effective sample size")
+    a.legend()
+    b.plot(tiled.memory_bytes / 2 ** 20, label="tiled: bytes held by tiles")
+    b.axhline(dense.state_bytes / 2 ** 20, color="k", ls=":", label="dense: state arrays")
+    b.set_ylabel("map memory (MB)")
+    b.set_xlabel("frame")
+    b.set_yscale("log")
+    b.legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _default_run() -> Run:
+    from gslam_jax.datasets.sim import simulate_run
+    from gslam_jax.localmap import LocalMapParams
+
+    run, _ = simulate_run("mars-yard-a", seed=0, params=LocalMapParams(max_range=5.0, travel=2.0),
+                          max_frames=600)
+    return run
+
+
+def compare(run: Run | None = None, config: Config | None = None, *, particles: int = 200,
+            unknown_cells: str | None = None, tile_size: float | None = None, seed: int = 0,
+            out_dir: str | Path | None = None, verbose: bool = True) -> dict:
+    """Run the dense and the tiled filter on ``run`` (default: a simulated course) with the same
+    random numbers; check agreement; print time and memory side by side.
+
+    Returns a dict with ``agreement``, timings, memory figures, per-frame memory and ESS; writes
+    ``compare.json`` and ``compare_fig4.png`` to ``out_dir`` when given.
+    """
+    from gslam_jax.bench import environment
+    from gslam_jax.slam import filter_config, filter_params, local_observations
+
+    say = print if verbose else (lambda *a, **k: None)
+    config = config or Config()
+    run = run if run is not None else _default_run()
+    config = dataclasses.replace(
+        config,
+        filter=dataclasses.replace(config.filter, particles=particles,
+                                   unknown_cells=unknown_cells or config.filter.unknown_cells),
+        map=dataclasses.replace(config.map, resolution=run.resolution))
+    cfg = filter_config(config, run)
+    params = filter_params(config)
+    obs = local_observations(run, config.map.min_variance)
+    tile = tile_size if tile_size is not None else default_tile_size(cfg.resolution)
+    key = jax.random.key(seed)
+    env = environment()
+    say("gslam compare: dense JAX filter vs tiled copy-on-write reference")
+    for k, v in env.items():
+        say(f"  {k}: {v}")
+    say(f"  run: {run.num_frames} frames, {run.num_local_maps} local maps "
+        f"({obs.shape[1]}x{obs.shape[1]} cells), map {cfg.map_shape} cells at {cfg.resolution} m, "
+        f"J={cfg.num_particles}, unknown_cells={cfg.unknown_cells}, tile {tile:g} m")
+    dense = run_dense(key, params, run, obs, cfg)
+    t0 = time.perf_counter()
+    tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile, run.start_pose())
+    tiled_s = time.perf_counter() - t0
+    agree = check_agreement(dense, tiled, cfg)
+    upd_t = float(np.mean(tiled.update_seconds))
+    MB = 2 ** 20
+    res = {
+        "environment": env, "particles": cfg.num_particles, "unknown_cells": cfg.unknown_cells,
+        "map_shape": list(cfg.map_shape), "tile_size_m": tile, "frames": run.num_frames,
+        "updates": run.num_local_maps, "agreement": agree,
+        "dense": {"seconds_per_update": dense.update_seconds, "total_seconds": dense.seconds,
+                  "peak_MB": dense.state_bytes / MB},
+        "tiled": {"seconds_per_update": upd_t, "total_seconds": tiled_s,
+                  "peak_MB": tiled.peak_bytes / MB, "final_MB": float(tiled.memory_bytes[-1]) / MB,
+                  "max_tiles": int(tiled.tiles.max()), "max_shared_per_particle": float(tiled.shared_mean.max())},
+        "speed_ratio_dense_over_tiled": upd_t / dense.update_seconds,
+        "memory_MB_per_frame": (tiled.memory_bytes / MB).tolist(),
+        "ess_dense": np.asarray(dense.ess).tolist(), "ess_tiled": tiled.ess.tolist(),
+    }
+    say(f"\n{'':28}{'dense (JAX)':>16}{'tiled (NumPy)':>16}")
+    say(f"{'time per local-map update':28}{1e3 * dense.update_seconds:>13.2f} ms{1e3 * upd_t:>13.2f} ms")
+    say(f"{'total time':28}{dense.seconds:>14.2f} s{tiled_s:>14.2f} s")
+    say(f"{'peak map memory':28}{dense.state_bytes / MB:>13.1f} MB{tiled.peak_bytes / MB:>13.1f} MB"
+        f"   (paper Fig. 4: 40-160 MB for 200 particles)")
+    say(f"speed ratio (tiled / dense time per update): {res['speed_ratio_dense_over_tiled']:.1f}x")
+    step = max(1, run.num_frames // 10)
+    say("memory over frames (tiled MB / distinct tiles / tiles shared per particle):")
+    for t in range(0, run.num_frames, step):
+        say(f"  frame {t:5d}: {tiled.memory_bytes[t] / MB:8.2f} MB {tiled.tiles[t]:7d} "
+            f"{tiled.shared_mean[t]:7.1f}   ESS {float(dense.ess[t]):7.1f}")
+    say(f"agreement: {json.dumps(agree)}")
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "compare.json").write_text(json.dumps(res, indent=1))
+        _plot(out / "compare_fig4.png", dense, tiled,
+              f"J={cfg.num_particles}, {cfg.unknown_cells}: ESS and memory over frames")
+        say(f"wrote {out / 'compare.json'} and {out / 'compare_fig4.png'}")
+    return res
