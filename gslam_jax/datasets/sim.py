@@ -10,7 +10,7 @@ reproducible, and e.g. changing the sensor does not change the world or the VO n
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Callable, Iterator, NamedTuple
 
 import numpy as np
@@ -56,6 +56,24 @@ class SimInfo:
     @property
     def name(self) -> str:
         return self.course.spec.name
+
+    def summary(self) -> dict:
+        """JSON-ready record of the simulation (for a results directory's config/metrics)."""
+        return {
+            "course": self.course.spec.name, "description": self.course.spec.description,
+            "seed": self.course.seed, "world_kind": self.world.kind,
+            "world_fingerprint": self.world.fingerprint(),
+            "course_length_m": round(self.course.length, 3),
+            "frames": int(self.trajectory.num_frames),
+            "rate_hz": float(1.0 / np.median(np.diff(self.trajectory.timestamps))),
+            "vo_noise": asdict(self.vo_noise),
+            "vo_failed_frames": int(self.vo_draw.vo_failed.sum()),
+            "sensor": asdict(self.sensor),
+            "survey_frames": self.survey_frames.tolist(),
+            "points_per_frame": round(self.points_per_frame, 1),
+            "points_outside_local_maps": self.dropped_points,
+            "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
+        }
 
 
 def course_names() -> list[str]:

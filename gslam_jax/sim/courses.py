@@ -103,12 +103,6 @@ def _smooth_to_length(poly: np.ndarray, length: float, densify: float | None,
     return resample_path(xy * final), scale * final
 
 
-def _jitter(rng: np.random.Generator, pts: list[tuple[float, float]], amount: float) -> np.ndarray:
-    p = np.asarray(pts, dtype=np.float64)
-    p[1:-1] += rng.normal(0.0, amount, p[1:-1].shape)
-    return p
-
-
 # Control polygons, in arbitrary units (scaled to the Table I length afterwards).
 
 def _mars_yard_a(rng: np.random.Generator) -> tuple[np.ndarray, dict]:
@@ -132,7 +126,8 @@ def _loop(rng: np.random.Generator, rx: float, ry: float, n: int, wobble: float,
     return [(rx * rr * np.cos(a), ry * rr * np.sin(a) + ry) for a, rr in zip(ang, r)]
 
 
-def _squarish(rx: float, ry: float, rng: np.random.Generator, jit: float) -> list[tuple[float, float]]:
+def _squarish(rx: float, ry: float, rng: np.random.Generator,
+              jit: float) -> list[tuple[float, float]]:
     """A rounded rectangle's control points from the middle of its bottom side."""
     p = [(0, 0), (rx, 0), (rx, 2 * ry), (-rx, 2 * ry), (-rx, 0), (0, 0)]
     return [(x + rng.normal(0, jit), y + rng.normal(0, jit)) if 0 < i < 5 else (x, y)

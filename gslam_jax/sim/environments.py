@@ -61,9 +61,8 @@ def _mars_yard(world: World, course: Course, rng: np.random.Generator, clearance
                    rr * rng.uniform(0.5, 0.9), 0.01, Material.ROCK)
     # traffic poles: mostly lining the course, some scattered
     near = int(course.length / 3.5)
-    xy = np.concatenate([
-        np.stack([rng.uniform(world.extent[0], world.extent[1], 8 * near),
-                  rng.uniform(world.extent[2], world.extent[3], 8 * near)], axis=1)])
+    xy = np.stack([rng.uniform(world.extent[0], world.extent[1], 8 * near),
+                   rng.uniform(world.extent[2], world.extent[3], 8 * near)], axis=1)
     d = _distance_to_path(xy, path)
     lining = np.flatnonzero((d >= clearance + 0.15) & (d <= clearance + 2.5))[:near]
     far = np.flatnonzero(d > clearance + 2.5)[: near // 3]

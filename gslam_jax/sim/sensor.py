@@ -42,11 +42,11 @@ class SensorParams:
     baseline: float = 0.12
     focal_px: float = 370.0  # 512-px-wide images with ~70 deg horizontal field of view
     disparity_std: float = 0.2  # px
-    camera_yaw: float = np.deg2rad(35.0)  # the pairs look at +-camera_yaw
-    camera_pitch: float = np.deg2rad(16.0)  # downwards
-    half_fov: float = np.deg2rad(70.0)  # combined field of view is 2 * half_fov
-    min_elevation: float = np.deg2rad(-45.0)
-    max_elevation: float = np.deg2rad(12.0)
+    camera_yaw: float = float(np.deg2rad(35.0))  # the pairs look at +-camera_yaw
+    camera_pitch: float = float(np.deg2rad(16.0))  # downwards
+    half_fov: float = float(np.deg2rad(70.0))  # combined field of view is 2 * half_fov
+    min_elevation: float = float(np.deg2rad(-45.0))
+    max_elevation: float = float(np.deg2rad(12.0))
     n_azimuth: int = 96
     n_ground_rows: int = 36  # rows spread evenly in ground distance (below the horizon)
     n_high_rows: int = 6  # rows from just below the horizon up to max_elevation

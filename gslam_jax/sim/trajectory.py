@@ -1,4 +1,4 @@
-"""Driving a course: a speed profile along the path, sampled into ground-truth poses at a frame rate.
+"""Driving a course: a speed profile along the path, sampled into ground-truth poses per frame.
 
 The robot (a LAGR-like differential drive) follows the path tangent, at most ``max_speed``
 (<= 1 m/s), slowed in turns by limits on lateral acceleration and yaw rate, with bounded
