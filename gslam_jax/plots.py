@@ -58,6 +58,10 @@ def save_map_png(out: str | Path, std: np.ndarray, origin: Sequence[float], reso
     w, h = _figsize(std.shape, 1)
     fig, ax = plt.subplots(figsize=(w, h))
     im = draw_map(ax, std, origin, resolution, path, title)
+    window = _data_window(std, origin, resolution)
+    if window is not None:
+        ax.set_xlim(window[0], window[1])
+        ax.set_ylim(window[2], window[3])
     fig.colorbar(im, ax=ax, label="expected std of heights (m)", shrink=0.8)
     fig.tight_layout()
     fig.savefig(out, dpi=dpi)
@@ -78,13 +82,14 @@ def save_map_comparison_png(out: str | Path, vo_std: np.ndarray, vo_origin: Sequ
     fig, axes = plt.subplots(1, 2, figsize=(w, h))
     draw_map(axes[0], vo_std, vo_origin, resolution, vo_path, titles[0])
     im = draw_map(axes[1], slam_std, slam_origin, resolution, slam_path, titles[1])
-    # one common window, so both panels are at the same place and scale
-    lo = np.minimum(np.asarray(vo_origin, float), np.asarray(slam_origin, float))
-    hi = np.maximum(np.asarray(vo_origin, float) + np.asarray(vo_std.shape) * resolution,
-                    np.asarray(slam_origin, float) + np.asarray(slam_std.shape) * resolution)
-    for ax in axes:
-        ax.set_xlim(lo[0], hi[0])
-        ax.set_ylim(lo[1], hi[1])
+    # one common window around the known cells, so both panels show the same place and scale
+    windows = [w for w in (_data_window(vo_std, vo_origin, resolution),
+                           _data_window(slam_std, slam_origin, resolution)) if w is not None]
+    if windows:
+        box = np.array(windows)
+        for ax in axes:
+            ax.set_xlim(box[:, 0].min(), box[:, 1].max())
+            ax.set_ylim(box[:, 2].min(), box[:, 3].max())
     fig.colorbar(im, ax=list(axes), label="expected std of heights (m)", shrink=0.8)
     if suptitle:
         fig.suptitle(suptitle)
@@ -119,6 +124,19 @@ def save_ess_png(out: str | Path, ess: np.ndarray, num_particles: int,
     fig.savefig(out, dpi=dpi)
     plt.close(fig)
     return out
+
+
+def _data_window(std: np.ndarray, origin: Sequence[float], resolution: float,
+                 margin: float = 2.0) -> tuple[float, float, float, float] | None:
+    """(x0, x1, y0, y1) around the known (finite) cells plus ``margin`` metres; None if none."""
+    known = np.isfinite(np.asarray(std))
+    if not known.any():
+        return None
+    i = np.flatnonzero(known.any(axis=1))
+    j = np.flatnonzero(known.any(axis=0))
+    x0, y0 = float(origin[0]), float(origin[1])
+    return (x0 + i[0] * resolution - margin, x0 + (i[-1] + 1) * resolution + margin,
+            y0 + j[0] * resolution - margin, y0 + (j[-1] + 1) * resolution + margin)
 
 
 def _figsize(shape: tuple[int, ...], panels: int) -> tuple[float, float]:
