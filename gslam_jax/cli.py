@@ -37,6 +37,7 @@ class ProgressBar:
 
 def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int], None]):
     """Return (Run, description) for the chosen source."""
+    from gslam_jax.config import ConfigError
     from gslam_jax.localmap import LocalMapParams
     from gslam_jax.run import load_run
 
@@ -50,12 +51,22 @@ def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int]
         from gslam_jax.datasets.sim import simulate_run
         run, info = simulate_run(args.course, seed=args.seed, params=params, progress=progress)
         return run, f"simulated course {args.course} (seed {args.seed})", info
+    if args.source in ("kitti", "euroc") and args.path is None:
+        raise ConfigError(f"--source {args.source} needs --path DATASET_FOLDER")
     if args.source == "kitti":
-        from gslam_jax.datasets.kitti import load_kitti
-        return load_kitti(args.path, params), f"KITTI {args.path}", None
+        from gslam_jax.datasets.kitti import KittiParams, kitti_frontend
+        from gslam_jax.vo.frontend import FrontEndParams
+        fe = kitti_frontend(args.path, KittiParams(frontend=FrontEndParams(
+            local_map=params, on_bad_frame=args.on_bad_frame)))
+        print(fe.summary.text())
+        return fe.run, f"KITTI {args.path}", None
     if args.source == "euroc":
-        from gslam_jax.datasets.euroc import load_euroc
-        return load_euroc(args.path, params), f"EuRoC {args.path}", None
+        from gslam_jax.datasets.euroc import EurocParams, euroc_frontend
+        from gslam_jax.vo.frontend import FrontEndParams
+        fe = euroc_frontend(args.path, EurocParams(frontend=FrontEndParams(
+            local_map=params, on_bad_frame=args.on_bad_frame)))
+        print(fe.summary.text())
+        return fe.run, f"EuRoC {args.path}", None
     raise SystemExit(f"unknown source {args.source!r}")
 
 
@@ -66,12 +77,17 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     config = apply_overrides(load_config(args.config), args.set or [])
     run, description, sim_info = _load_source(args, config, ProgressBar("front-end"))
+    if args.save_run:
+        from gslam_jax.run import save_run
+        save_run(args.save_run, run)
     print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps, "
           f"{run.distance():.1f} m")
     result = slam.run_slam(run, config, progress=ProgressBar("gamma-slam"))
     out = Path(args.out) if args.out else Path("results") / time.strftime("run-%Y%m%d-%H%M%S")
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.toml").write_text(config_to_toml(config))
+    if sim_info is not None:
+        (out / "simulation.json").write_text(json.dumps(sim_info.summary(), indent=2, default=float))
     write_tum(out / "trajectory_tum.txt", run.timestamps, result.best_path)
     write_kitti(out / "trajectory_kitti.txt", result.best_path)
     write_tum(out / "vo_tum.txt", run.timestamps, result.vo_path)
@@ -135,6 +151,29 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json)
 
 
+def cmd_table1(args: argparse.Namespace) -> int:
+    from gslam_jax.table1 import main as table1_main
+    return table1_main(args.courses, args.seeds, args.particles, args.config, args.json, args.quick)
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    if args.exact:
+        import os
+        if "jax" in sys.modules:
+            raise SystemExit("--exact must be set before JAX is imported")
+        # No fused multiply-adds in XLA, so float32 rounding matches NumPy's step for step.
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_max_isa=AVX").strip()
+    from gslam_jax.config import load_config
+    from gslam_jax.run import load_run
+    from gslam_jax.tiled.compare import compare
+
+    run = load_run(args.run_file) if args.run_file else None
+    result = compare(run, load_config(args.config), particles=args.particles,
+                     unknown_cells=args.unknown_cells, tile_size=args.tile_size, seed=args.seed,
+                     out_dir=args.out)
+    return 0 if result.get("agreement", {}).get("ok", True) else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gslam", description="Gamma-SLAM in JAX "
                                      "(Marks et al., Journal of Field Robotics 2009)")
@@ -147,6 +186,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--course", default="mars-yard-a", help="simulated course (default mars-yard-a)")
     p.add_argument("--path", type=Path, help="dataset folder for --source kitti/euroc")
     p.add_argument("--seed", type=int, default=0, help="simulation seed")
+    p.add_argument("--on-bad-frame", choices=["error", "fallback"], default="error",
+                   help="a missing/corrupt image stops the run (error) or is counted and bridged "
+                   "by the fallback odometry")
+    p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as .npz")
     p.add_argument("--config", type=Path, help="TOML config (defaults: the paper's settings)")
     p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
                    help="override one config value (repeatable)")
@@ -161,6 +204,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mode", choices=["ignore", "sample"], nargs="+", default=["ignore", "sample"])
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     p.set_defaults(func=cmd_bench)
+
+    from gslam_jax.table1 import PAPER_TABLE1
+    p = sub.add_parser("table1", help="the paper's Table I on the five simulated courses")
+    p.add_argument("--courses", nargs="+", default=list(PAPER_TABLE1))
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--particles", type=int, default=200)
+    p.add_argument("--config", type=Path)
+    p.add_argument("--json", type=Path)
+    p.add_argument("--quick", action="store_true", help="Mars Yard A, one seed, J <= 100")
+    p.set_defaults(func=cmd_table1)
+
+    p = sub.add_parser("compare", help="dense JAX filter vs the tiled copy-on-write reference")
+    p.add_argument("run_file", nargs="?", type=Path, help="Run file (default: a simulated course)")
+    p.add_argument("--config", type=Path)
+    p.add_argument("--particles", type=int, default=200)
+    p.add_argument("--unknown-cells", choices=["ignore", "sample"])
+    p.add_argument("--tile-size", type=float, help="tile side, metres (default 10)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, help="write compare.json and compare_fig4.png here")
+    p.add_argument("--exact", action="store_true",
+                   help="disable XLA's fused multiply-adds so both filters round identically")
+    p.set_defaults(func=cmd_compare)
     return parser
 
 

@@ -1,0 +1,83 @@
+"""Table I of the paper on the simulated courses: distance, VO-only RMS, Gamma-SLAM RMS.
+
+``gslam table1`` and ``experiments/table1.py`` call ``main``. RMS is position error after the
+least-squares 2-D rigid fit to ground truth (paper 7.1), over every frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gslam_jax import metrics, slam
+from gslam_jax.config import Config, FilterSection, load_config
+from gslam_jax.localmap import LocalMapParams
+
+__all__ = ["PAPER_TABLE1", "run_course", "main"]
+
+# Paper Table I: distance (m), VO-only RMS (m), Gamma-SLAM RMS (m).
+PAPER_TABLE1 = {
+    "mars-yard-a": (164, 1.24, 0.34),
+    "mars-yard-b": (204, 1.12, 0.31),
+    "arroyo-a": (335, 0.42, 0.21),
+    "arroyo-b": (406, 1.22, 0.50),
+    "maze": (543, 1.98, 0.65),
+}
+
+
+def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
+    """Simulate one course and run Gamma-SLAM on it; returns the Table I row for this seed."""
+    from gslam_jax.datasets.sim import simulate_run
+
+    lm = config.localmap
+    params = LocalMapParams(resolution=config.map.resolution, cells=lm.cells, max_range=lm.max_range,
+                            min_height=lm.min_height, max_height=lm.max_height, travel=lm.travel)
+    t0 = time.perf_counter()
+    run, _ = simulate_run(course, seed=seed, params=params)
+    sim_s = time.perf_counter() - t0
+    res = slam.run_slam(run, config, progress=progress)
+    gt = run.ground_truth
+    return {"course": course, "seed": seed, "distance_m": run.distance(),
+            "vo_rms_m": metrics.rms_after_fit(res.vo_path, gt),
+            "slam_rms_m": metrics.rms_after_fit(res.best_path, gt),
+            "resampling_events": int(res.resampled.sum()),
+            "extent_violations": res.extent_violations,
+            "sim_seconds": sim_s, "filter_seconds": res.seconds + res.compile_seconds}
+
+
+def main(courses: list[str], seeds: list[int], particles: int, config_path: Path | None = None,
+         json_path: Path | None = None, quick: bool = False) -> int:
+    from gslam_jax.bench import environment
+
+    config = load_config(config_path)
+    if quick:
+        courses, seeds, particles = ["mars-yard-a"], [0], min(particles, 100)
+    config = dataclasses.replace(config, filter=dataclasses.replace(config.filter, particles=particles))
+    env = environment()
+    print(f"Table I on simulated courses, J = {particles}, seeds {seeds}")
+    print("  " + ", ".join(f"{k}: {env[k]}" for k in ("date", "processor", "cpus", "jax", "numpy")))
+    rows = []
+    for course in courses:
+        for seed in seeds:
+            r = run_course(course, seed, config)
+            rows.append(r)
+            print(f"  {course:<12} seed {seed}: {r['distance_m']:6.1f} m  VO {r['vo_rms_m']:.3f} m  "
+                  f"Gamma-SLAM {r['slam_rms_m']:.3f} m  ({r['filter_seconds']:.0f} s)", flush=True)
+    print(f"\n{'course':<12} {'dist':>6} {'VO mean':>8} {'VO worst':>9} {'SLAM mean':>10} "
+          f"{'SLAM worst':>11} {'ratio':>6} | paper: {'dist':>5} {'VO':>5} {'SLAM':>5}")
+    for course in courses:
+        rs = [r for r in rows if r["course"] == course]
+        vo = np.array([r["vo_rms_m"] for r in rs])
+        sl = np.array([r["slam_rms_m"] for r in rs])
+        paper = PAPER_TABLE1.get(course, (np.nan,) * 3)
+        print(f"{course:<12} {rs[0]['distance_m']:6.1f} {vo.mean():8.3f} {vo.max():9.3f} "
+              f"{sl.mean():10.3f} {sl.max():11.3f} {np.max(sl / vo):6.2f} | "
+              f"{paper[0]:>12} {paper[1]:5.2f} {paper[2]:5.2f}")
+    if json_path:
+        Path(json_path).write_text(json.dumps({"environment": env, "particles": particles,
+                                               "rows": rows}, indent=2))
+    return 0
