@@ -230,9 +230,12 @@ def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
     return (sum_prev / params.beta_prev + sum_new / params.beta_new) / n_obs  # eq. 31
 
 
-def _particle_update(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_u: Array,
+def _particle_weight(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_u: Array,
                      local_obs: Array, params: FilterParams, cfg: FilterConfig):
-    """Map update and log importance factor of one particle (vmapped over particles)."""
+    """Log importance factor of one particle and its updated window (vmapped over particles).
+
+    Only reads the maps; the window is written back by ``_write_windows``.
+    """
     Wn = cfg.window
     oi, oj, left_map = window_origin(pose, cfg)
     k_obs, S_obs = observation_in_window(pose, oi, oj, local_obs, cfg)
@@ -243,24 +246,38 @@ def _particle_update(pose: Array, kmap: Array, smap: Array, bits: Array, unknown
         # so every unknown cell borrows a uniformly random known cell (draws are shared between
         # cells unknown_samples apart, which keeps the search cost independent of the window).
         idx, total = unknown.sample_known_cells(bits, unknown_u)
-        share = jnp.arange(Wn * Wn, dtype=jnp.int32).reshape(Wn, Wn) % cfg.unknown_samples
-        idx = idx.at[share].get(mode="promise_in_bounds")
-        k_borrow = kmap.reshape(-1).at[idx].get(mode="promise_in_bounds")
-        S_borrow = smap.reshape(-1).at[idx].get(mode="promise_in_bounds")
+        # Gather the unknown_samples draws from the map, then tile them over the window: the
+        # random reads from the big map stay at unknown_samples per particle.
+        kb = kmap.reshape(-1).at[idx].get(mode="promise_in_bounds")
+        Sb = smap.reshape(-1).at[idx].get(mode="promise_in_bounds")
+        reps = -(-(Wn * Wn) // cfg.unknown_samples)
+        k_borrow = jnp.tile(kb, reps)[:Wn * Wn].reshape(Wn, Wn)
+        S_borrow = jnp.tile(Sb, reps)[:Wn * Wn].reshape(Wn, Wn)
         can_borrow = total > 0
     else:
         k_borrow = S_borrow = k_obs
         can_borrow = jnp.bool_(False)
     log_lam = log_importance(k_obs, S_obs, k_win, S_win, k_borrow, S_borrow, can_borrow,
                              params, cfg.unknown_cells)
-    if cfg.update_map:
-        k_new, S_new = cells.conjugate_update(k_win, S_win, k_obs, S_obs)
+    k_new, S_new = cells.conjugate_update(k_win, S_win, k_obs, S_obs)
+    return log_lam, left_map, (oi, oj, k_new, S_new)
+
+
+def _write_windows(kmap: Array, smap: Array, bits: Array, windows, cfg: FilterConfig):
+    """Write the updated windows back into the maps (eq. 14) and refresh the known-cell bits."""
+    if not cfg.update_map:
+        return kmap, smap, bits
+
+    def one(kmap, smap, bits, oi, oj, k_new, S_new):
         kmap = lax.dynamic_update_slice(kmap, k_new, (oi, oj))
         smap = lax.dynamic_update_slice(smap, S_new, (oi, oj))
         if cfg.unknown_cells == "sample":
             b = unknown.BLOCK
-            bits = lax.dynamic_update_slice(bits, unknown.pack_known(k_new > 0), (oi // b, oj // b, 0))
-    return kmap, smap, bits, log_lam, left_map
+            bits = lax.dynamic_update_slice(bits, unknown.pack_known(k_new > 0),
+                                            (oi // b, oj // b, 0))
+        return kmap, smap, bits
+
+    return jax.vmap(one)(kmap, smap, bits, *windows)
 
 
 def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: FilterParams,
@@ -270,14 +287,25 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred.
     """
     J = cfg.num_particles
-    per_particle = partial(_particle_update, local_obs=local_obs, params=params, cfg=cfg)
-    kmap, smap, bits, log_lam, left_map = jax.vmap(per_particle)(
+    per_particle = partial(_particle_weight, local_obs=local_obs, params=params, cfg=cfg)
+    log_lam, left_map, windows = jax.vmap(per_particle)(
         state.pose, state.kmap, state.smap, state.known_bits, noise.unknown_u)
     unnorm = state.log_w + log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
     ess = resampling.ess(log_w)
     do_resample = ess < cfg.resample_ratio * J
+
+    # Write the windows only after every read of the old maps (the known-cell draws included):
+    # the origins are made to depend on the resampling decision, hence on all the weights, by
+    # a min() that never changes them (oi <= H - window). Without that ordering XLA copies the
+    # whole [J, H, W] maps before updating them in place.
+    H, W = cfg.map_shape
+    oi, oj = windows[0], windows[1]
+    late = do_resample.astype(jnp.int32)
+    oi = jnp.minimum(oi, H + late)
+    kmap, smap, bits = _write_windows(state.kmap, state.smap, state.known_bits,
+                                      (oi, oj) + tuple(windows[2:]), cfg)
 
     def resample_branch(args):
         pose, kmap, smap, bits, log_w = args
