@@ -11,11 +11,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import cells
 from .run import Run
 
 __all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
            "drift_per_distance", "path_length", "trajectory_metrics", "ess_summary", "GridMap",
-           "pose_map", "vo_only_map", "expected_std_np"]
+           "pose_map", "vo_only_map"]
 
 
 class RigidFit(NamedTuple):
@@ -166,32 +167,7 @@ class GridMap(NamedTuple):
     resolution: float
 
     def expected_std(self) -> np.ndarray:
-        return expected_std_np(self.k, self.S)
-
-
-def expected_std_np(k: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """NumPy twin of ``cells.expected_std``: E[h^-1/2] = sqrt(S/2) G((k-1)/2) / G(k/2) for k > 1,
-    sqrt(S/k) for 0 < k <= 1, NaN where unknown (k = 0)."""
-    k = np.asarray(k, dtype=np.float64)
-    S = np.asarray(S, dtype=np.float64)
-    out = np.full(k.shape, np.nan)
-    big = k > 1
-    if big.any():
-        kv = k[big]
-        uniq, inv = np.unique(kv, return_inverse=True)
-        lg = np.array([math.lgamma(0.5 * (u - 1.0)) - math.lgamma(0.5 * u) for u in uniq])
-        out[big] = np.sqrt(0.5 * S[big]) * np.exp(lg[inv.ravel()])
-    small = (k > 0) & ~big
-    out[small] = np.sqrt(S[small] / k[small])
-    return out
-
-
-def _local_obs(stats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    n, sz, szz = stats[..., 0], stats[..., 1], stats[..., 2]
-    ok = n >= 2
-    safe = np.where(ok, n, 1.0)
-    S = np.where(ok, np.maximum(szz - sz * sz / safe, 0.0), 0.0)
-    return np.where(ok, n - 1.0, 0.0), S
+        return np.asarray(cells.expected_std(self.k, self.S), dtype=np.float64)
 
 
 def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
@@ -214,7 +190,7 @@ def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
     centres = (np.arange(L) - L // 2 + 0.5) * res
     cx, cy = np.meshgrid(centres, centres, indexing="ij")
     for t in np.flatnonzero(run.obs_index >= 0):
-        k, S = _local_obs(run.local_maps[run.obs_index[t]])
+        k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[run.obs_index[t]]), -1, 0)
         m = k > 0
         x, y, th = poses[t]
         c, s = math.cos(th), math.sin(th)

@@ -9,7 +9,8 @@ import pytest
 from scipy.optimize import minimize
 from scipy.special import gammaln
 
-from gslam_jax.metrics import (apply_rigid, drift_per_distance, expected_std_np,
+from gslam_jax import cells
+from gslam_jax.metrics import (apply_rigid, drift_per_distance,
                                final_position_error, pose_map, rigid_fit_2d, rms_after_fit,
                                trajectory_metrics, vo_only_map)
 from gslam_jax.run import Run
@@ -97,12 +98,12 @@ def test_bad_inputs_name_the_argument() -> None:
 def test_expected_std_matches_gamma_formula() -> None:
     k = np.array([0.0, 0.5, 1.0, 2.0, 3.0, 10.0, 57.0])
     S = np.array([0.0, 0.3, 0.2, 0.5, 1.0, 2.0, 4.0])
-    got = expected_std_np(k, S)
+    got = np.asarray(cells.expected_std(k, S), np.float64)
     assert np.isnan(got[0])
     np.testing.assert_allclose(got[1:3], np.sqrt(S[1:3] / k[1:3]))
     kb, Sb = k[3:], S[3:]
     ref = np.sqrt(Sb / 2) * np.exp(gammaln((kb - 1) / 2) - gammaln(kb / 2))
-    np.testing.assert_allclose(got[3:], ref, rtol=1e-12)
+    np.testing.assert_allclose(got[3:], ref, rtol=1e-5)  # float32
     # and the Monte Carlo mean of h^-1/2 with h ~ Gamma(k/2, rate S/2)
     rng = np.random.default_rng(0)
     h = rng.gamma(10.0 / 2, 2.0 / 2.0, 400000)
