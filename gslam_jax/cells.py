@@ -18,8 +18,8 @@ from jax import Array
 from jax.scipy.special import gammaln
 
 __all__ = ["stats_from_points", "obs_from_stats", "merge_stats", "conjugate_update",
-           "log_predictive", "log_predictive_integer", "lgamma_half", "log_likelihood_given_precision",
-           "expected_std"]
+           "log_predictive", "log_predictive_integer", "log_predictive_integer_table",
+           "lgamma_half", "log_likelihood_given_precision", "expected_std", "LGAMMA_TABLE_SIZE"]
 
 
 def stats_from_points(z: np.ndarray) -> np.ndarray:
@@ -139,5 +139,47 @@ def log_predictive_integer(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: 
     r = S_obs / S2
     log_S_obs = jnp.log(S_obs)
     return (_lgamma_half_difference(k_big, k_small) - lgamma_half(k_small)
+            + 0.5 * (k_obs * jnp.log(r) + k_prior * jnp.log1p(-r))
+            - log_S_obs + jnp.log(k_obs))
+
+
+# Fast path of ``log_predictive_integer`` for arrays whose k'' = k + k' are all below
+# LGAMMA_TABLE_SIZE (the caller checks; the filter does it once per update): the Stirling
+# fallback of ``lgamma_half`` is then never selected, so it is not computed, and the small-k
+# table difference is one lookup in a float32 table of the same float32 differences.
+_SMALL = 16
+_LGAMMA_HALF_F32 = _LGAMMA_HALF.astype(np.float32)
+_LGAMMA_HALF_DIFF = np.zeros((_SMALL, _SMALL), np.float32)
+for _b in range(_SMALL):
+    for _s in range(_b + 1):
+        _LGAMMA_HALF_DIFF[_b, _s] = _LGAMMA_HALF_F32[_b + _s] - _LGAMMA_HALF_F32[_b]
+
+
+def _table(k: Array) -> Array:
+    idx = jnp.clip(k, 0, LGAMMA_TABLE_SIZE - 1).astype(jnp.int32)
+    return jnp.asarray(_LGAMMA_HALF_F32).at[idx].get(mode="promise_in_bounds")
+
+
+def log_predictive_integer_table(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array) -> Array:
+    """``log_predictive_integer`` where every k_obs + k_prior < LGAMMA_TABLE_SIZE, same numbers.
+
+    Valid only under that bound (and k_obs, k_prior >= 0): callers must check it and use
+    ``log_predictive_integer`` otherwise.
+    """
+    k_big = jnp.maximum(k_obs, k_prior)
+    k_small = jnp.minimum(k_obs, k_prior)
+    S2 = S_obs + S_prior
+    r = S_obs / S2
+    log_S_obs = jnp.log(S_obs)
+    x = jnp.maximum(0.5 * k_big, 8.0)
+    a = 0.5 * k_small
+    y = x + a
+    stirling = ((x - 0.5) * jnp.log1p(a / x) + a * jnp.log(y) - a
+                + (1.0 / 12.0) * (1.0 / y - 1.0 / x) - (1.0 / 360.0) * (1.0 / y**3 - 1.0 / x**3))
+    small = jnp.clip(k_big, 0, _SMALL - 1).astype(jnp.int32) * _SMALL \
+        + jnp.clip(k_small, 0, _SMALL - 1).astype(jnp.int32)
+    table = jnp.asarray(_LGAMMA_HALF_DIFF).reshape(-1).at[small].get(mode="promise_in_bounds")
+    diff = jnp.where(k_big >= 16.0, stirling, table)
+    return (diff - _table(k_small)
             + 0.5 * (k_obs * jnp.log(r) + k_prior * jnp.log1p(-r))
             - log_S_obs + jnp.log(k_obs))

@@ -214,53 +214,102 @@ def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
     unknown cells in "sample" mode. Masked cells get harmless stand-ins so that neither the
     value nor the gradient sees a log(0).
     """
+    return _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borrow,
+                           params, unknown_cells, cells.log_predictive_integer)
+
+
+def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borrow,
+                    params, unknown_cells, log_pred):
     has = k_obs > 0
     prev = has & (k_prior > 0)
     one = jnp.ones_like(k_obs)
     ko, So = jnp.where(has, k_obs, one), jnp.where(has, S_obs, one)
-    lam_prev = cells.log_predictive_integer(ko, So, jnp.where(prev, k_prior, one), jnp.where(prev, S_prior, one))
+    lam_prev = log_pred(ko, So, jnp.where(prev, k_prior, one), jnp.where(prev, S_prior, one))
     sum_prev = jnp.sum(jnp.where(prev, lam_prev, 0.0))
     if unknown_cells == "ignore":  # eq. 30
         n_prev = jnp.sum(prev)
         return jnp.where(n_prev > 0, sum_prev / (params.beta_prev * jnp.maximum(n_prev, 1)), 0.0)
     new = has & ~prev & can_borrow & (k_borrow > 0)
-    lam_new = cells.log_predictive_integer(ko, So, jnp.where(new, k_borrow, one), jnp.where(new, S_borrow, one))
+    lam_new = log_pred(ko, So, jnp.where(new, k_borrow, one), jnp.where(new, S_borrow, one))
     sum_new = jnp.sum(jnp.where(new, lam_new, 0.0))
     n_obs = jnp.maximum(jnp.sum(has), 1)
     return (sum_prev / params.beta_prev + sum_new / params.beta_new) / n_obs  # eq. 31
 
 
-def _particle_weight(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_u: Array,
-                     local_obs: Array, params: FilterParams, cfg: FilterConfig):
-    """Log importance factor of one particle and its updated window (vmapped over particles).
+class _Windows(NamedTuple):
+    """What one update reads from the maps, per particle (stacked to [J, ...] by vmap)."""
 
-    Only reads the maps; the window is written back by ``_write_windows``.
-    """
+    oi: Array
+    oj: Array
+    left_map: Array
+    k_obs: Array     # [Wn, Wn] observation resampled onto the window
+    S_obs: Array
+    k_win: Array     # [Wn, Wn] prior window of the map
+    S_win: Array
+    k_draws: Array   # [unknown_samples] borrowed known cells ([0] in "ignore" mode)
+    S_draws: Array
+    can_borrow: Array
+
+
+def _particle_reads(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_u: Array,
+                    local_obs: Array, cfg: FilterConfig) -> _Windows:
+    """Everything one particle's update reads from its map (vmapped over particles)."""
     Wn = cfg.window
     oi, oj, left_map = window_origin(pose, cfg)
     k_obs, S_obs = observation_in_window(pose, oi, oj, local_obs, cfg)
     k_win = lax.dynamic_slice(kmap, (oi, oj), (Wn, Wn))
     S_win = lax.dynamic_slice(smap, (oi, oj), (Wn, Wn))
     if cfg.unknown_cells == "sample":
-        # unknown_samples uniform known cells; window cell c borrows draw c mod unknown_samples,
-        # so every unknown cell borrows a uniformly random known cell (draws are shared between
-        # cells unknown_samples apart, which keeps the search cost independent of the window).
+        # unknown_samples uniform known cells; window cell c borrows draw c mod unknown_samples
+        # (see _borrowed), so every unknown cell borrows a uniformly random known cell (draws
+        # are shared between cells unknown_samples apart, which keeps the search cost
+        # independent of the window). Only the draws are read from the big map.
         idx, total = unknown.sample_known_cells(bits, unknown_u)
-        # Gather the unknown_samples draws from the map, then tile them over the window: the
-        # random reads from the big map stay at unknown_samples per particle.
         kb = kmap.reshape(-1).at[idx].get(mode="promise_in_bounds")
         Sb = smap.reshape(-1).at[idx].get(mode="promise_in_bounds")
-        reps = -(-(Wn * Wn) // cfg.unknown_samples)
-        k_borrow = jnp.tile(kb, reps)[:Wn * Wn].reshape(Wn, Wn)
-        S_borrow = jnp.tile(Sb, reps)[:Wn * Wn].reshape(Wn, Wn)
         can_borrow = total > 0
     else:
-        k_borrow = S_borrow = k_obs
+        kb = Sb = jnp.zeros((0,), kmap.dtype)
         can_borrow = jnp.bool_(False)
-    log_lam = log_importance(k_obs, S_obs, k_win, S_win, k_borrow, S_borrow, can_borrow,
-                             params, cfg.unknown_cells)
-    k_new, S_new = cells.conjugate_update(k_win, S_win, k_obs, S_obs)
-    return log_lam, left_map, (oi, oj, k_new, S_new)
+    return _Windows(oi, oj, left_map, k_obs, S_obs, k_win, S_win, kb, Sb, can_borrow)
+
+
+def _borrowed(draws: Array, Wn: int) -> Array:
+    """[unknown_samples] draws -> [Wn, Wn]: window cell c takes draw c mod unknown_samples."""
+    reps = -(-(Wn * Wn) // draws.shape[0])
+    return jnp.tile(draws, reps)[:Wn * Wn].reshape(Wn, Wn)
+
+
+def _log_lambda(w: _Windows, params: FilterParams, cfg: FilterConfig, log_pred) -> Array:
+    """[J] log importance factors from the stacked reads (eq. 26 with eq. 30 / 31)."""
+
+    def one(k_obs, S_obs, k_win, S_win, kb, Sb, can_borrow):
+        if cfg.unknown_cells == "sample":
+            k_borrow, S_borrow = _borrowed(kb, cfg.window), _borrowed(Sb, cfg.window)
+        else:
+            k_borrow, S_borrow = k_obs, S_obs
+        return _log_importance(k_obs, S_obs, k_win, S_win, k_borrow, S_borrow, can_borrow,
+                               params, cfg.unknown_cells, log_pred)
+
+    return jax.vmap(one)(w.k_obs, w.S_obs, w.k_win, w.S_win, w.k_draws, w.S_draws, w.can_borrow)
+
+
+def _log_lambda_fast(w: _Windows, local_obs: Array, params: FilterParams,
+                     cfg: FilterConfig) -> Array:
+    """``_log_lambda`` with the table-only lgamma when every k'' fits the table (same numbers).
+
+    k'' = k + k' of every evaluated cell is at most max(local k) + max(prior k over the windows
+    and the draws) (masked cells use k = k' = 1); when that bound is below the lgamma table
+    size the Stirling fallback is never selected, so the cheaper kernel gives the same values.
+    NaN in k fails the test and takes the exact path.
+    """
+    k_prior_max = jnp.max(w.k_win)
+    if cfg.unknown_cells == "sample":
+        k_prior_max = jnp.maximum(k_prior_max, jnp.max(w.k_draws))
+    bound = jnp.maximum(k_prior_max, 1.0) + jnp.maximum(jnp.max(local_obs[..., 0]), 1.0)
+    return lax.cond(bound < cells.LGAMMA_TABLE_SIZE,
+                    lambda w: _log_lambda(w, params, cfg, cells.log_predictive_integer_table),
+                    lambda w: _log_lambda(w, params, cfg, cells.log_predictive_integer), w)
 
 
 def _write_windows(kmap: Array, smap: Array, bits: Array, windows, cfg: FilterConfig):
@@ -287,9 +336,12 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred.
     """
     J = cfg.num_particles
-    per_particle = partial(_particle_weight, local_obs=local_obs, params=params, cfg=cfg)
-    log_lam, left_map, windows = jax.vmap(per_particle)(
+    reads = jax.vmap(partial(_particle_reads, local_obs=local_obs, cfg=cfg))(
         state.pose, state.kmap, state.smap, state.known_bits, noise.unknown_u)
+    log_lam = _log_lambda_fast(reads, local_obs, params, cfg)
+    left_map = reads.left_map
+    k_new, S_new = cells.conjugate_update(reads.k_win, reads.S_win, reads.k_obs, reads.S_obs)
+    windows = (reads.oi, reads.oj, k_new, S_new)
     unnorm = state.log_w + log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
