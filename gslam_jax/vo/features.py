@@ -17,8 +17,8 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-__all__ = ["FeatureParams", "Features", "detect", "feature_disparity", "describe", "match_sad",
-           "refine_matches", "prefilter"]
+__all__ = ["FeatureParams", "Features", "detect", "feature_disparity", "dense_feature_disparity",
+           "describe", "match_sad", "refine_matches", "prefilter"]
 
 
 @dataclass(frozen=True)
@@ -102,6 +102,28 @@ def feature_disparity(left: np.ndarray, right: np.ndarray, uv: np.ndarray,
           & (np.linalg.norm(p0b - p0, axis=1) < params.max_fb_error)
           & (disp >= params.min_disparity_px))
     return disp, ok
+
+
+def dense_feature_disparity(disparity: np.ndarray, uv: np.ndarray,
+                            params: FeatureParams = FeatureParams(), max_spread: float = 1.0
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Feature disparity read from the dense disparity map (paper sec. 4: the stereo correlator
+    has already measured it): bilinear at the sub-pixel corner; valid where all four neighbours
+    are valid and agree within ``max_spread`` px (not across a depth edge)."""
+    if len(uv) == 0:
+        return np.zeros(0), np.zeros(0, bool)
+    h, w = disparity.shape
+    x = np.clip(uv[:, 0].astype(np.float64), 0, w - 1.001)
+    y = np.clip(uv[:, 1].astype(np.float64), 0, h - 1.001)
+    x0, y0 = x.astype(np.int64), y.astype(np.int64)
+    fx, fy = x - x0, y - y0
+    q = np.stack([disparity[y0, x0], disparity[y0, x0 + 1], disparity[y0 + 1, x0],
+                  disparity[y0 + 1, x0 + 1]]).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        disp = ((1 - fy) * ((1 - fx) * q[0] + fx * q[1]) + fy * ((1 - fx) * q[2] + fx * q[3]))
+        ok = (np.isfinite(q).all(0) & (q.max(0) - q.min(0) <= max_spread)
+              & (disp >= params.min_disparity_px))
+    return np.where(ok, disp, 0.0), ok
 
 
 def describe(filtered: np.ndarray, uv: np.ndarray, window: int) -> np.ndarray:

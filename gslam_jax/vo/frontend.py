@@ -26,6 +26,9 @@ from .stereo import DenseStereoParams, dense_disparity, disparity_to_points, to_
 __all__ = ["FrontEndParams", "FrontEndSummary", "FrontEndResult", "SensorAids", "run_frontend"]
 
 PairLoader = Callable[[int], tuple[np.ndarray, np.ndarray]]
+ExtraPairs = Callable[[int], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]
+"""``extra(t)`` -> [(left, right, t_robot_cam)]: more rectified pairs (same rig) seen at frame t,
+used for dense points only (e.g. the second pair of a two-pair robot)."""
 
 
 @dataclass(frozen=True)
@@ -93,12 +96,15 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
                  t_robot_cam: np.ndarray, timestamps: np.ndarray,
                  params: FrontEndParams = FrontEndParams(), *,
                  aids: SensorAids = SensorAids(), ground_truth: np.ndarray | None = None,
-                 initial_pose: np.ndarray | None = None, source: str = "<stereo>"
-                 ) -> FrontEndResult:
+                 initial_pose: np.ndarray | None = None, source: str = "<stereo>",
+                 extra_pairs: ExtraPairs | None = None) -> FrontEndResult:
     """Process ``num_frames`` raw stereo pairs (``load_pair(t)``) into a validated Run.
 
     ``t_robot_cam``: 4x4 rectified-left-camera mount in the robot body frame (x fwd, y left,
     z up, origin on the ground). ``initial_pose``: (x, y, theta) of frame 0 in the world frame.
+    With ``params.dense`` the dense disparity is computed first and, when
+    ``params.vo.disparity == "dense"``, VO reads its feature disparities from it (paper sec. 4).
+    ``extra_pairs``: see :data:`ExtraPairs` (needs ``params.dense``).
     """
     if params.on_bad_frame not in ("error", "fallback"):
         raise ValueError(f"on_bad_frame must be 'error' or 'fallback', got {params.on_bad_frame!r}")
@@ -121,7 +127,9 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
                 raise
             summary.bad_frames.append((t, str(err)))
             vo.reset()
-        res = vo.step(*pair) if pair is not None else VOResult(
+        disp = (dense_disparity(*pair, params.stereo, matcher)
+                if params.dense and pair is not None else None)
+        res = vo.step(*pair, disparity=disp) if pair is not None else VOResult(
             False, np.eye(4), "bad frame", 0, 0, 0, np.nan, np.full((6, 6), np.nan))
         results.append(res)
         prev_2d = pose_to_2d(pose)
@@ -155,11 +163,17 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
         if t > 0:
             controls[t] = increments_2d(np.stack([prev_2d, poses_2d[-1]]))[1]
         points = np.zeros((0, 3))
-        if params.dense and pair is not None:
-            disp = dense_disparity(*pair, params.stereo, matcher)
-            cam_pts = disparity_to_points(disp, rig, params.stereo.stride,
-                                          max_range=params.local_map.max_range * 1.5)
-            points = to_robot_frame(cam_pts, m, level_rotation(pose[:3, :3]))
+        if disp is not None:
+            r_level = level_rotation(pose[:3, :3])
+            max_range = params.local_map.max_range * 1.5
+            cam_pts = disparity_to_points(disp, rig, params.stereo.stride, max_range=max_range)
+            parts = [to_robot_frame(cam_pts, m, r_level)]
+            for left, right, mount in (extra_pairs(t) if extra_pairs is not None else []):
+                d2 = dense_disparity(left, right, params.stereo, matcher)
+                parts.append(to_robot_frame(
+                    disparity_to_points(d2, rig, params.stereo.stride, max_range=max_range),
+                    mount, r_level))
+            points = np.concatenate(parts)
         stats = builder.add(poses_2d[-1], points)
         if t == 0 and stats is None:
             stats = builder.flush()

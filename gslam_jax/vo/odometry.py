@@ -16,8 +16,8 @@ import numpy as np
 
 from .clique import rigid_inliers
 from .estimate import Camera, estimate_motion, triangulate
-from .features import (FeatureParams, Features, describe, detect, feature_disparity,
-                       match_sad, prefilter, refine_matches)
+from .features import (FeatureParams, Features, dense_feature_disparity, describe, detect,
+                       feature_disparity, match_sad, prefilter, refine_matches)
 
 __all__ = ["VOParams", "VOResult", "StereoVO"]
 
@@ -31,7 +31,9 @@ class VOParams:
     than this many baselines are not used (their range is too poor); min_inliers: fewer inlier
     matches is a failure; max_rms_px: a poorer fit is a failure; max_condition: a worse
     conditioned J^T J is degenerate geometry; max_step_m / max_step_rad: larger frame-to-frame
-    motions are rejected as implausible.
+    motions are rejected as implausible. disparity: where feature disparities come from when
+    :meth:`StereoVO.step` is given the dense disparity map: "dense" reads them from it (paper
+    sec. 4, no extra matching), "lk" always runs sparse LK stereo; without a map LK is used.
     """
 
     features: FeatureParams = field(default_factory=FeatureParams)
@@ -44,6 +46,11 @@ class VOParams:
     gate_px: float = 1.5
     max_step_m: float = 5.0
     max_step_rad: float = 0.5
+    disparity: str = "dense"
+
+    def __post_init__(self) -> None:
+        if self.disparity not in ("dense", "lk"):
+            raise ValueError(f"VOParams.disparity must be 'dense' or 'lk', got {self.disparity!r}")
 
 
 class VOResult(NamedTuple):
@@ -67,6 +74,7 @@ class _Frame(NamedTuple):
     img: np.ndarray
     right: np.ndarray
     feats: Features
+    disparity: np.ndarray | None
 
 
 class StereoVO:
@@ -83,19 +91,31 @@ class StereoVO:
     def reset(self) -> None:
         self._prev = None
 
-    def _features(self, left: np.ndarray, right: np.ndarray) -> Features:
+    def _disparity(self, left: np.ndarray, right: np.ndarray, dense: np.ndarray | None,
+                   uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        fp = self.params.features
+        if dense is not None and self.params.disparity == "dense":
+            return dense_feature_disparity(dense, uv, fp)
+        return feature_disparity(left, right, uv, fp)
+
+    def _features(self, left: np.ndarray, right: np.ndarray,
+                  dense: np.ndarray | None = None) -> Features:
         fp = self.params.features
         uv = detect(left, fp)
-        disp, ok = feature_disparity(left, right, uv, fp)
+        disp, ok = self._disparity(left, right, dense, uv)
         max_depth = self.params.max_depth_baselines * self.cam.baseline
         ok &= self.cam.fx * self.cam.baseline / np.maximum(disp, 1e-9) <= max_depth
         uv, disp = uv[ok], disp[ok]
         return Features(uv, disp, describe(prefilter(left), uv, fp.window))
 
-    def step(self, left: np.ndarray, right: np.ndarray) -> VOResult:
-        """Process the next rectified grey pair; returns the motion from the previous frame."""
-        feats = self._features(left, right)
-        prev, self._prev = self._prev, _Frame(left, right, feats)
+    def step(self, left: np.ndarray, right: np.ndarray,
+             disparity: np.ndarray | None = None) -> VOResult:
+        """Process the next rectified grey pair; returns the motion from the previous frame.
+
+        ``disparity``: the pair's dense disparity map (px, NaN invalid), if already computed.
+        """
+        feats = self._features(left, right, disparity)
+        prev, self._prev = self._prev, _Frame(left, right, feats, disparity)
         if prev is None:
             return _fail("first frame", len(feats.uv))
         return self._motion(prev, self._prev)
@@ -111,7 +131,7 @@ class StereoVO:
             return _fail("too few matches", nf, len(pairs))
         ia, ib = pairs[:, 0], pairs[:, 1]
         uv_b, ok = refine_matches(a.img, b.img, a.feats.uv[ia], b.feats.uv[ib], fp.window)
-        disp_b, ok_d = feature_disparity(b.img, b.right, uv_b, fp)
+        disp_b, ok_d = self._disparity(b.img, b.right, b.disparity, uv_b)
         ok &= ok_d
         ia, uv_b, disp_b = ia[ok], uv_b[ok], disp_b[ok]
         ja = np.column_stack([a.feats.uv[ia], a.feats.disparity[ia]]).astype(np.float64)
