@@ -64,8 +64,8 @@ def detect(img: np.ndarray, params: FeatureParams = FeatureParams()) -> np.ndarr
     kps = cv2.FastFeatureDetector_create(params.fast_threshold, True).detect(img)
     if not kps:
         return np.zeros((0, 2), np.float32)
-    pts = np.array([k.pt for k in kps], np.float32)
-    score = np.array([k.response for k in kps], np.float32)
+    pts = cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float32)
+    score = np.fromiter((k.response for k in kps), np.float32, len(kps))
     inside = ((pts[:, 0] >= margin) & (pts[:, 0] < w - margin)
               & (pts[:, 1] >= margin) & (pts[:, 1] < h - margin))
     pts, score = pts[inside], score[inside]
