@@ -1,0 +1,495 @@
+"""Batched parameter search: many parameter sets x many particles in one jitted computation.
+
+The paper tuned alpha_d, alpha_theta_d, alpha_theta (eqs. 2-3) and the tempering constants
+beta_prev, beta_new (eqs. 29-31) by hand per environment (section 7.3). Here a design of P points
+over named ranges is evaluated with ``jax.vmap`` over parameter sets (the filter vmaps over
+particles inside), the parameter axis sharded across every JAX device with a 1-D
+``NamedSharding`` mesh, in equal chunks small enough to fit in memory (one compilation).
+
+Objectives, computed inside JAX:
+
+* ``"rms"``: RMS position error (m) after the least-squares 2-D rigid fit (paper 7.1) of the
+  weighted-mean path (or the final best particle's path) onto the ground truth (Kabsch in 2-D).
+* ``"loglik"``: the log marginal likelihood estimate, sum over updates of log sum_j w_j lambda_j
+  (the log mean weight increment, ``StepInfo.log_lik``). Note: with tempering (beta != 1) this is
+  not a normalised likelihood in the betas; compare it across alphas only.
+
+Common random numbers: every parameter set uses the same PRNG key by default, so differences in
+the objective reflect the parameters, not the draws.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import tomllib
+import warnings
+from functools import partial
+from pathlib import Path
+from typing import Any, Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from gslam_jax import filter as gf
+from gslam_jax import slam
+from gslam_jax.config import Config
+from gslam_jax.run import Run
+
+__all__ = ["PARAM_NAMES", "DESIGNS", "OBJECTIVES", "SearchError", "SearchSpace", "SearchResult",
+           "parse_space", "load_space", "design_points", "halton", "sobol", "params_from_values",
+           "rigid_rms", "objective_value", "evaluate", "search", "auto_batch", "rank"]
+
+PARAM_NAMES = ("alpha_d", "alpha_theta_d", "alpha_theta", "beta_prev", "beta_new")
+DESIGNS = ("grid", "random", "halton", "sobol")
+OBJECTIVES = ("rms", "loglik")
+PATHS = ("mean", "best")
+
+
+class SearchError(ValueError):
+    """A bad search space, design or objective; the message names the field."""
+
+
+class SearchSpace(NamedTuple):
+    """Named ranges. lo/hi are in parameter units; ``log`` marks a log-uniform axis."""
+
+    names: tuple[str, ...]
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
+    log: tuple[bool, ...]
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def scale(self, unit: np.ndarray) -> np.ndarray:
+        """Points in [0, 1]^d -> parameter values [P, d] (float64)."""
+        unit = np.asarray(unit, np.float64)
+        lo, hi = np.asarray(self.lo), np.asarray(self.hi)
+        lg = np.asarray(self.log)
+        lin = lo + unit * (hi - lo)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            logv = np.exp(np.log(lo) + unit * (np.log(hi) - np.log(lo)))
+        return np.where(lg, logv, lin)
+
+
+def _check_range(name: str, lo: Any, hi: Any, log: bool, source: str) -> tuple[float, float]:
+    where = f"{source}: [space] {name}"
+    for v in (lo, hi):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise SearchError(f"{where}: range bounds must be numbers, got {v!r}")
+    lo, hi = float(lo), float(hi)
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise SearchError(f"{where}: range [{lo}, {hi}] must be finite")
+    if lo > hi:
+        raise SearchError(f"{where}: inverted range [{lo}, {hi}] (lower bound above upper)")
+    if lo == hi:
+        raise SearchError(f"{where}: empty range [{lo}, {hi}]; fix the value in the config "
+                          f"instead of searching it")
+    if lo < 0 or (name.startswith("beta") and lo <= 0):
+        raise SearchError(f"{where}: range [{lo}, {hi}] must be "
+                          f"{'positive' if name.startswith('beta') else 'non-negative'}")
+    if log and lo <= 0:
+        raise SearchError(f"{where}: a log-scale range needs a positive lower bound, got {lo}")
+    return lo, hi
+
+
+def parse_space(table: dict[str, Any], source: str = "<space>") -> SearchSpace:
+    """Build a SearchSpace from a ``[space]`` table.
+
+    Each entry is ``name = [lo, hi]`` (linear) or ``name = {range = [lo, hi], log = true}``.
+    """
+    if not isinstance(table, dict) or not table:
+        raise SearchError(f"{source}: [space] must be a non-empty table of name = [lo, hi]")
+    names, los, his, logs = [], [], [], []
+    for name, spec in table.items():
+        if name not in PARAM_NAMES:
+            raise SearchError(f"{source}: [space] unknown parameter '{name}'; searchable "
+                              f"parameters: {', '.join(PARAM_NAMES)}")
+        log = False
+        if isinstance(spec, dict):
+            extra = set(spec) - {"range", "log"}
+            if extra:
+                raise SearchError(f"{source}: [space] {name}: unknown key(s) {sorted(extra)}; "
+                                  f"expected range and log")
+            log = spec.get("log", False)
+            if not isinstance(log, bool):
+                raise SearchError(f"{source}: [space] {name}: log must be true or false")
+            spec = spec.get("range")
+        if not isinstance(spec, (list, tuple)) or len(spec) != 2:
+            raise SearchError(f"{source}: [space] {name}: expected a range [lo, hi], got {spec!r}")
+        lo, hi = _check_range(name, spec[0], spec[1], log, source)
+        names.append(name), los.append(lo), his.append(hi), logs.append(log)
+    return SearchSpace(tuple(names), tuple(los), tuple(his), tuple(logs))
+
+
+def load_space(path: str | Path) -> tuple[SearchSpace, dict[str, Any]]:
+    """Read a search TOML file: ``[space]`` (required) and ``[search]`` options (optional:
+    design, n, objective, path, seed). Returns the space and the options dict."""
+    path = Path(path)
+    if not path.exists():
+        raise SearchError(f"{path}: no such search-space file")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise SearchError(f"{path}: malformed TOML: {err}") from err
+    unknown = set(data) - {"space", "search"}
+    if unknown:
+        raise SearchError(f"{path}: unknown section(s) {sorted(unknown)}; expected [space] and "
+                          f"[search]")
+    if "space" not in data:
+        raise SearchError(f"{path}: missing [space] table")
+    options = dict(data.get("search", {}))
+    allowed = {"design": str, "n": int, "objective": str, "path": str, "seed": int}
+    for key, value in options.items():
+        if key not in allowed:
+            raise SearchError(f"{path}: [search] unknown key '{key}'; known keys: "
+                              f"{', '.join(allowed)}")
+        if not isinstance(value, allowed[key]) or isinstance(value, bool):
+            raise SearchError(f"{path}: [search] {key}: expected {allowed[key].__name__}, "
+                              f"got {value!r}")
+    return parse_space(data["space"], str(path)), options
+
+
+# ----------------------------------------------------------------------------- designs
+
+_PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29)
+
+
+def halton(n: int, dim: int, skip: int = 1) -> np.ndarray:
+    """The first ``n`` Halton points in [0, 1)^dim (radical inverses in the first primes),
+    starting at index ``skip`` (1 drops the all-zeros point)."""
+    if dim > len(_PRIMES):
+        raise SearchError(f"halton: at most {len(_PRIMES)} dimensions, got {dim}")
+    idx = np.arange(skip, skip + n, dtype=np.int64)
+    out = np.zeros((n, dim))
+    for d, base in enumerate(_PRIMES[:dim]):
+        i = idx.copy()
+        f = 1.0
+        r = np.zeros(n)
+        while np.any(i > 0):
+            f /= base
+            r += f * (i % base)
+            i //= base
+        out[:, d] = r
+    return out
+
+
+# Joe & Kuo (2008) direction numbers (new-joe-kuo-6.21201) for dimensions 2-5: (s, a, m_1..m_s).
+_SOBOL_DIRECTIONS = ((1, 0, (1,)), (2, 1, (1, 3)), (3, 1, (1, 3, 1)), (3, 2, (1, 1, 1)))
+
+
+def sobol(n: int, dim: int, bits: int = 30) -> np.ndarray:
+    """The first ``n`` points of the unscrambled Sobol sequence in [0, 1)^dim (Gray-code order,
+    as scipy.stats.qmc.Sobol(scramble=False)); up to 5 dimensions."""
+    if dim > 1 + len(_SOBOL_DIRECTIONS):
+        raise SearchError(f"sobol: at most {1 + len(_SOBOL_DIRECTIONS)} dimensions, got {dim}")
+    V = np.zeros((dim, bits), np.int64)
+    V[0] = [1 << (bits - 1 - k) for k in range(bits)]
+    for d in range(1, dim):
+        s, a, m = _SOBOL_DIRECTIONS[d - 1]
+        v = [m[k] << (bits - 1 - k) for k in range(s)]
+        for k in range(s, bits):
+            x = v[k - s] ^ (v[k - s] >> s)
+            for j in range(1, s):
+                if (a >> (s - 1 - j)) & 1:
+                    x ^= v[k - j]
+            v.append(x)
+        V[d] = v
+    out = np.zeros((n, dim))
+    x = np.zeros(dim, np.int64)
+    for i in range(n):
+        out[i] = x / float(1 << bits)
+        c = (~i & (i + 1)).bit_length() - 1  # index of the lowest zero bit of i
+        x ^= V[:, c]
+    return out
+
+
+def design_points(space: SearchSpace, design: str, n: int, seed: int = 0) -> np.ndarray:
+    """Parameter values [P, d] of a design: ``grid`` (m points per axis with m^d <= n,
+    axis end points included), ``random`` (uniform, or log-uniform on log axes), ``halton`` or
+    ``sobol`` (quasi-random)."""
+    if design not in DESIGNS:
+        raise SearchError(f"design '{design}' unknown; choose one of {', '.join(DESIGNS)}")
+    if not isinstance(n, (int, np.integer)) or n < 1:
+        raise SearchError(f"n must be a positive integer, got {n!r}")
+    d = space.dim
+    if design == "grid":
+        m = max(1, int(math.floor(n ** (1.0 / d) + 1e-9)))
+        axis = np.linspace(0.0, 1.0, m) if m > 1 else np.array([0.5])
+        unit = np.stack(np.meshgrid(*([axis] * d), indexing="ij"), -1).reshape(-1, d)
+    elif design == "random":
+        unit = np.random.default_rng(seed).uniform(size=(n, d))
+    elif design == "halton":
+        unit = halton(n, d)
+    else:
+        unit = sobol(n, d)
+    return space.scale(unit)
+
+
+# ----------------------------------------------------------------------------- objectives
+
+
+def params_from_values(values: Array, names: Sequence[str], base: gf.FilterParams
+                       ) -> gf.FilterParams:
+    """FilterParams whose named fields take the columns of ``values`` [..., d]; the others
+    are broadcast from ``base``."""
+    batch = values.shape[:-1]
+    col = {n: values[..., i] for i, n in enumerate(names)}
+
+    def pick(name: str, default) -> Array:
+        if name in col:
+            return col[name]
+        return jnp.broadcast_to(jnp.asarray(default, values.dtype), batch)
+
+    m = base.motion
+    return gf.FilterParams(
+        motion=m._replace(alpha_d=pick("alpha_d", m.alpha_d),
+                          alpha_theta_d=pick("alpha_theta_d", m.alpha_theta_d),
+                          alpha_theta=pick("alpha_theta", m.alpha_theta)),
+        beta_prev=pick("beta_prev", base.beta_prev), beta_new=pick("beta_new", base.beta_new))
+
+
+def rigid_rms(estimate: Array, reference: Array, mask: Array) -> Array:
+    """RMS distance after the least-squares 2-D rigid fit (Kabsch/Umeyama, no scale) of
+    ``estimate`` [T, 2|3] onto ``reference`` over frames where ``mask`` [T] is true (paper 7.1;
+    the JAX twin of ``metrics.rigid_fit_2d``)."""
+    w = mask.astype(estimate.dtype)
+    w = w / jnp.maximum(jnp.sum(w), 1.0)
+    p, q = estimate[:, :2], reference[:, :2]
+    mp, mq = w @ p, w @ q
+    pc, qc = p - mp, q - mq
+    dot = jnp.sum(w * (pc[:, 0] * qc[:, 0] + pc[:, 1] * qc[:, 1]))
+    cross = jnp.sum(w * (pc[:, 0] * qc[:, 1] - pc[:, 1] * qc[:, 0]))
+    ang = jnp.arctan2(cross, dot)
+    c, s = jnp.cos(ang), jnp.sin(ang)
+    rx = c * pc[:, 0] - s * pc[:, 1] - qc[:, 0]
+    ry = s * pc[:, 0] + c * pc[:, 1] - qc[:, 1]
+    return jnp.sqrt(jnp.sum(w * (rx * rx + ry * ry)))
+
+
+def objective_value(out: gf.RunOutput, objective: str, reference: Array, mask: Array,
+                    path: str = "mean") -> Array:
+    """Scalar objective of one filter run (see the module docstring)."""
+    if objective == "loglik":
+        return jnp.sum(out.infos.log_lik)
+    est = out.mean_pose if path == "mean" else out.best_path
+    return rigid_rms(est, reference, mask)
+
+
+class _Inputs(NamedTuple):
+    controls: Array
+    obs_index: Array
+    local_obs: Array
+    reference: Array
+    mask: Array
+    start: Array
+
+
+@partial(jax.jit, static_argnames=("names", "cfg", "objective", "path"))
+def _evaluate_batch(values: Array, key: Array, inputs: _Inputs, base: gf.FilterParams,
+                    names: tuple[str, ...], cfg: gf.FilterConfig, objective: str, path: str
+                    ) -> Array:
+    params = params_from_values(values, names, base)
+
+    def one(p: gf.FilterParams) -> Array:
+        out = gf.run_filter(key, p, inputs.controls, inputs.obs_index, inputs.local_obs, cfg,
+                            inputs.start)
+        return objective_value(out, objective, inputs.reference, inputs.mask, path)
+
+    return jax.vmap(one)(params)
+
+
+def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterParams,
+             names: tuple[str, ...], cfg: gf.FilterConfig, objective: str, path: str = "mean",
+             batch: int | None = None, devices: Sequence[jax.Device] | None = None,
+             progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+    """Objective for every row of ``values`` [P, d]: equal chunks of ``batch`` rows (a multiple
+    of the device count; the last chunk padded), each sharded over a 1-D mesh on the parameter
+    axis. One compilation for all chunks."""
+    devices = list(devices or jax.devices())
+    nd = len(devices)
+    P = values.shape[0]
+    batch = P if batch is None else batch
+    batch = max(nd, nd * math.ceil(min(batch, P) / nd))
+    mesh = Mesh(np.asarray(devices), ("p",))
+    sharded = NamedSharding(mesh, PartitionSpec("p"))
+    replicated = NamedSharding(mesh, PartitionSpec())
+    inputs = jax.device_put(inputs, replicated)
+    base = jax.device_put(base, replicated)
+    key = jax.device_put(key, replicated)
+    out = np.empty(P, np.float64)
+    for start in range(0, P, batch):
+        chunk = np.asarray(values[start:start + batch], np.float32)
+        n = chunk.shape[0]
+        if n < batch:  # pad with copies of the last row (discarded) to keep one shape
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch - n, axis=0)])
+        vals = jax.device_put(chunk, sharded)
+        res = _evaluate_batch(vals, key, inputs, base, names, cfg, objective, path)
+        out[start:start + n] = np.asarray(jax.device_get(res), np.float64)[:n]
+        if progress is not None:
+            progress(start + n, P)
+    return out
+
+
+def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None = None,
+               num_devices: int = 1) -> int:
+    """Largest number of parameter sets per chunk whose filter states fit in ``budget_bytes``
+    (default: a quarter of the first device's memory if it reports it, else 2 GiB per device).
+
+    Per set: the maps (k, S) [J, H, W] float32, about 3 live copies during an update
+    (old, updated, resampled under vmap), plus the per-frame poses/ancestors/weights [T, J].
+    """
+    if budget_bytes is None:
+        stats = {}
+        try:
+            stats = jax.devices()[0].memory_stats() or {}
+        except Exception:  # noqa: BLE001 - CPU backends may not implement memory_stats
+            stats = {}
+        limit = stats.get("bytes_limit")
+        budget_bytes = (0.25 * limit if limit else 2.0 * 2**30) * num_devices
+    J = cfg.num_particles
+    H, W = cfg.map_shape
+    per_set = 3 * 2 * 4 * J * H * W + num_frames * J * 4 * 6
+    return max(1, int(budget_bytes // per_set))
+
+
+class SearchResult(NamedTuple):
+    """Evaluated design, rows sorted best first (NaN rows last, flagged)."""
+
+    names: tuple[str, ...]
+    values: np.ndarray     # [P, d] parameter values, best first
+    objective: np.ndarray  # [P] objective values, best first (NaN last)
+    objective_name: str
+    maximize: bool
+    seconds: float
+    compile_seconds: float
+
+    @property
+    def num_nan(self) -> int:
+        return int(np.sum(~np.isfinite(self.objective)))
+
+    def best(self) -> dict[str, float]:
+        """The best parameter set; an error if every objective was NaN."""
+        if not np.isfinite(self.objective[0]):
+            raise SearchError(f"objective '{self.objective_name}' was NaN or infinite for all "
+                              f"{len(self.objective)} parameter sets; nothing to rank")
+        return dict(zip(self.names, map(float, self.values[0])))
+
+    def rows(self) -> list[dict[str, Any]]:
+        out = []
+        for rank, (v, f) in enumerate(zip(self.values, self.objective), 1):
+            ok = bool(np.isfinite(f))
+            row = {"rank": rank if ok else None}
+            row.update({n: float(x) for n, x in zip(self.names, v)})
+            row[self.objective_name] = float(f) if ok else None
+            row["status"] = "ok" if ok else "nan"
+            out.append(row)
+        return out
+
+    def to_csv(self, path: str | Path) -> None:
+        rows = self.rows()
+        with open(path, "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            writer.writeheader()
+            for r in rows:
+                writer.writerow({k: ("nan" if v is None and k == self.objective_name else
+                                     ("" if v is None else v)) for k, v in r.items()})
+
+    def to_json(self, path: str | Path) -> None:
+        doc = {"objective": self.objective_name, "maximize": self.maximize,
+               "seconds": self.seconds, "compile_seconds": self.compile_seconds,
+               "num_nan": self.num_nan, "results": self.rows()}
+        Path(path).write_text(json.dumps(doc, indent=2))
+
+
+def rank(values: np.ndarray, objective: np.ndarray, maximize: bool
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """Sort best first; NaN / infinite objectives go last whatever their sign."""
+    f = np.asarray(objective, np.float64)
+    finite = np.isfinite(f)
+    key = np.where(finite, -f if maximize else f, 0.0)
+    order = np.lexsort((key, ~finite))  # finite first, then by objective (stable)
+    return values[order], f[order]
+
+
+def search(run: Run, config: Config, space: SearchSpace, design: str = "halton", n: int = 64,
+           objective: str = "rms", *, path: str = "mean", key: Array | None = None,
+           crn: bool = True, seed: int = 0, batch: int | None = None,
+           devices: Sequence[jax.Device] | None = None,
+           progress: Callable[[int, int], None] | None = None,
+           values: np.ndarray | None = None) -> SearchResult:
+    """Evaluate ``n`` parameter sets of ``design`` over ``space`` on ``run``; best first.
+
+    config: everything not searched (particles, resampler, map, and the base values of the
+    parameters not in ``space``). objective: "rms" (needs ground truth; m, lower is better) or
+    "loglik" (higher is better). path: "mean" (weighted-mean pose per frame) or "best" (the
+    final best particle's path) for "rms". crn: the same PRNG key for every set (common random
+    numbers); otherwise set i uses fold_in(key, i). batch: sets per chunk (default
+    ``auto_batch``). values: an explicit [P, d] design (overrides design and n).
+    """
+    import time
+
+    if objective not in OBJECTIVES:
+        raise SearchError(f"objective '{objective}' unknown; choose one of "
+                          f"{', '.join(OBJECTIVES)}")
+    if path not in PATHS:
+        raise SearchError(f"path '{path}' unknown; choose one of {', '.join(PATHS)}")
+    if objective == "rms" and run.ground_truth is None:
+        raise SearchError("objective 'rms' needs the run's ground_truth, which is missing; "
+                          "use objective 'loglik'")
+    if values is None:
+        values = design_points(space, design, n, seed)
+    values = np.asarray(values, np.float64)
+    if values.ndim != 2 or values.shape[1] != space.dim:
+        raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
+    cfg = slam.filter_config(config, run)
+    base = slam.filter_params(config)
+    T = run.num_frames
+    gt = run.ground_truth if run.ground_truth is not None else np.zeros((T, 3))
+    inputs = _Inputs(
+        controls=jnp.asarray(run.controls, jnp.float32),
+        obs_index=jnp.asarray(run.obs_index, jnp.int32),
+        local_obs=jnp.asarray(slam.local_observations(run, config.map.min_variance)),
+        reference=jnp.asarray(gt, jnp.float32), mask=jnp.asarray(np.isfinite(gt).all(1)),
+        start=jnp.asarray(run.start_pose(), jnp.float32))
+    key = jax.random.key(config.filter.seed) if key is None else key
+    if not crn:
+        raise SearchError("crn=False is not supported by the batched search: every set uses "
+                          "the same key (common random numbers); repeat the search with "
+                          "different keys instead")
+    nd = len(devices or jax.devices())
+    batch = batch or auto_batch(cfg, T, num_devices=nd)
+    t0 = time.perf_counter()
+    compile_s = 0.0
+    first = [True]
+
+    def timed_progress(done: int, total: int) -> None:
+        nonlocal compile_s
+        if first[0]:
+            compile_s = time.perf_counter() - t0  # the first chunk includes compilation
+            first[0] = False
+        if progress is not None:
+            progress(done, total)
+
+    f = evaluate(values, key, inputs, base, tuple(space.names), cfg, objective, path,
+                 batch=batch, devices=devices, progress=timed_progress)
+    seconds = time.perf_counter() - t0
+    bad = ~np.isfinite(f)
+    if bad.all():
+        raise SearchError(f"objective '{objective}' is NaN or infinite for every one of the "
+                          f"{len(f)} parameter sets (first: "
+                          f"{dict(zip(space.names, values[0].round(6)))}); check the run and "
+                          f"the ranges")
+    if bad.any():
+        first_bad = dict(zip(space.names, values[np.argmax(bad)].round(6)))
+        warnings.warn(f"objective '{objective}' is NaN for {int(bad.sum())} of {len(f)} "
+                      f"parameter sets (e.g. {first_bad}); they are reported last, never "
+                      f"ranked best", RuntimeWarning)
+    maximize = objective == "loglik"
+    vals, obj = rank(values, f, maximize)
+    return SearchResult(tuple(space.names), vals, obj, objective, maximize, seconds, compile_s)

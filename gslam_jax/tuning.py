@@ -1,0 +1,256 @@
+"""Gradient-based tuning of the noise parameters with optax.
+
+The filter's map lookup is a floor of the particle pose and resampling is discrete, so plain
+autodiff of ``run_filter`` gives zero or biased gradients. This module re-runs the same filter
+(same draws, same numbers in the forward pass: built from ``filter.update``, ``motion_noise``,
+``update_noise``, ``apply_motion`` and the resamplers) with the stop-gradient estimator of
+Scibior & Wood (2021, "Differentiable particle filtering without modifying the forward pass"):
+
+* particle poses are sampled from the motion model (eqs. 1-3) and then stop-gradiented, so no
+  gradient flows through the map lookup;
+* each particle's log weight gains ``log p_theta(x_t | x_{t-1}, u_t) - stop_gradient(same)``:
+  zero in value, the score of the transition density in gradient;
+* the importance factor (eqs. 26, 30-31) carries the gradient in the tempering constants
+  beta_prev and beta_new directly;
+* resampling picks ancestors from the stop-gradiented weights and sets the new log weight to
+  ``-log J + lw[a] - stop_gradient(lw[a])``, so the ancestry's gradient survives resampling.
+
+The gradient of the log marginal likelihood estimate sum_t log sum_j w_j lambda_j then is the
+Fisher-identity estimator (the expected score of the transition densities along the ancestral
+paths under the smoothing distribution). The supervised objective is the expected squared
+position error under the filtering weights, self-normalised, E_w ||x_t - x_t^true||^2 averaged
+over frames; its gradient by the same weights is the score-function (likelihood-ratio) gradient
+of the filtering expectation.
+
+Parameters are optimised in log space (they stay positive); any optax optimiser by name.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from functools import partial
+from typing import Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jax import Array, lax
+
+from gslam_jax import filter as gf
+from gslam_jax import resampling, slam
+from gslam_jax.config import Config
+from gslam_jax.motion import MotionParams, motion_stds
+from gslam_jax.run import Run
+from gslam_jax.search import PARAM_NAMES, params_from_values
+
+__all__ = ["TUNE_OBJECTIVES", "TuneError", "TuneInputs", "TuneResult", "transition_score",
+           "sw_objectives", "objective_fn", "make_inputs", "tune", "default_names"]
+
+TUNE_OBJECTIVES = ("loglik", "supervised")
+sg = lax.stop_gradient
+
+
+class TuneError(ValueError):
+    """A bad tuning request; the message names the field."""
+
+
+class TuneInputs(NamedTuple):
+    """Device arrays of one Run (see ``make_inputs``)."""
+
+    controls: Array    # [T, 3]
+    obs_index: Array   # [T]
+    local_obs: Array   # [M, L, L, 2]
+    reference: Array   # [T, 3] ground truth (zeros if none)
+    mask: Array        # [T] frames with ground truth
+    start: Array       # [3]
+
+
+class Objectives(NamedTuple):
+    loglik: Array      # sum over updates of log sum_j w_j lambda_j (value as the filter's)
+    sq_error: Array    # mean over frames of E_w ||x - x_true||^2 (m^2)
+
+
+def transition_score(eps: Array, u: Array, params: MotionParams) -> Array:
+    """``log p_theta(x_t | x_{t-1}, u_t) - stop_gradient(same)`` for particles moved by
+    standard-normal draws ``eps`` [J, 2] (Scibior & Wood 2021): zero in value, the score of the
+    transition density (eqs. 1-3) w.r.t. the alphas in gradient.
+
+    The sampled residuals are sg(sigma) * eps; their density under sigma(theta) is
+    N(sg(sigma) eps; 0, sigma^2), written from eps directly rather than recovered from the
+    poses (no float32 cancellation). Along-track: sigma_d = alpha_d |d|; heading:
+    sigma_theta = alpha_theta_d |d| + alpha_theta |dtheta|. Zero-std components (no motion)
+    contribute nothing.
+    """
+    dist, _, sigma_t = motion_stds(u, params)
+    a_d = params.alpha_d
+    # Safe stand-ins inside where: a zero std must give neither a NaN value nor a NaN gradient.
+    a_safe = jnp.where(a_d > 0, a_d, 1.0)
+    lp_d = jnp.where((dist > 0) & (a_d > 0),
+                     -0.5 * (sg(a_safe) * eps[..., 0] / a_safe) ** 2 - jnp.log(a_safe), 0.0)
+    st_safe = jnp.where(sigma_t > 0, sigma_t, 1.0)
+    lp_t = jnp.where(sigma_t > 0, -0.5 * (sg(st_safe) * eps[..., 1] / st_safe) ** 2
+                     - jnp.log(st_safe), 0.0)
+    lp = lp_d + lp_t
+    return lp - sg(lp)
+
+
+def _resample(state: gf.FilterState, noise: gf.UpdateNoise, cfg: gf.FilterConfig
+              ) -> gf.FilterState:
+    """ESS-gated resampling with stop-gradient ancestors; weights keep their gradient."""
+    J = cfg.num_particles
+    lw = state.log_w
+    do = resampling.ess(sg(lw)) < cfg.resample_ratio * J
+
+    def yes(s: gf.FilterState) -> gf.FilterState:
+        anc = resampling.resample(cfg.resampler, jnp.exp(sg(s.log_w)), noise.resample_u)
+        take = lambda x: jnp.take(x, anc, axis=0)
+        lwa = take(s.log_w)
+        return gf.FilterState(take(s.pose), -math.log(J) + (lwa - sg(lwa)), take(s.kmap),
+                              take(s.smap), take(s.known_bits))
+
+    return lax.cond(do, yes, lambda s: s, state)
+
+
+def sw_objectives(key: Array, params: gf.FilterParams, inputs: TuneInputs,
+                  cfg: gf.FilterConfig) -> Objectives:
+    """One filter run with Scibior-Wood stop-gradient weights (see the module docstring).
+
+    Same draws as ``filter.run_filter(key, ...)``: the forward values equal the filter's.
+    """
+    cfg_keep = cfg._replace(resample_ratio=0.0)  # update() weighs and normalises; we resample
+    state = gf.init(cfg, inputs.start)
+    keys = gf.frame_keys(key, inputs.controls.shape[0])
+    p_fwd = jax.tree.map(sg, params)
+
+    def frame(state: gf.FilterState, xs):
+        k, u, idx, ref, m = xs
+        k_motion, k_update = jax.random.split(k)
+        eps = gf.motion_noise(k_motion, cfg)
+        pose = sg(gf.predict(sg(state.pose), u, eps, p_fwd))
+        log_w = state.log_w + transition_score(eps, u, params.motion)
+        state = state._replace(pose=pose, log_w=log_w)
+        obs = inputs.local_obs[jnp.maximum(idx, 0)]
+
+        def upd(s: gf.FilterState):
+            noise = gf.update_noise(k_update, cfg)
+            s, info = gf.update(s, obs, noise, params, cfg_keep)
+            s = s._replace(kmap=sg(s.kmap), smap=sg(s.smap))
+            return _resample(s, noise, cfg), info.log_lik
+
+        state, ll = lax.cond(idx >= 0, upd, lambda s: (s, jnp.zeros((), s.log_w.dtype)), state)
+        w = jax.nn.softmax(state.log_w)  # self-normalised: weights carry the gradient
+        d2 = jnp.sum((state.pose[:, :2] - ref[:2]) ** 2, axis=-1)
+        return state, (ll, jnp.where(m, w @ d2, 0.0))
+
+    _, (ll, err) = lax.scan(frame, state, (keys, inputs.controls, inputs.obs_index,
+                                           inputs.reference, inputs.mask))
+    n = jnp.maximum(jnp.sum(inputs.mask), 1)
+    return Objectives(jnp.sum(ll), jnp.sum(err) / n)
+
+
+def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, gf.FilterConfig]:
+    """Device inputs and the static filter config for ``run``."""
+    T = run.num_frames
+    gt = run.ground_truth if run.ground_truth is not None else np.zeros((T, 3))
+    inputs = TuneInputs(
+        controls=jnp.asarray(run.controls, jnp.float32),
+        obs_index=jnp.asarray(run.obs_index, jnp.int32),
+        local_obs=jnp.asarray(slam.local_observations(run, config.map.min_variance)),
+        reference=jnp.asarray(np.nan_to_num(gt), jnp.float32),
+        mask=jnp.asarray(np.isfinite(gt).all(1) & (run.ground_truth is not None)),
+        start=jnp.asarray(run.start_pose(), jnp.float32))
+    return inputs, slam.filter_config(config, run)
+
+
+def objective_fn(log_values: Array, keys: Array, base: gf.FilterParams, inputs: TuneInputs,
+                 names: tuple[str, ...], cfg: gf.FilterConfig, objective: str) -> Array:
+    """Loss to minimise at log parameter values [d], averaged over independent runs ``keys``
+    [K]: ``-loglik / updates`` or the mean expected squared error (m^2)."""
+    params = params_from_values(jnp.exp(log_values), names, base)
+    obj = jax.vmap(lambda k: sw_objectives(k, params, inputs, cfg))(keys)
+    if objective == "loglik":
+        n_upd = jnp.maximum(jnp.sum(inputs.obs_index >= 0), 1)
+        return -jnp.mean(obj.loglik) / n_upd
+    return jnp.mean(obj.sq_error)
+
+
+_value_and_grad = jax.jit(jax.value_and_grad(objective_fn),
+                          static_argnames=("names", "cfg", "objective"))
+
+
+class TuneResult(NamedTuple):
+    names: tuple[str, ...]
+    values: dict[str, float]    # tuned parameters
+    history: np.ndarray         # [steps + 1, d] parameter values (start first)
+    losses: np.ndarray          # [steps] loss at the step's parameters (before its update)
+    objective: str
+    seconds: float
+
+
+def default_names(objective: str) -> tuple[str, ...]:
+    """The alphas for "loglik" (the tempered likelihood is not normalised in the betas), all
+    five parameters for "supervised"."""
+    return PARAM_NAMES[:3] if objective == "loglik" else PARAM_NAMES
+
+
+def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "adam",
+         lr: float = 0.05, steps: int = 100, *, names: Sequence[str] | None = None,
+         start: dict[str, float] | None = None, runs_per_step: int = 4, key: Array | None = None,
+         crn: bool = False, optimizer_kwargs: dict | None = None,
+         progress: Callable[[int, int], None] | None = None) -> TuneResult:
+    """Tune ``names`` by ``optimizer`` (any optax optimiser, ``getattr(optax, optimizer)``).
+
+    objective: "loglik" (maximise the log marginal likelihood estimate; alphas only) or
+    "supervised" (minimise the expected squared position error against ground truth).
+    start: initial values (default: the config's). runs_per_step: independent filter runs
+    averaged per gradient. crn: reuse the same keys every step (common random numbers);
+    otherwise step s uses keys derived from fold_in(key, s).
+    """
+    if objective not in TUNE_OBJECTIVES:
+        raise TuneError(f"objective '{objective}' unknown; choose one of "
+                        f"{', '.join(TUNE_OBJECTIVES)}")
+    names = tuple(names) if names is not None else default_names(objective)
+    for n in names:
+        if n not in PARAM_NAMES:
+            raise TuneError(f"unknown parameter '{n}'; tunable: {', '.join(PARAM_NAMES)}")
+    if objective == "loglik" and any(n.startswith("beta") for n in names):
+        raise TuneError("objective 'loglik' cannot tune beta_prev/beta_new: the tempered "
+                        "likelihood (eqs. 29-31) is not normalised in them; use 'supervised'")
+    if objective == "supervised" and run.ground_truth is None:
+        raise TuneError("objective 'supervised' needs the run's ground_truth, which is missing")
+    if not hasattr(optax, optimizer) or not callable(getattr(optax, optimizer)):
+        raise TuneError(f"optimizer '{optimizer}' is not an optax optimiser")
+    if steps < 1 or runs_per_step < 1:
+        raise TuneError("steps and runs_per_step must be at least 1")
+    inputs, cfg = make_inputs(run, config)
+    base = slam.filter_params(config)
+    cur = dict(zip(PARAM_NAMES, (config.motion.alpha_d, config.motion.alpha_theta_d,
+                                 config.motion.alpha_theta, config.filter.beta_prev,
+                                 config.filter.beta_new)))
+    cur.update(start or {})
+    for n in names:
+        if not (math.isfinite(cur[n]) and cur[n] > 0):
+            raise TuneError(f"start value of '{n}' must be positive and finite, got {cur[n]}")
+    x = jnp.log(jnp.asarray([cur[n] for n in names], jnp.float32))
+    opt = getattr(optax, optimizer)(lr, **(optimizer_kwargs or {}))
+    opt_state = opt.init(x)
+    key = jax.random.key(config.filter.seed) if key is None else key
+    history, losses = [np.exp(np.asarray(x, np.float64))], []
+    t0 = time.perf_counter()
+    for s in range(steps):
+        keys = jax.random.split(key if crn else jax.random.fold_in(key, s), runs_per_step)
+        loss, g = _value_and_grad(x, keys, base, inputs, names, cfg, objective)
+        if not np.all(np.isfinite(np.asarray(g))):
+            raise TuneError(f"non-finite gradient at step {s} for "
+                            f"{dict(zip(names, np.exp(np.asarray(x)).round(6)))}")
+        updates, opt_state = opt.update(g, opt_state, x)
+        x = optax.apply_updates(x, updates)
+        losses.append(float(loss))
+        history.append(np.exp(np.asarray(x, np.float64)))
+        if progress is not None:
+            progress(s + 1, steps)
+    values = {n: float(v) for n, v in zip(names, history[-1])}
+    return TuneResult(names, values, np.stack(history), np.asarray(losses), objective,
+                      time.perf_counter() - t0)

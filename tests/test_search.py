@@ -1,0 +1,166 @@
+"""Batched parameter search: spaces, designs, ranking, objectives, sharding on 2 CPU devices."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from synthetic import make_run
+
+from gslam_jax import metrics
+from gslam_jax import search as S
+from gslam_jax.config import Config, FilterSection, MapSection
+from gslam_jax.localmap import LocalMapParams
+
+LM = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0)
+CONFIG = Config(filter=FilterSection(particles=8, unknown_cells="ignore"), map=MapSection(margin=1.0))
+
+
+@pytest.fixture(scope="module")
+def small_run():
+    run, _ = make_run(seed=1, steps=24, drift=0.01, params=LM)
+    return run
+
+
+@pytest.mark.parametrize("table, match", [
+    ({"alpha_d": [0.1, 0.01]}, "alpha_d: inverted range"),
+    ({"alpha_d": [0.05, 0.05]}, "alpha_d: empty range"),
+    ({"alpha_x": [0.0, 1.0]}, "unknown parameter 'alpha_x'"),
+    ({"beta_new": [0.0, 1.0]}, "beta_new: .*positive"),
+    ({"alpha_theta": {"range": [0.0, 1.0], "log": True}}, "alpha_theta: a log-scale range"),
+    ({"alpha_d": [0.1]}, r"alpha_d: expected a range"),
+    ({}, "non-empty"),
+])
+def test_bad_spaces_name_the_field(table, match):
+    with pytest.raises(S.SearchError, match=match):
+        S.parse_space(table)
+
+
+def test_load_space_file(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('[space]\nalpha_d = [0.01, 0.1]\nbeta_prev = { range = [0.01, 1.0], log = true }\n'
+                 '[search]\ndesign = "sobol"\nn = 16\n')
+    space, opts = S.load_space(p)
+    assert space.names == ("alpha_d", "beta_prev") and space.log == (False, True)
+    assert opts == {"design": "sobol", "n": 16}
+    p.write_text('[space]\nalpha_d = [0.01, 0.1]\n[search]\nbogus = 1\n')
+    with pytest.raises(S.SearchError, match="unknown key 'bogus'"):
+        S.load_space(p)
+    space, _ = S.load_space(Path(__file__).parents[1] / "configs" / "search_example.toml")
+    assert space.dim >= 2
+
+
+def test_designs_cover_the_ranges():
+    space = S.parse_space({"alpha_d": [0.01, 0.1], "alpha_theta": {"range": [1e-3, 1e-1], "log": True}})
+    for design in S.DESIGNS:
+        v = S.design_points(space, design, 16, seed=1)
+        assert v.shape == (16, 2)
+        assert np.all(v[:, 0] >= 0.01) and np.all(v[:, 0] <= 0.1)
+        assert np.all(v[:, 1] >= 1e-3 - 1e-12) and np.all(v[:, 1] <= 1e-1 + 1e-12)
+    grid = S.design_points(space, "grid", 16)
+    assert len(np.unique(grid[:, 1].round(9))) == 4 and np.isclose(grid[:, 1].min(), 1e-3)
+    with pytest.raises(S.SearchError, match="design 'lhs' unknown"):
+        S.design_points(space, "lhs", 4)
+
+
+def test_sobol_and_halton_match_scipy():
+    qmc = pytest.importorskip("scipy.stats.qmc")
+    np.testing.assert_allclose(S.sobol(32, 5), qmc.Sobol(5, scramble=False).random(32))
+    np.testing.assert_allclose(S.halton(32, 4), qmc.Halton(4, scramble=False).random(33)[1:])
+
+
+def test_nan_is_never_ranked_best():
+    v = np.arange(5.0)[:, None]
+    f = np.array([np.nan, 3.0, -np.inf, 1.0, np.nan])
+    vals, obj = S.rank(v, f, maximize=False)
+    assert list(vals[:, 0][:2]) == [3.0, 1.0] and np.all(~np.isfinite(obj[2:]))
+    vals, obj = S.rank(v, f, maximize=True)
+    assert list(vals[:, 0][:2]) == [1.0, 3.0]
+    res = S.SearchResult(("alpha_d",), vals, obj, "loglik", True, 0.0, 0.0)
+    assert res.best() == {"alpha_d": 1.0} and res.num_nan == 3
+    allnan = S.SearchResult(("alpha_d",), v, np.full(5, np.nan), "rms", False, 0.0, 0.0)
+    with pytest.raises(S.SearchError, match="NaN"):
+        allnan.best()
+
+
+def test_rigid_rms_matches_metrics():
+    rng = np.random.default_rng(0)
+    ref = np.cumsum(rng.normal(size=(50, 3)), 0)
+    a = 0.3
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    est = ref.copy()
+    est[:, :2] = ref[:, :2] @ R.T + [5.0, -2.0] + rng.normal(0, 0.1, (50, 2))
+    mask = np.ones(50, bool)
+    mask[::7] = False
+    got = float(S.rigid_rms(jnp.asarray(est, jnp.float32), jnp.asarray(ref, jnp.float32), jnp.asarray(mask)))
+    want = metrics.rms_after_fit(est, ref, frames=np.flatnonzero(mask))
+    assert abs(got - want) < 1e-4
+
+
+def test_search_ranks_and_writes(small_run, tmp_path):
+    space = S.parse_space({"alpha_d": [0.01, 0.1], "alpha_theta_d": [0.002, 0.05]})
+    res = S.search(small_run, CONFIG, space, "halton", 5, "rms", batch=3)
+    assert res.values.shape == (5, 2) and np.all(np.diff(res.objective) >= 0)
+    # Every set is the filter's own output under the same key (common random numbers).
+    from gslam_jax import slam
+    import dataclasses
+    best = res.best()
+    cfg = dataclasses.replace(CONFIG, motion=dataclasses.replace(CONFIG.motion, **best))
+    out = slam.run_slam(small_run, cfg)
+    assert abs(metrics.rms_after_fit(out.mean_pose, small_run.ground_truth) - res.objective[0]) < 1e-3
+    res.to_csv(tmp_path / "r.csv")
+    res.to_json(tmp_path / "r.json")
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["results"][0]["rank"] == 1 and doc["objective"] == "rms"
+    assert (tmp_path / "r.csv").read_text().splitlines()[0] == "rank,alpha_d,alpha_theta_d,rms,status"
+
+
+def test_search_nan_objective_errors_and_warnings(small_run):
+    space = S.parse_space({"beta_prev": [0.01, 0.1]})
+    with pytest.raises(S.SearchError, match="objective 'loglik'"):
+        # beta = NaN makes every objective NaN: a clear error, not a silent "best".
+        S.search(small_run, CONFIG, space, objective="loglik", values=np.full((2, 1), np.nan))
+    with pytest.warns(RuntimeWarning, match="NaN for 1 of 2"):
+        res = S.search(small_run, CONFIG, space, objective="loglik",
+                       values=np.array([[np.nan], [0.05]]))
+    assert res.values[0, 0] == 0.05 and np.isnan(res.objective[1])
+    with pytest.raises(S.SearchError, match="ground_truth"):
+        S.search(small_run._replace(ground_truth=None), CONFIG, space, n=2, objective="rms")
+
+
+def test_sharded_on_two_cpu_devices(tmp_path):
+    """Sharded over a 2-device mesh gives the same objectives as one device (subprocess: the
+    device count must be set before JAX is imported)."""
+    code = textwrap.dedent(f"""
+        import os, sys
+        os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        import jax, numpy as np
+        assert len(jax.devices()) == 2, jax.devices()
+        from synthetic import make_run
+        from gslam_jax import search as S
+        from gslam_jax.config import Config, FilterSection, MapSection
+        from gslam_jax.localmap import LocalMapParams
+        run, _ = make_run(seed=1, steps=16, drift=0.01,
+                          params=LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0))
+        cfg = Config(filter=FilterSection(particles=8, unknown_cells="ignore"),
+                     map=MapSection(margin=1.0))
+        space = S.parse_space({{"alpha_d": [0.01, 0.1]}})
+        vals = S.design_points(space, "halton", 6)
+        two = S.search(run, cfg, space, values=vals, objective="loglik", batch=4)
+        one = S.search(run, cfg, space, values=vals, objective="loglik", batch=4,
+                       devices=jax.devices()[:1])
+        np.testing.assert_allclose(two.objective, one.objective, rtol=1e-5)
+        print("OK", two.objective[:2])
+    """)
+    env = dict(os.environ)
+    env.pop("XLA_FLAGS", None)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=env, timeout=300, cwd=Path(__file__).parents[1])
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "OK" in proc.stdout
