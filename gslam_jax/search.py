@@ -32,7 +32,7 @@ from typing import Any, Callable, NamedTuple, Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import Array
+from jax import Array, lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from gslam_jax import filter as gf
@@ -290,33 +290,63 @@ class _Inputs(NamedTuple):
     start: Array
 
 
-@partial(jax.jit, static_argnames=("names", "cfg", "objective", "path"))
-def _evaluate_batch(values: Array, key: Array, inputs: _Inputs, base: gf.FilterParams,
-                    names: tuple[str, ...], cfg: gf.FilterConfig, objective: str, path: str
-                    ) -> Array:
-    params = params_from_values(values, names, base)
+def _batch_fn(key: Array, inputs: _Inputs, base: gf.FilterParams, names: tuple[str, ...],
+              cfg: gf.FilterConfig, objective: str, path: str, inner: int
+              ) -> Callable[[Array], Array]:
+    """Objectives of a block of parameter sets [B, d] on one device: ``lax.map`` over the sets
+    in vmapped groups of ``inner`` (inner = B: a plain vmap)."""
 
-    def one(p: gf.FilterParams) -> Array:
+    def one(v: Array) -> Array:
+        p = params_from_values(v, names, base)
         out = gf.run_filter(key, p, inputs.controls, inputs.obs_index, inputs.local_obs, cfg,
                             inputs.start)
         return objective_value(out, objective, inputs.reference, inputs.mask, path)
 
-    return jax.vmap(one)(params)
+    def block(values: Array) -> Array:
+        if inner >= values.shape[0]:
+            return jax.vmap(one)(values)
+        return lax.map(one, values, batch_size=inner if inner > 1 else None)
+
+    return block
+
+
+@partial(jax.jit, static_argnames=("names", "cfg", "objective", "path", "inner", "mesh"))
+def _evaluate_batch(values: Array, key: Array, inputs: _Inputs, base: gf.FilterParams,
+                    names: tuple[str, ...], cfg: gf.FilterConfig, objective: str, path: str,
+                    inner: int, mesh: Mesh) -> Array:
+    """shard_map over the 1-D device mesh: each device evaluates its block of sets."""
+    spec, rep = PartitionSpec("p"), PartitionSpec()
+
+    def per_device(values, key, inputs, base):
+        return _batch_fn(key, inputs, base, names, cfg, objective, path, inner)(values)
+
+    return jax.shard_map(per_device, mesh=mesh, in_specs=(spec, rep, rep, rep),
+                         out_specs=spec, check_vma=False)(values, key, inputs, base)
 
 
 def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterParams,
              names: tuple[str, ...], cfg: gf.FilterConfig, objective: str, path: str = "mean",
              batch: int | None = None, devices: Sequence[jax.Device] | None = None,
-             progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+             progress: Callable[[int, int], None] | None = None, inner: int | None = None
+             ) -> np.ndarray:
     """Objective for every row of ``values`` [P, d]: equal chunks of ``batch`` rows (a multiple
     of the device count; the last chunk padded), each sharded over a 1-D mesh on the parameter
-    axis. One compilation for all chunks."""
+    axis (``NamedSharding``, ``shard_map``). One compilation for all chunks.
+
+    inner: sets vmapped together on one device. vmap turns the filter's data-dependent
+    ``lax.cond`` (resample or not) into a select over every map, so on CPU the sets of a device
+    run one after another in ``lax.map`` (inner=1, the default there); accelerators default to
+    vmapping the whole per-device block.
+    """
     devices = list(devices or jax.devices())
     nd = len(devices)
     P = values.shape[0]
     batch = P if batch is None else batch
     batch = max(nd, nd * math.ceil(min(batch, P) / nd))
     mesh = Mesh(np.asarray(devices), ("p",))
+    if inner is None:
+        inner = 1 if devices[0].platform == "cpu" else batch
+    inner_ = max(1, min(int(inner), batch // nd))
     sharded = NamedSharding(mesh, PartitionSpec("p"))
     replicated = NamedSharding(mesh, PartitionSpec())
     inputs = jax.device_put(inputs, replicated)
@@ -329,7 +359,8 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterPar
         if n < batch:  # pad with copies of the last row (discarded) to keep one shape
             chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch - n, axis=0)])
         vals = jax.device_put(chunk, sharded)
-        res = _evaluate_batch(vals, key, inputs, base, names, cfg, objective, path)
+        res = _evaluate_batch(vals, key, inputs, base, names, cfg, objective, path,
+                              inner_, mesh)
         out[start:start + n] = np.asarray(jax.device_get(res), np.float64)[:n]
         if progress is not None:
             progress(start + n, P)
@@ -422,7 +453,7 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
            crn: bool = True, seed: int = 0, batch: int | None = None,
            devices: Sequence[jax.Device] | None = None,
            progress: Callable[[int, int], None] | None = None,
-           values: np.ndarray | None = None) -> SearchResult:
+           values: np.ndarray | None = None, inner: int | None = None) -> SearchResult:
     """Evaluate ``n`` parameter sets of ``design`` over ``space`` on ``run``; best first.
 
     config: everything not searched (particles, resampler, map, and the base values of the
@@ -430,7 +461,8 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     "loglik" (higher is better). path: "mean" (weighted-mean pose per frame) or "best" (the
     final best particle's path) for "rms". crn: the same PRNG key for every set (common random
     numbers); otherwise set i uses fold_in(key, i). batch: sets per chunk (default
-    ``auto_batch``). values: an explicit [P, d] design (overrides design and n).
+    ``auto_batch``). values: an explicit [P, d] design (overrides design and n). inner: sets
+    vmapped together per device (see ``evaluate``).
     """
     import time
 
@@ -477,7 +509,7 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
             progress(done, total)
 
     f = evaluate(values, key, inputs, base, tuple(space.names), cfg, objective, path,
-                 batch=batch, devices=devices, progress=timed_progress)
+                 batch=batch, devices=devices, progress=timed_progress, inner=inner)
     seconds = time.perf_counter() - t0
     bad = ~np.isfinite(f)
     if bad.all():

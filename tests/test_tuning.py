@@ -44,7 +44,7 @@ def test_transition_score_is_the_motion_log_density_gradient():
 
 
 def test_forward_values_equal_the_filter(short_run):
-    config = _config(16)
+    config = _config(8)
     inputs, cfg = TU.make_inputs(short_run, config)
     params = slam.filter_params(config)
     key = jax.random.key(5)
@@ -77,7 +77,7 @@ def test_gradient_matches_central_differences(short_run):
 
 
 def test_tune_moves_towards_lower_loss_and_checks_input(short_run):
-    config = _config(16)
+    config = _config(8)
     with pytest.raises(TU.TuneError, match="beta_prev"):
         TU.tune(short_run, config, "loglik", names=["alpha_d", "beta_prev"], steps=1)
     with pytest.raises(TU.TuneError, match="unknown parameter 'alpha'"):
@@ -85,6 +85,6 @@ def test_tune_moves_towards_lower_loss_and_checks_input(short_run):
     with pytest.raises(TU.TuneError, match="not an optax optimiser"):
         TU.tune(short_run, config, "supervised", optimizer="nope", steps=1)
     res = TU.tune(short_run, config, "supervised", optimizer="sgd", lr=0.5, steps=2,
-                  names=["alpha_d"], start={"alpha_d": 0.3}, runs_per_step=2)
+                  names=["alpha_d"], start={"alpha_d": 0.3}, runs_per_step=1)
     assert res.history.shape == (3, 1) and np.all(np.isfinite(res.losses))
     assert res.values["alpha_d"] > 0 and res.values["alpha_d"] != 0.3
