@@ -73,6 +73,24 @@ def main() -> None:
               f"({1e3 * np.mean(times):.1f} mean) over {len(times)} frames, "
               f"{np.mean(inliers):.0f} inlier features/frame")
     print(f"dense stereo SGBM {W}x{H}, 64 disparities: {1e3 * np.median(dense):.1f} ms/frame median")
+    print(clique_timing())
+
+
+def clique_timing(n: int = 500, repeats: int = 5) -> str:
+    """The rigidity-clique inlier step on n synthetic matches, half of them false."""
+    from gslam_jax.vo.clique import rigid_inliers
+
+    rng = np.random.default_rng(0)
+    a = rng.uniform([-5, -2, 2], [5, 2, 20], (n, 3))
+    b = a + rng.normal(scale=0.003, size=a.shape)
+    b[n // 2:] = rng.uniform([-5, -2, 2], [5, 2, 20], (n - n // 2, 3))
+    rigid_inliers(a, b, 0.05)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        rigid_inliers(a, b, 0.05)
+        times.append(time.perf_counter() - t0)
+    return f"clique inlier step, {n} matches: {1e3 * np.median(times):.1f} ms median"
 
 
 if __name__ == "__main__":

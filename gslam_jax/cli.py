@@ -50,8 +50,15 @@ def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int]
         return load_run(args.run_file), str(args.run_file), None
     if args.source == "sim":
         from gslam_jax.datasets.sim import simulate_run
-        run, info = simulate_run(args.course, seed=args.seed, params=params, progress=progress)
+        run, info = simulate_run(args.course, seed=args.seed, params=params,
+                                 max_frames=args.max_frames, progress=progress)
         return run, f"simulated course {args.course} (seed {args.seed})", info
+    if args.source == "sim-stereo":
+        from gslam_jax.datasets.sim_stereo import load_sim_stereo
+        run, info = load_sim_stereo(args.course, args.seed, params, max_frames=args.max_frames,
+                                    progress=progress)
+        print(info.text())
+        return run, f"rendered stereo of course {args.course} (seed {args.seed})", None
     if args.source in ("kitti", "euroc") and args.path is None:
         raise ConfigError(f"--source {args.source} needs --path DATASET_FOLDER")
     if args.source == "kitti":
@@ -228,11 +235,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run Gamma-SLAM on a Run file, a simulated course or a dataset")
     p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (see README)")
-    p.add_argument("--source", choices=["sim", "kitti", "euroc"], default="sim",
+    p.add_argument("--source", choices=["sim", "sim-stereo", "kitti", "euroc"], default="sim",
                    help="where frames come from when no Run file is given (default: sim)")
     p.add_argument("--course", default="mars-yard-a", help="simulated course (default mars-yard-a)")
     p.add_argument("--path", type=Path, help="dataset folder for --source kitti/euroc")
     p.add_argument("--seed", type=int, default=0, help="simulation seed")
+    p.add_argument("--max-frames", type=int, help="simulate only the first N frames of the course")
     p.add_argument("--on-bad-frame", choices=["error", "fallback"], default="error",
                    help="a missing/corrupt image stops the run (error) or is counted and bridged "
                    "by the fallback odometry")

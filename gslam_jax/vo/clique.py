@@ -14,6 +14,16 @@ import numpy as np
 __all__ = ["consistency_graph", "greedy_max_clique", "rigid_inliers"]
 
 
+def _pairwise_distances(p: np.ndarray) -> np.ndarray:
+    """[N, N] Euclidean distances through one matrix product (|a|^2 + |b|^2 - 2 a.b): several
+    times faster than norming an [N, N, 3] difference array; float64 keeps it exact to ~1e-7 m
+    at the 100 m scale of stereo points."""
+    p = p - p.mean(axis=0)  # centring keeps the cancellation small
+    sq = np.einsum("ij,ij->i", p, p)
+    d2 = sq[:, None] + sq[None, :] - 2.0 * (p @ p.T)
+    return np.sqrt(np.maximum(d2, 0.0))
+
+
 def consistency_graph(points_a: np.ndarray, points_b: np.ndarray, threshold: float | np.ndarray
                       ) -> np.ndarray:
     """[N, N] bool: |‖a_i - a_j‖ - ‖b_i - b_j‖| < threshold (diagonal False).
@@ -21,8 +31,8 @@ def consistency_graph(points_a: np.ndarray, points_b: np.ndarray, threshold: flo
     ``threshold`` may be a scalar (metres) or an [N] per-match tolerance; pairs use the sum of the
     two tolerances, so a far (noisy) point is judged leniently (stereo depth error grows as z^2).
     """
-    da = np.linalg.norm(points_a[:, None, :] - points_a[None, :, :], axis=-1)
-    db = np.linalg.norm(points_b[:, None, :] - points_b[None, :, :], axis=-1)
+    da = _pairwise_distances(np.asarray(points_a, dtype=np.float64))
+    db = _pairwise_distances(np.asarray(points_b, dtype=np.float64))
     thr = np.asarray(threshold, dtype=np.float64)
     if thr.ndim == 1:
         thr = thr[:, None] + thr[None, :]
