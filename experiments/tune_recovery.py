@@ -27,6 +27,7 @@ from gslam_jax.bench import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
 from gslam_jax.localmap import LocalMapParams  # noqa: E402
+from gslam_jax.sim.vonoise import VO_PROFILES  # noqa: E402
 
 ALPHAS = ("alpha_d", "alpha_theta_d", "alpha_theta")
 
@@ -41,11 +42,16 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--lr", type=float, default=0.05)
     ap.add_argument("--runs", type=int, default=4, help="filter runs per gradient")
     ap.add_argument("--search", type=int, default=256, help="search points (0: skip)")
+    ap.add_argument("--white", action="store_true",
+                    help="VO noise of eqs. 1-3 only (no bias, no failures): the model is exact")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
 
     lm = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0, cells=32)
-    run, info = simulate_run(args.course, 0, lm, max_frames=args.frames)
+    vo = VO_PROFILES[args.course]
+    if args.white:
+        vo = dataclasses.replace(vo, scale_bias_std=0.0, heading_bias_std=0.0, failure_rate=0.0)
+    run, info = simulate_run(args.course, 0, lm, max_frames=args.frames, vo_noise=vo)
     true = {k: getattr(info.vo_noise, k) for k in ALPHAS}
     start = {k: 3.0 * v for k, v in true.items()}
     config = Config(filter=FilterSection(particles=args.particles, unknown_cells="ignore"),
