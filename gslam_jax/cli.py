@@ -200,6 +200,60 @@ def _gps_outputs(out: Path, args: argparse.Namespace, run, result) -> dict:
     return report
 
 
+def _config_and_run(args: argparse.Namespace):
+    from gslam_jax.config import apply_overrides, load_config
+
+    config = apply_overrides(load_config(args.config), args.set or [])
+    run, description, _ = _load_source(args, config, ProgressBar("front-end"))
+    print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps")
+    return config, run
+
+
+def cmd_search(args: argparse.Namespace) -> int:
+    from gslam_jax.search import SearchError, load_space, search
+
+    try:
+        space, options = load_space(args.space)
+        config, run = _config_and_run(args)
+        result = search(run, config, space,
+                        design=args.design or options.get("design", "halton"),
+                        n=args.n or options.get("n", 64),
+                        objective=args.objective or options.get("objective", "rms"),
+                        path=args.score_path or options.get("path", "mean"),
+                        seed=options.get("seed", 0), batch=args.batch,
+                        progress=ProgressBar("search"))
+    except SearchError as err:
+        raise ConfigError(str(err)) from err
+    out = Path(args.out) if args.out else Path("results") / time.strftime("search-%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    result.to_csv(out / "results.csv")
+    result.to_json(out / "results.json")
+    print(f"best: {result.best()}")
+    print(f"results: {out}")
+    return 0
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from gslam_jax.tuning import TuneError, tune
+
+    try:
+        config, run = _config_and_run(args)
+        names = args.params.split(",") if args.params else None
+        result = tune(run, config, objective=args.objective, optimizer=args.optimizer, lr=args.lr,
+                      steps=args.steps, names=names, runs_per_step=args.runs_per_step,
+                      crn=args.crn, progress=ProgressBar("tune"))
+    except TuneError as err:
+        raise ConfigError(str(err)) from err
+    print("tuned: " + ", ".join(f"{k} = {v:.5g}" for k, v in result.values.items()))
+    if args.out:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        (Path(args.out) / "tuned.json").write_text(json.dumps({
+            "objective": result.objective, "values": result.values,
+            "history": np.asarray(result.history).tolist(),
+            "losses": np.asarray(result.losses).tolist(), "seconds": result.seconds}, indent=2))
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from gslam_jax.bench import main as bench_main
     return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json)
@@ -234,6 +288,42 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run Gamma-SLAM on a Run file, a simulated course or a dataset")
+    _add_source_arguments(p)
+    p.add_argument("--gps", help="GPS log (time, lat, lon, epe) to align the result to, or 'sim' "
+                   "for a simulated WAAS-like receiver on a simulated course")
+    p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as .npz")
+    p.add_argument("--out", type=Path, help="results directory (default results/run-<time>)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("search", help="batched parameter search (vmapped/sharded over sets)")
+    _add_source_arguments(p)
+    p.add_argument("--space", type=Path, required=True, help="TOML search space (see "
+                   "configs/search_example.toml)")
+    p.add_argument("--design", choices=["grid", "random", "halton", "sobol"])
+    p.add_argument("--n", type=int, help="number of parameter sets")
+    p.add_argument("--objective", choices=["rms", "loglik"])
+    p.add_argument("--score-path", choices=["mean", "best"],
+                   help="path scored by rms: weighted mean or final best particle")
+    p.add_argument("--batch", type=int, help="parameter sets per chunk")
+    p.add_argument("--out", type=Path, help="write results.csv and results.json here")
+    p.set_defaults(func=cmd_search)
+
+    p = sub.add_parser("tune", help="gradient tuning of the noise parameters with optax")
+    _add_source_arguments(p)
+    p.add_argument("--objective", choices=["loglik", "supervised"], default="loglik")
+    p.add_argument("--optimizer", default="adam", help="any optax optimiser by name")
+    p.add_argument("--lr", type=float, default=0.05)
+    p.add_argument("--steps", type=int, default=100)
+    p.add_argument("--params", help="comma-separated names (default: the objective's)")
+    p.add_argument("--runs-per-step", type=int, default=4)
+    p.add_argument("--crn", action="store_true", help="common random numbers across steps")
+    p.add_argument("--out", type=Path, help="write tuned.json here")
+    p.set_defaults(func=cmd_tune)
+    _build_rest(sub)
+    return parser
+
+
+def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (see README)")
     p.add_argument("--source", choices=["sim", "sim-stereo", "kitti", "euroc"], default="sim",
                    help="where frames come from when no Run file is given (default: sim)")
@@ -244,15 +334,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--on-bad-frame", choices=["error", "fallback"], default="error",
                    help="a missing/corrupt image stops the run (error) or is counted and bridged "
                    "by the fallback odometry")
-    p.add_argument("--gps", help="GPS log (time, lat, lon, epe) to align the result to, or 'sim' "
-                   "for a simulated WAAS-like receiver on a simulated course")
-    p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as .npz")
     p.add_argument("--config", type=Path, help="TOML config (defaults: the paper's settings)")
     p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
                    help="override one config value (repeatable)")
-    p.add_argument("--out", type=Path, help="results directory (default results/run-<time>)")
-    p.set_defaults(func=cmd_run)
 
+
+def _build_rest(sub) -> None:
+    """bench, table1 and compare: commands with their own arguments."""
     p = sub.add_parser("bench", help="microseconds per particle per local-map update")
     p.add_argument("--particles", type=int, nargs="+", default=[50, 200, 1000])
     p.add_argument("--local", type=int, default=64, help="local map side, cells")
@@ -283,7 +371,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact", action="store_true",
                    help="disable XLA's fused multiply-adds so both filters round identically")
     p.set_defaults(func=cmd_compare)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
