@@ -41,6 +41,16 @@ def test_missing_file_and_bad_override(tmp_path):
 
 
 def test_shipped_configs_load():
+    """Every file in configs/ is a filter config or (with a [space] table) a search space."""
+    import tomllib
     from pathlib import Path
-    for path in sorted((Path(__file__).parents[1] / "configs").glob("*.toml")):
-        load_config(path)
+
+    from gslam_jax.search import load_space
+
+    paths = sorted((Path(__file__).parents[1] / "configs").glob("*.toml"))
+    assert paths
+    for path in paths:
+        if "space" in tomllib.loads(path.read_text()):
+            load_space(path)
+        else:
+            load_config(path)

@@ -14,7 +14,8 @@ from gslam_jax.localmap import LocalMapParams
 @pytest.fixture(scope="module")
 def short_run():
     cv2.setNumThreads(1)
-    return load_sim_stereo("mars-yard-a", 0, LocalMapParams(), max_frames=16)
+    # The course starts with a 3 s survey stop (15 frames at 5 Hz); 28 frames drive ~1.8 m.
+    return load_sim_stereo("mars-yard-a", 0, LocalMapParams(), max_frames=28)
 
 
 def test_rendered_vo_follows_ground_truth(short_run):
