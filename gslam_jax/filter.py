@@ -32,8 +32,9 @@ from gslam_jax import cells, resampling, unknown
 from gslam_jax.motion import MotionParams, apply_motion
 
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepInfo", "RunOutput",
-           "init", "predict", "update", "step", "scan_frames", "frame_keys", "run_filter", "backtrack_path", "motion_noise",
-           "update_noise", "window_origin", "observation_in_window", "log_importance"]
+           "init", "predict", "update", "step", "scan_frames", "frame_keys", "run_filter",
+           "backtrack_path", "motion_noise", "update_noise", "window_origin",
+           "observation_in_window", "log_importance"]
 
 UNKNOWN_MODES = ("ignore", "sample")
 
