@@ -281,13 +281,7 @@ def objective_value(out: gf.RunOutput, objective: str, reference: Array, mask: A
     return rigid_rms(est, reference, mask)
 
 
-class _Inputs(NamedTuple):
-    controls: Array
-    obs_index: Array
-    local_obs: Array
-    reference: Array
-    mask: Array
-    start: Array
+_Inputs = slam.RunArrays
 
 
 def _batch_fn(key: Array, inputs: _Inputs, base: gf.FilterParams, names: tuple[str, ...],
@@ -479,23 +473,15 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     values = np.asarray(values, np.float64)
     if values.ndim != 2 or values.shape[1] != space.dim:
         raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
-    cfg = slam.filter_config(config, run)
+    inputs, cfg = slam.run_arrays(run, config)
     base = slam.filter_params(config)
-    T = run.num_frames
-    gt = run.ground_truth if run.ground_truth is not None else np.zeros((T, 3))
-    inputs = _Inputs(
-        controls=jnp.asarray(run.controls, jnp.float32),
-        obs_index=jnp.asarray(run.obs_index, jnp.int32),
-        local_obs=jnp.asarray(slam.local_observations(run, config.map.min_variance)),
-        reference=jnp.asarray(gt, jnp.float32), mask=jnp.asarray(np.isfinite(gt).all(1)),
-        start=jnp.asarray(run.start_pose(), jnp.float32))
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:
         raise SearchError("crn=False is not supported by the batched search: every set uses "
                           "the same key (common random numbers); repeat the search with "
                           "different keys instead")
     nd = len(devices or jax.devices())
-    batch = batch or auto_batch(cfg, T, num_devices=nd)
+    batch = batch or auto_batch(cfg, run.num_frames, num_devices=nd)
     t0 = time.perf_counter()
     compile_s = 0.0
     first = [True]

@@ -21,7 +21,7 @@ from gslam_jax.motion import MotionParams
 from gslam_jax.run import Run
 
 __all__ = ["MapExtent", "map_extent", "filter_config", "filter_params", "local_observations",
-           "SlamResult", "run_slam", "ExtentWarning"]
+           "RunArrays", "run_arrays", "SlamResult", "run_slam", "ExtentWarning"]
 
 
 class ExtentWarning(UserWarning):
@@ -78,6 +78,31 @@ def local_observations(run: Run, min_variance: float) -> np.ndarray:
     if run.num_local_maps == 0:
         return np.zeros((1, 8, 8, 2), np.float32)
     return cells.obs_from_stats(run.local_maps, min_variance).astype(np.float32)
+
+
+class RunArrays(NamedTuple):
+    """A Run's device arrays, as the batched search and the tuner feed them to the filter."""
+
+    controls: jax.Array    # [T, 3]
+    obs_index: jax.Array   # [T]
+    local_obs: jax.Array   # [M, L, L, 2]
+    reference: jax.Array   # [T, 3] ground truth (zeros where unknown)
+    mask: jax.Array        # [T] frames with ground truth
+    start: jax.Array       # [3]
+
+
+def run_arrays(run: Run, config: Config) -> tuple[RunArrays, gf.FilterConfig]:
+    """Device arrays of ``run`` and the static filter config for it."""
+    T = run.num_frames
+    gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
+    arrays = RunArrays(
+        controls=jnp.asarray(run.controls, jnp.float32),
+        obs_index=jnp.asarray(run.obs_index, jnp.int32),
+        local_obs=jnp.asarray(local_observations(run, config.map.min_variance)),
+        reference=jnp.asarray(np.nan_to_num(gt), jnp.float32),
+        mask=jnp.asarray(np.isfinite(gt).all(1)),
+        start=jnp.asarray(run.start_pose(), jnp.float32))
+    return arrays, filter_config(config, run)
 
 
 class SlamResult(NamedTuple):

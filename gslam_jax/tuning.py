@@ -56,15 +56,7 @@ class TuneError(ValueError):
     """A bad tuning request; the message names the field."""
 
 
-class TuneInputs(NamedTuple):
-    """Device arrays of one Run (see ``make_inputs``)."""
-
-    controls: Array    # [T, 3]
-    obs_index: Array   # [T]
-    local_obs: Array   # [M, L, L, 2]
-    reference: Array   # [T, 3] ground truth (zeros if none)
-    mask: Array        # [T] frames with ground truth
-    start: Array       # [3]
+TuneInputs = slam.RunArrays  # the Run's device arrays (``slam.run_arrays``)
 
 
 class Objectives(NamedTuple):
@@ -151,17 +143,8 @@ def sw_objectives(key: Array, params: gf.FilterParams, inputs: TuneInputs,
 
 
 def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, gf.FilterConfig]:
-    """Device inputs and the static filter config for ``run``."""
-    T = run.num_frames
-    gt = run.ground_truth if run.ground_truth is not None else np.zeros((T, 3))
-    inputs = TuneInputs(
-        controls=jnp.asarray(run.controls, jnp.float32),
-        obs_index=jnp.asarray(run.obs_index, jnp.int32),
-        local_obs=jnp.asarray(slam.local_observations(run, config.map.min_variance)),
-        reference=jnp.asarray(np.nan_to_num(gt), jnp.float32),
-        mask=jnp.asarray(np.isfinite(gt).all(1) & (run.ground_truth is not None)),
-        start=jnp.asarray(run.start_pose(), jnp.float32))
-    return inputs, slam.filter_config(config, run)
+    """Device inputs and the static filter config for ``run`` (``slam.run_arrays``)."""
+    return slam.run_arrays(run, config)
 
 
 def objective_fn(log_values: Array, keys: Array, base: gf.FilterParams, inputs: TuneInputs,
