@@ -82,20 +82,32 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
             "ms_per_update": 1e3 * sec, "us_per_particle": 1e6 * sec / J}
 
 
-def main(particles=(50, 200, 1000), local: int = 64, map_side: int = 640, repeats: int = 10,
+def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int = 10,
          modes=("ignore", "sample"), json_path: Path | None = None) -> int:
+    """Print (and optionally save) the update cost over every combination of the arguments.
+
+    The cost should be flat in the map size (each update touches one window per particle) and
+    linear in J; the last column divides by J so both are easy to read off.
+    """
+    local = [local] if isinstance(local, int) else list(local)
+    map_side = [map_side] if isinstance(map_side, int) else list(map_side)
     env = environment()
     print("gslam bench: local-map update (window update + fused log-gamma weights + normalise)")
     for k, v in env.items():
         print(f"  {k}: {v}")
     rows = []
-    print(f"{'mode':>7} {'J':>6} {'local':>6} {'map':>6} {'window':>7} {'ms/update':>10} {'us/particle':>12}")
+    print(f"{'mode':>7} {'J':>6} {'local':>6} {'map':>6} {'window':>7} {'ms/update':>10} "
+          f"{'us/particle':>12} {'MB/particle':>12}")
     for mode in modes:
-        for J in particles:
-            r = time_update(J, local, map_side, mode, repeats)
-            rows.append(r)
-            print(f"{mode:>7} {J:>6} {local:>6} {map_side:>6} {r['window']:>7} "
-                  f"{r['ms_per_update']:>10.2f} {r['us_per_particle']:>12.1f}", flush=True)
+        for L in local:
+            for side in map_side:
+                for J in particles:
+                    r = time_update(J, L, side, mode, repeats)
+                    r["mb_per_particle"] = 2 * 4 * side * side / 1e6
+                    rows.append(r)
+                    print(f"{mode:>7} {J:>6} {L:>6} {side:>6} {r['window']:>7} "
+                          f"{r['ms_per_update']:>10.2f} {r['us_per_particle']:>12.1f} "
+                          f"{r['mb_per_particle']:>12.2f}", flush=True)
     if json_path:
         Path(json_path).write_text(json.dumps({"environment": env, "results": rows}, indent=2))
     return 0

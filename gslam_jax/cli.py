@@ -343,8 +343,8 @@ def _build_rest(sub) -> None:
     """bench, table1 and compare: commands with their own arguments."""
     p = sub.add_parser("bench", help="microseconds per particle per local-map update")
     p.add_argument("--particles", type=int, nargs="+", default=[50, 200, 1000])
-    p.add_argument("--local", type=int, default=64, help="local map side, cells")
-    p.add_argument("--map", type=int, default=640, help="global map side, cells")
+    p.add_argument("--local", type=int, nargs="+", default=[64], help="local map sides, cells")
+    p.add_argument("--map", type=int, nargs="+", default=[640], help="global map sides, cells")
     p.add_argument("--repeats", type=int, default=10)
     p.add_argument("--mode", choices=["ignore", "sample"], nargs="+", default=["ignore", "sample"])
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
