@@ -4,13 +4,13 @@ Every particle carries a pose and a dense variance grid map stored as (k, S) arr
 (``cells``). One frame of the filter is:
 
 * ``predict`` at every frame: sample the motion model (eqs. 1-3, 24).
-* ``update`` at frames that carry a local map: for each particle, the local map is rotated and
-  translated into a window of its global map by nearest-cell lookup from every window cell back
-  into the robot-centred grid (so each global cell receives at most one observation cell); the
-  log-gamma importance factors of the observed cells (eq. 26) and their tempered combination
-  (eq. 30 or 31) are one fused computation; the window gets the conjugate update (eq. 14); the
-  weights are multiplied (eq. 27) and normalised; the particles are resampled when the ESS
-  (eq. 23) drops below ``resample_ratio * J``.
+* ``update`` at frames that carry a local map: for each particle, every local cell's centre is
+  rotated and translated into its global map (``observation_cells``); the log-gamma importance
+  factors of the observed cells against the map cells under them (eq. 26) and their tempered
+  combination (eq. 30 or 31) are one fused computation over the L x L local cells; the local
+  map is then scatter-added into the map (the conjugate update, eq. 14); the weights are
+  multiplied (eq. 27) and normalised; the particles are resampled when the ESS (eq. 23) drops
+  below ``resample_ratio * J``.
 
 The whole Run is a ``lax.scan`` over frames (``run_filter``); poses and resampling ancestors are
 kept per frame so the best particle's full path survives resampling (``backtrack_path``).
@@ -34,7 +34,7 @@ from gslam_jax.motion import MotionParams, apply_motion
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepInfo", "RunOutput",
            "init", "predict", "update", "step", "scan_frames", "frame_keys", "run_filter",
            "backtrack_path", "motion_noise", "update_noise", "window_origin",
-           "observation_in_window", "log_importance"]
+           "observation_cells", "log_importance"]
 
 UNKNOWN_MODES = ("ignore", "sample")
 
@@ -64,7 +64,8 @@ class FilterConfig(NamedTuple):
 
     @property
     def window(self) -> int:
-        """Side of the square global-map window that holds a rotated local map."""
+        """Side of a square global-map window that holds a rotated local map (the minimum map
+        side; "sample" mode refreshes its known-cell bits over such a window)."""
         radius = math.ceil(self.local_size / math.sqrt(2.0)) + 1
         side = 2 * (radius + self.block)
         return int(unknown.BLOCK * math.ceil(side / unknown.BLOCK))
@@ -124,7 +125,7 @@ class StepInfo(NamedTuple):
     resampled: Array     # bool
     updated: Array       # bool: the frame carried a local map
     log_lik: Array       # log mean weight increment (log marginal likelihood term), 0 if none
-    extent_violations: Array  # particles whose update window left the map extent
+    extent_violations: Array  # particles with observed local cells outside the map extent
     empty_obs: Array     # bool: the local map had no informative cell
 
 
@@ -165,10 +166,11 @@ def predict(pose: Array, u: Array, eps: Array, params: FilterParams) -> Array:
 
 
 def window_origin(pose: Array, cfg: FilterConfig) -> tuple[Array, Array, Array]:
-    """Top-left cell (i, j) of a particle's update window, and whether it left the map.
+    """Top-left cell (i, j) of the block-aligned window that holds a particle's footprint.
 
-    The ideal window is centred on the particle's cell (aligned to ``cfg.block``); a window
-    that would leave the map is shifted back inside and flagged, never wrapped.
+    Only "sample" mode uses it, to refresh the known-cell bits after a write. The ideal window
+    is centred on the particle's cell (aligned to ``cfg.block``); a window that would leave the
+    map is shifted back inside and flagged, never wrapped.
     """
     H, W = cfg.map_shape
     Wn, b = cfg.window, cfg.block
@@ -180,30 +182,27 @@ def window_origin(pose: Array, cfg: FilterConfig) -> tuple[Array, Array, Array]:
     return ci_, cj_, (ci_ != oi) | (cj_ != oj)
 
 
-def observation_in_window(pose: Array, oi: Array, oj: Array, local_obs: Array,
-                          cfg: FilterConfig) -> tuple[Array, Array]:
-    """The local map (k, S) [L, L, 2] seen from ``pose``, resampled onto the window [Wn, Wn].
+def observation_cells(pose: Array, cfg: FilterConfig) -> tuple[Array, Array]:
+    """The map cell under each local cell seen from ``pose`` (paper 6.1: "rotate and translate
+    the observation"): flat map indices [L*L] and whether each lies inside the map.
 
-    Every window cell centre is moved into the robot frame and takes the local cell it falls in
-    (nearest-cell rotation; paper 6.1 "rotate and translate the observation").
+    Local cell (a, b) covers robot-frame x in [a - L/2, a - L/2 + 1) cells (y likewise with b);
+    its centre is rotated by the particle's heading, translated to its position, and takes the
+    map cell it falls in. Every local cell lands in exactly one map cell, so no observation is
+    dropped or counted twice; off-map cells get index H*W and are masked, never wrapped.
     """
-    L, Wn, res = cfg.local_size, cfg.window, cfg.resolution
-    # Window cell centres relative to the particle, in cells (small numbers: float32-safe).
-    px = (pose[0] - cfg.map_origin[0]) / res
-    py = (pose[1] - cfg.map_origin[1]) / res
-    dx = (oi + jnp.arange(Wn, dtype=jnp.float32) + 0.5) - px
-    dy = (oj + jnp.arange(Wn, dtype=jnp.float32) + 0.5) - py
+    H, W = cfg.map_shape
+    L = cfg.local_size
+    # Robot position in cells, and local cell centres in cells (small numbers: float32-safe).
+    px = (pose[0] - cfg.map_origin[0]) / cfg.resolution
+    py = (pose[1] - cfg.map_origin[1]) / cfg.resolution
+    centre = jnp.arange(L, dtype=jnp.float32) - (L // 2) + 0.5
     c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    lx = c * dx[:, None] + s * dy[None, :]
-    ly = -s * dx[:, None] + c * dy[None, :]
-    li = jnp.floor(lx).astype(jnp.int32) + L // 2
-    lj = jnp.floor(ly).astype(jnp.int32) + L // 2
-    inside = (li >= 0) & (li < L) & (lj >= 0) & (lj < L)
-    flat = jnp.where(inside, li * L + lj, 0)
-    # Scalar gathers with in-bounds indices: several times faster on CPU than row gathers.
-    k = local_obs[..., 0].reshape(-1).at[flat].get(mode="promise_in_bounds")
-    S = local_obs[..., 1].reshape(-1).at[flat].get(mode="promise_in_bounds")
-    return jnp.where(inside, k, 0.0), jnp.where(inside, S, 0.0)
+    gi = jnp.floor(px + (c * centre[:, None] - s * centre[None, :])).astype(jnp.int32)
+    gj = jnp.floor(py + (s * centre[:, None] + c * centre[None, :])).astype(jnp.int32)
+    on_map = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
+    flat = jnp.where(on_map, gi * W + gj, H * W)
+    return flat.reshape(-1), on_map.reshape(-1)
 
 
 def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
@@ -211,9 +210,9 @@ def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
                    params: FilterParams, unknown_cells: str) -> Array:
     """Tempered log importance factor of one particle, eqs. 26 and 30 / 31.
 
-    All inputs are window arrays; (k_borrow, S_borrow) are the sampled known cells used for
-    unknown cells in "sample" mode. Masked cells get harmless stand-ins so that neither the
-    value nor the gradient sees a log(0).
+    All inputs are per-cell arrays of one footprint; (k_borrow, S_borrow) are the sampled known
+    cells used for unknown cells in "sample" mode. Masked cells get harmless stand-ins so that
+    neither the value nor the gradient sees a log(0).
     """
     return _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borrow,
                            params, unknown_cells, cells.log_predictive_integer)
@@ -237,34 +236,37 @@ def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borr
     return (sum_prev / params.beta_prev + sum_new / params.beta_new) / n_obs  # eq. 31
 
 
-class _Windows(NamedTuple):
+class _Footprint(NamedTuple):
     """What one update reads from the maps, per particle (stacked to [J, ...] by vmap)."""
 
-    oi: Array
-    oj: Array
-    left_map: Array
-    k_obs: Array     # [Wn, Wn] observation resampled onto the window
+    cells: Array     # [L*L] flat map index under each local cell (H*W off the map)
+    off_map: Array   # some observed local cell fell outside the map
+    k_obs: Array     # [L*L] the local map, zero where its cell fell off the map
     S_obs: Array
-    k_win: Array     # [Wn, Wn] prior window of the map
-    S_win: Array
+    k_prior: Array   # [L*L] map statistics under the local cells
+    S_prior: Array
     k_draws: Array   # [unknown_samples] borrowed known cells ([0] in "ignore" mode)
     S_draws: Array
     can_borrow: Array
 
 
 def _particle_reads(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_u: Array,
-                    local_obs: Array, cfg: FilterConfig) -> _Windows:
+                    local_obs: Array, cfg: FilterConfig) -> _Footprint:
     """Everything one particle's update reads from its map (vmapped over particles)."""
-    Wn = cfg.window
-    oi, oj, left_map = window_origin(pose, cfg)
-    k_obs, S_obs = observation_in_window(pose, oi, oj, local_obs, cfg)
-    k_win = lax.dynamic_slice(kmap, (oi, oj), (Wn, Wn))
-    S_win = lax.dynamic_slice(smap, (oi, oj), (Wn, Wn))
+    flat, on_map = observation_cells(pose, cfg)
+    k_local = local_obs[..., 0].reshape(-1)
+    S_local = local_obs[..., 1].reshape(-1)
+    k_obs = jnp.where(on_map, k_local, 0.0)
+    S_obs = jnp.where(on_map, S_local, 0.0)
+    # Scalar gathers with in-bounds indices: several times faster on CPU than clipping ones.
+    safe = jnp.where(on_map, flat, 0)
+    k_prior = jnp.where(on_map, kmap.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
+    S_prior = jnp.where(on_map, smap.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
     if cfg.unknown_cells == "sample":
-        # unknown_samples uniform known cells; window cell c borrows draw c mod unknown_samples
+        # unknown_samples uniform known cells; local cell c borrows draw c mod unknown_samples
         # (see _borrowed), so every unknown cell borrows a uniformly random known cell (draws
         # are shared between cells unknown_samples apart, which keeps the search cost
-        # independent of the window). Only the draws are read from the big map.
+        # independent of the local map). Only the draws are read from the big map.
         idx, total = unknown.sample_known_cells(bits, unknown_u)
         kb = kmap.reshape(-1).at[idx].get(mode="promise_in_bounds")
         Sb = smap.reshape(-1).at[idx].get(mode="promise_in_bounds")
@@ -272,62 +274,72 @@ def _particle_reads(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_
     else:
         kb = Sb = jnp.zeros((0,), kmap.dtype)
         can_borrow = jnp.bool_(False)
-    return _Windows(oi, oj, left_map, k_obs, S_obs, k_win, S_win, kb, Sb, can_borrow)
+    off_map = jnp.any(~on_map & (k_local > 0))
+    return _Footprint(flat, off_map, k_obs, S_obs, k_prior, S_prior, kb, Sb, can_borrow)
 
 
-def _borrowed(draws: Array, Wn: int) -> Array:
-    """[unknown_samples] draws -> [Wn, Wn]: window cell c takes draw c mod unknown_samples."""
-    reps = -(-(Wn * Wn) // draws.shape[0])
-    return jnp.tile(draws, reps)[:Wn * Wn].reshape(Wn, Wn)
+def _borrowed(draws: Array, n: int) -> Array:
+    """[unknown_samples] draws -> [n]: cell c takes draw c mod unknown_samples."""
+    reps = -(-n // draws.shape[0])
+    return jnp.tile(draws, reps)[:n]
 
 
-def _log_lambda(w: _Windows, params: FilterParams, cfg: FilterConfig, log_pred) -> Array:
+def _log_lambda(f: _Footprint, params: FilterParams, cfg: FilterConfig, log_pred) -> Array:
     """[J] log importance factors from the stacked reads (eq. 26 with eq. 30 / 31)."""
 
-    def one(k_obs, S_obs, k_win, S_win, kb, Sb, can_borrow):
+    def one(k_obs, S_obs, k_prior, S_prior, kb, Sb, can_borrow):
         if cfg.unknown_cells == "sample":
-            k_borrow, S_borrow = _borrowed(kb, cfg.window), _borrowed(Sb, cfg.window)
+            n = k_obs.shape[0]
+            k_borrow, S_borrow = _borrowed(kb, n), _borrowed(Sb, n)
         else:
             k_borrow, S_borrow = k_obs, S_obs
-        return _log_importance(k_obs, S_obs, k_win, S_win, k_borrow, S_borrow, can_borrow,
+        return _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borrow,
                                params, cfg.unknown_cells, log_pred)
 
-    return jax.vmap(one)(w.k_obs, w.S_obs, w.k_win, w.S_win, w.k_draws, w.S_draws, w.can_borrow)
+    return jax.vmap(one)(f.k_obs, f.S_obs, f.k_prior, f.S_prior, f.k_draws, f.S_draws,
+                         f.can_borrow)
 
 
-def _log_lambda_fast(w: _Windows, local_obs: Array, params: FilterParams,
+def _log_lambda_fast(f: _Footprint, local_obs: Array, params: FilterParams,
                      cfg: FilterConfig) -> Array:
     """``_log_lambda`` with the table-only lgamma when every k'' fits the table (same numbers).
 
-    k'' = k + k' of every evaluated cell is at most max(local k) + max(prior k over the windows
-    and the draws) (masked cells use k = k' = 1); when that bound is below the lgamma table
-    size the Stirling fallback is never selected, so the cheaper kernel gives the same values.
-    NaN in k fails the test and takes the exact path.
+    k'' = k + k' of every evaluated cell is at most max(local k) + max(prior k over the
+    footprints and the draws) (masked cells use k = k' = 1); when that bound is below the lgamma
+    table size the Stirling fallback is never selected, so the cheaper kernel gives the same
+    values. NaN in k fails the test and takes the exact path.
     """
-    k_prior_max = jnp.max(w.k_win)
+    k_prior_max = jnp.max(f.k_prior)
     if cfg.unknown_cells == "sample":
-        k_prior_max = jnp.maximum(k_prior_max, jnp.max(w.k_draws))
+        k_prior_max = jnp.maximum(k_prior_max, jnp.max(f.k_draws))
     bound = jnp.maximum(k_prior_max, 1.0) + jnp.maximum(jnp.max(local_obs[..., 0]), 1.0)
     return lax.cond(bound < cells.LGAMMA_TABLE_SIZE,
-                    lambda w: _log_lambda(w, params, cfg, cells.log_predictive_integer_table),
-                    lambda w: _log_lambda(w, params, cfg, cells.log_predictive_integer), w)
+                    lambda f: _log_lambda(f, params, cfg, cells.log_predictive_integer_table),
+                    lambda f: _log_lambda(f, params, cfg, cells.log_predictive_integer), f)
 
 
-def _write_windows(kmap: Array, smap: Array, bits: Array, windows, cfg: FilterConfig):
-    """Write the updated windows back into the maps (eq. 14) and refresh the known-cell bits."""
+def _write_footprints(kmap: Array, smap: Array, bits: Array, pose: Array, flat: Array,
+                      local_obs: Array, cfg: FilterConfig):
+    """Add the local map into every particle's map (eq. 14: k'' = k' + k, S'' = S' + S) and
+    refresh the known-cell bits around it. Off-map cells (index H*W) are dropped."""
     if not cfg.update_map:
         return kmap, smap, bits
+    H, W = cfg.map_shape
+    k_local = local_obs[..., 0].reshape(-1)
+    S_local = local_obs[..., 1].reshape(-1)
 
-    def one(kmap, smap, bits, oi, oj, k_new, S_new):
-        kmap = lax.dynamic_update_slice(kmap, k_new, (oi, oj))
-        smap = lax.dynamic_update_slice(smap, S_new, (oi, oj))
+    def one(kmap, smap, bits, pose, flat):
+        kmap = kmap.reshape(-1).at[flat].add(k_local, mode="drop").reshape(H, W)
+        smap = smap.reshape(-1).at[flat].add(S_local, mode="drop").reshape(H, W)
         if cfg.unknown_cells == "sample":
-            b = unknown.BLOCK
-            bits = lax.dynamic_update_slice(bits, unknown.pack_known(k_new > 0),
+            b, Wn = unknown.BLOCK, cfg.window
+            oi, oj, _ = window_origin(pose, cfg)
+            known = lax.dynamic_slice(kmap, (oi, oj), (Wn, Wn)) > 0
+            bits = lax.dynamic_update_slice(bits, unknown.pack_known(known),
                                             (oi // b, oj // b, 0))
         return kmap, smap, bits
 
-    return jax.vmap(one)(kmap, smap, bits, *windows)
+    return jax.vmap(one)(kmap, smap, bits, pose, flat)
 
 
 def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: FilterParams,
@@ -340,25 +352,20 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     reads = jax.vmap(partial(_particle_reads, local_obs=local_obs, cfg=cfg))(
         state.pose, state.kmap, state.smap, state.known_bits, noise.unknown_u)
     log_lam = _log_lambda_fast(reads, local_obs, params, cfg)
-    left_map = reads.left_map
-    k_new, S_new = cells.conjugate_update(reads.k_win, reads.S_win, reads.k_obs, reads.S_obs)
-    windows = (reads.oi, reads.oj, k_new, S_new)
     unnorm = state.log_w + log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
     ess = resampling.ess(log_w)
     do_resample = ess < cfg.resample_ratio * J
 
-    # Write the windows only after every read of the old maps (the known-cell draws included):
-    # the origins are made to depend on the resampling decision, hence on all the weights, by
-    # a min() that never changes them (oi <= H - window). Without that ordering XLA copies the
+    # Write only after every read of the old maps (the known-cell draws included): the target
+    # cells are made to depend on the resampling decision, hence on all the weights, by a
+    # min() that never changes them (cells <= H * W). Without that ordering XLA copies the
     # whole [J, H, W] maps before updating them in place.
     H, W = cfg.map_shape
-    oi, oj = windows[0], windows[1]
-    late = do_resample.astype(jnp.int32)
-    oi = jnp.minimum(oi, H + late)
-    kmap, smap, bits = _write_windows(state.kmap, state.smap, state.known_bits,
-                                      (oi, oj) + tuple(windows[2:]), cfg)
+    flat = jnp.minimum(reads.cells, H * W + do_resample.astype(jnp.int32))
+    kmap, smap, bits = _write_footprints(state.kmap, state.smap, state.known_bits, state.pose,
+                                         flat, local_obs, cfg)
 
     def resample_branch(args):
         pose, kmap, smap, bits, log_w = args
@@ -376,7 +383,7 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     new_state = FilterState(pose, log_w, kmap, smap, bits)
     info = StepInfo(pose=pose, ancestors=anc, log_w=log_w, ess=ess, resampled=do_resample,
                     updated=jnp.bool_(True), log_lik=log_lik,
-                    extent_violations=jnp.sum(left_map).astype(jnp.int32),
+                    extent_violations=jnp.sum(reads.off_map).astype(jnp.int32),
                     empty_obs=~jnp.any(local_obs[..., 0] > 0))
     return new_state, info
 

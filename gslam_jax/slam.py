@@ -25,7 +25,7 @@ __all__ = ["MapExtent", "map_extent", "filter_config", "filter_params", "local_o
 
 
 class ExtentWarning(UserWarning):
-    """Particles tried to update cells outside the map extent (their windows were shifted)."""
+    """Particles observed cells outside the map extent (those cells were skipped)."""
 
 
 class MapExtent(NamedTuple):
@@ -120,7 +120,7 @@ class SlamResult(NamedTuple):
     smap: np.ndarray           # [H, W]
     map_origin: tuple[float, float]
     resolution: float
-    extent_violations: int     # particle-updates whose window left the map
+    extent_violations: int     # particle-updates with observed cells off the map
     empty_observations: int    # local maps with no informative cell
     seconds: float             # filter wall time after compilation
     compile_seconds: float
@@ -172,8 +172,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     violations = int(np.sum(infos.extent_violations))
     if violations:
         warnings.warn(f"{violations} particle updates reached the edge of the "
-                      f"{cfg.map_shape} map; their windows were shifted inside and observations "
-                      f"beyond the edge were dropped. Increase [map] margin.", ExtentWarning)
+                      f"{cfg.map_shape} map; observed cells beyond the edge were skipped "
+                      f"(neither weighed nor mapped). Increase [map] margin.", ExtentWarning)
     return SlamResult(
         best_path=path, best_pose=best, mean_pose=mean, vo_path=run.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,

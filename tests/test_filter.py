@@ -90,7 +90,7 @@ def test_slam_corrects_vo_heading_drift_on_a_loop():
     assert res.extent_violations == 0
 
 
-def test_windows_leaving_the_map_are_counted_not_wrapped():
+def test_footprints_leaving_the_map_are_counted_not_wrapped():
     run, _ = make_run(seed=1, steps=20)
     cfg = gf.FilterConfig(num_particles=4, map_shape=(112, 112), map_origin=(-2.0, -9.0),
                           resolution=RES, local_size=64, unknown_cells="ignore")
@@ -98,6 +98,48 @@ def test_windows_leaving_the_map_are_counted_not_wrapped():
     out = gf.run_filter(jax.random.key(0), gf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
                         jnp.asarray(run.obs_index), obs, cfg)
     assert int(np.sum(out.infos.extent_violations)) > 0
+
+
+def test_observation_cells_match_float64_geometry():
+    """Each local cell centre, rotated and translated in float64, lands in the same map cell
+    (up to float32 rounding at cell borders), and off-map cells are flagged, not wrapped."""
+    rng = np.random.default_rng(0)
+    L, H, W = 16, 40, 48
+    cfg = gf.FilterConfig(1, (H, W), (-3.0, -2.0), RES, L, unknown_cells="ignore")
+    centre = (np.arange(L) - L // 2 + 0.5) * RES
+    a, b = np.meshgrid(centre, centre, indexing="ij")
+    mismatches = 0
+    for _ in range(50):
+        pose = np.array([rng.uniform(-3.5, 3.5), rng.uniform(-2.5, 6.0), rng.uniform(-np.pi, np.pi)])
+        flat, on_map = map(np.asarray, gf.observation_cells(jnp.asarray(pose, jnp.float32), cfg))
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        gi = np.floor((pose[0] + c * a - s * b - cfg.map_origin[0]) / RES).astype(int).ravel()
+        gj = np.floor((pose[1] + s * a + c * b - cfg.map_origin[1]) / RES).astype(int).ravel()
+        inside = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
+        mismatches += int(np.sum(inside != on_map))
+        both = inside & on_map
+        mismatches += int(np.sum(flat[both] != (gi * W + gj)[both]))
+        assert np.all(flat[~on_map] == H * W)
+    assert mismatches <= 0.002 * 50 * L * L
+
+
+def test_update_adds_every_on_map_cell_once():
+    """Eq. 14 through the scatter: the map gains exactly the on-map local statistics."""
+    L = 16
+    cfg = gf.FilterConfig(1, (40, 40), (0.0, 0.0), RES, L, unknown_cells="ignore",
+                          resample_ratio=0.0)
+    rng = np.random.default_rng(1)
+    k = rng.integers(0, 5, (L, L)).astype(np.float32)
+    local = jnp.asarray(np.stack([k, 0.1 * k], -1))
+    for pose in ([3.2, 3.2, 0.7], [0.3, 3.2, 2.0]):  # inside; half off the map's top edge
+        state = gf.init(cfg)._replace(pose=jnp.asarray([pose], jnp.float32))
+        noise = gf.update_noise(jax.random.key(0), cfg)
+        new, info = gf.update(state, local, noise, gf.FilterParams(), cfg)
+        _, on_map = gf.observation_cells(state.pose[0], cfg)
+        expected = float(np.sum(k.ravel()[np.asarray(on_map)]))
+        assert float(jnp.sum(new.kmap)) == expected
+        assert int(info.extent_violations) == int(expected < k.sum())
+    assert expected < k.sum()  # the second pose really left the map
 
 
 def test_empty_local_maps_leave_weights_unchanged_and_are_counted():

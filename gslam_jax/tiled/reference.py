@@ -6,14 +6,14 @@ model (eqs. 1-3); a frame with a local map updates each particle's map window an
 
 Shared semantics with the dense filter (they define "the same numbers"):
 
-* The update window of a particle is ``window`` cells square, its top-left cell the particle's
-  cell minus ``window // 2``, floored to a multiple of the block (8 in "sample" mode, else 1),
-  and shifted back inside the map extent if it would leave it (flagged).
-* Each window cell takes the robot-centred local cell its centre falls in.
+* Each robot-centred local cell's centre, rotated by the particle's heading and translated to
+  its position (float32: cells = (metres - origin) * float32(1 / resolution)), falls in one
+  map cell; that cell is its prior and receives its statistics. Cells that fall off the map
+  are skipped (the particle is flagged).
 * "sample" mode: each particle gets ``unknown_samples`` uniforms u; draw d is its
   floor(u_d * N_known)-th known cell in the order (8 x 8 blocks row-major, row-major inside a
-  block); the window cell with flat index c (row-major in the window) borrows draw
-  c mod unknown_samples, for the weight only.
+  block); the local cell with flat index c (row-major) borrows draw c mod unknown_samples,
+  for the weight only.
 * Random numbers come from the dense module's drawing functions, so both filters see the same
   draws; nothing else of the dense implementation is used.
 """
@@ -32,21 +32,12 @@ from gslam_jax.filter import FilterConfig, FilterParams, UpdateNoise, frame_keys
 from gslam_jax.tiled import numerics as nm
 from gslam_jax.tiled.tiles import Ledger, TileMap, tile_cells
 
-__all__ = ["DEFAULT_TILE_SIZE", "TiledState", "UpdateInfo", "TiledOutput", "window_side",
-           "window_origin", "back_project", "init", "predict", "update", "run_tiled",
-           "memory_snapshot"]
+__all__ = ["DEFAULT_TILE_SIZE", "TiledState", "UpdateInfo", "TiledOutput", "cells_per_metre",
+           "footprint", "init", "predict", "update", "run_tiled", "memory_snapshot"]
 
 DEFAULT_TILE_SIZE = 10.0  # metres (paper 6.3)
 F32 = np.float32
 BLOCK = 8
-
-
-def window_side(cfg: FilterConfig) -> int:
-    """Side of the square window that holds a local map under any rotation: the local map's
-    half-diagonal plus a cell and a block on each side, rounded up to a multiple of 8."""
-    block = BLOCK if cfg.unknown_cells == "sample" else 1
-    side = 2 * (math.ceil(cfg.local_size / math.sqrt(2.0)) + 1 + block)
-    return BLOCK * math.ceil(side / BLOCK)
 
 
 def cells_per_metre(cfg: FilterConfig) -> np.float32:
@@ -55,38 +46,21 @@ def cells_per_metre(cfg: FilterConfig) -> np.float32:
     return F32(1) / F32(cfg.resolution)
 
 
-def window_origin(pose: np.ndarray, cfg: FilterConfig) -> tuple[int, int, bool]:
-    """Top-left map cell of a particle's window, and whether it had to be shifted inside."""
+def footprint(pose: np.ndarray, cfg: FilterConfig,
+              cos_sin: tuple[np.float32, np.float32]) -> tuple[np.ndarray, np.ndarray]:
+    """Map cell (i, j) [L*L, 2] under each local cell's centre (row-major over the local map),
+    and whether it lies inside the map. float32 arithmetic, as the dense filter does it."""
     H, W = cfg.map_shape
-    n = window_side(cfg)
-    block = BLOCK if cfg.unknown_cells == "sample" else 1
-    inv = cells_per_metre(cfg)
-    ci = int(np.floor((pose[0] - F32(cfg.map_origin[0])) * inv))
-    cj = int(np.floor((pose[1] - F32(cfg.map_origin[1])) * inv))
-    oi, oj = ((ci - n // 2) // block) * block, ((cj - n // 2) // block) * block
-    i0, j0 = min(max(oi, 0), H - n), min(max(oj, 0), W - n)
-    return i0, j0, (i0, j0) != (oi, oj)
-
-
-def back_project(pose: np.ndarray, i0: int, j0: int, obs: np.ndarray, cfg: FilterConfig,
-                 cos_sin: tuple[np.float32, np.float32]) -> tuple[np.ndarray, np.ndarray]:
-    """Observation (k, S) on the window: each window cell centre, moved into the robot frame,
-    takes the local cell it falls in (0 outside the local map). float32 throughout."""
-    L, n, inv = cfg.local_size, window_side(cfg), cells_per_metre(cfg)
+    L, inv = cfg.local_size, cells_per_metre(cfg)
     px = (pose[0] - F32(cfg.map_origin[0])) * inv  # robot position in cells
     py = (pose[1] - F32(cfg.map_origin[1])) * inv
-    ar = np.arange(n, dtype=F32)
-    dx = (F32(i0) + ar + F32(0.5)) - px
-    dy = (F32(j0) + ar + F32(0.5)) - py
+    centre = np.arange(L, dtype=F32) - F32(L // 2) + F32(0.5)
     c, s = cos_sin
-    li = np.floor(c * dx[:, None] + s * dy[None, :]).astype(np.int64) + L // 2
-    lj = np.floor(-s * dx[:, None] + c * dy[None, :]).astype(np.int64) + L // 2
-    inside = (li >= 0) & (li < L) & (lj >= 0) & (lj < L)
-    k = np.zeros((n, n), F32)
-    S = np.zeros((n, n), F32)
-    k[inside] = obs[li[inside], lj[inside], 0]
-    S[inside] = obs[li[inside], lj[inside], 1]
-    return k, S
+    a, b = centre[:, None], centre[None, :]
+    gi = np.floor(px + (c * a - s * b)).astype(np.int64).ravel()
+    gj = np.floor(py + (s * a + c * b)).astype(np.int64).ravel()
+    inside = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
+    return np.stack([gi, gj], axis=1), inside
 
 
 @dataclass
@@ -130,13 +104,25 @@ def predict(state: TiledState, u: np.ndarray, eps: np.ndarray, params: FilterPar
 def _particle(tmap: TileMap, pose: np.ndarray, cs: tuple, obs: np.ndarray, u: np.ndarray,
               params: FilterParams, cfg: FilterConfig) -> tuple[float, bool]:
     """Map update and tempered log importance factor of one particle (eqs. 14, 26, 30/31)."""
-    n = window_side(cfg)
-    i0, j0, shifted = window_origin(pose, cfg)
-    k_obs, S_obs = back_project(pose, i0, j0, obs, cfg, cs)
-    k_win, S_win = tmap.read(i0, j0, n, n)
+    ij, inside = footprint(pose, cfg, cs)
+    k_loc = obs[..., 0].ravel()
+    S_loc = obs[..., 1].ravel()
+    off_map = bool(np.any(~inside & (k_loc > 0)))
+    k_obs = np.where(inside, k_loc, F32(0))
+    S_obs = np.where(inside, S_loc, F32(0))
+    # The footprint's bounding box, read from the tiles as one window.
+    if inside.any():
+        lo, hi = ij[inside].min(axis=0), ij[inside].max(axis=0) + 1
+    else:
+        lo, hi = np.zeros(2, np.int64), np.ones(2, np.int64)
+    rel = np.where(inside[:, None], ij - lo, 0)
+    k_box, S_box = tmap.read(int(lo[0]), int(lo[1]), int(hi[0] - lo[0]), int(hi[1] - lo[1]))
+    k_prior = np.where(inside, k_box[rel[:, 0], rel[:, 1]], F32(0))
+    S_prior = np.where(inside, S_box[rel[:, 0], rel[:, 1]], F32(0))
     has = k_obs > 0
-    prev = has & (k_win > 0)
-    sum_prev = float(np.sum(nm.log_predictive(k_obs[prev], S_obs[prev], k_win[prev], S_win[prev])))
+    prev = has & (k_prior > 0)
+    sum_prev = float(np.sum(nm.log_predictive(k_obs[prev], S_obs[prev], k_prior[prev],
+                                              S_prior[prev])))
     sum_new = 0.0
     if cfg.unknown_cells == "sample":
         new = has & ~prev
@@ -144,16 +130,18 @@ def _particle(tmap: TileMap, pose: np.ndarray, cs: tuple, obs: np.ndarray, u: np
         if keys.size and new.any():
             total = keys.size
             r = np.clip(np.floor(u * F32(total)).astype(np.int64), 0, total - 1)
-            c = np.flatnonzero(new) % cfg.unknown_samples  # window cell c borrows draw c mod N
+            c = np.flatnonzero(new) % cfg.unknown_samples  # local cell c borrows draw c mod N
             pick = r[c]
             sum_new = float(np.sum(nm.log_predictive(k_obs[new], S_obs[new], kk[pick], SS[pick])))
-        else:
-            new = np.zeros_like(has)
     log_lam = nm.combine(sum_prev, int(prev.sum()), sum_new, int(has.sum()),
                          float(params.beta_prev), float(params.beta_new), cfg.unknown_cells)
-    if cfg.update_map:
-        tmap.add(i0, j0, k_obs, S_obs)
-    return log_lam, shifted
+    if cfg.update_map:  # eq. 14, pooled where two local cells share a map cell
+        dk = np.zeros_like(k_box)
+        dS = np.zeros_like(S_box)
+        np.add.at(dk, (rel[has, 0], rel[has, 1]), k_obs[has])
+        np.add.at(dS, (rel[has, 0], rel[has, 1]), S_obs[has])
+        tmap.add(int(lo[0]), int(lo[1]), dk, dS)
+    return log_lam, off_map
 
 
 def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: FilterParams,
@@ -167,9 +155,9 @@ def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: Filte
     log_lam = np.zeros(J)
     violations = 0
     for j in range(J):
-        log_lam[j], shifted = _particle(state.maps[j], state.pose[j], (c[j], s[j]), obs,
+        log_lam[j], off_map = _particle(state.maps[j], state.pose[j], (c[j], s[j]), obs,
                                         unknown_u[j] if unknown_u.size else unknown_u, params, cfg)
-        violations += int(shifted)
+        violations += int(off_map)
     unnorm = state.log_w + log_lam
     top = unnorm.max()
     log_w = unnorm - (top + math.log(np.sum(np.exp(unnorm - top))))
