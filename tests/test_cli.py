@@ -38,3 +38,17 @@ def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
     save_run(tmp_path / "r.npz", run)
     assert main(["run", str(tmp_path / "r.npz"), "--config", str(bad)]) == 2
     assert "unknown key 'particls'" in capsys.readouterr().err
+
+
+def test_bench_writes_every_figure(tmp_path, capsys):
+    """A tiny bench sweep: one row per combination, every figure finite and positive."""
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--particles", "4", "8", "--local", "16", "--map", "64", "--mode",
+                 "ignore", "--repeats", "1", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["results"]
+    assert [r["particles"] for r in rows] == [4, 8]
+    for r in rows:
+        for key in ("ms_per_update", "us_per_particle", "predict_us_per_particle", "mb_per_particle"):
+            assert r[key] > 0, (key, r)
+        assert r["resample_ms"] >= 0
+    assert "us/particle" in capsys.readouterr().out
