@@ -33,7 +33,7 @@ from gslam_jax.motion import MotionParams, apply_motion
 
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepInfo", "RunOutput",
            "init", "predict", "update", "step", "scan_frames", "frame_keys", "run_filter",
-           "backtrack_path", "motion_noise", "update_noise", "window_origin",
+           "backtrack_path", "motion_noise", "update_noise", "window_origin", "gather_particles",
            "observation_cells", "log_importance"]
 
 UNKNOWN_MODES = ("ignore", "sample")
@@ -342,6 +342,29 @@ def _write_footprints(kmap: Array, smap: Array, bits: Array, pose: Array, flat: 
     return jax.vmap(one)(kmap, smap, bits, pose, flat)
 
 
+def gather_particles(particles, ancestors: Array):
+    """``x[ancestors]`` for every array of the pytree ``particles`` ([J, ...] leaves), in place.
+
+    ``ancestors`` must keep every surviving particle in its own slot (``resampling.
+    keep_in_place``): then only the slots of particles without offspring are overwritten, one
+    [H, W] map at a time, from slots that are never overwritten. No second [J, H, W] buffer is
+    allocated, and only the dead particles' maps are copied (about a third of J for uniform
+    weights) instead of all J.
+    """
+    J = ancestors.shape[0]
+    moved = ancestors != jnp.arange(J, dtype=ancestors.dtype)
+    slots = jnp.nonzero(moved, size=J, fill_value=0)[0]
+
+    def copy_one(n, particles):
+        dst = slots[n]
+        src = ancestors[dst]
+        return jax.tree.map(
+            lambda x: lax.dynamic_update_index_in_dim(
+                x, lax.dynamic_index_in_dim(x, src, keepdims=False), dst, 0), particles)
+
+    return lax.fori_loop(0, jnp.sum(moved), copy_one, particles)
+
+
 def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: FilterParams,
            cfg: FilterConfig) -> tuple[FilterState, StepInfo]:
     """Map update, importance weights (eq. 27), normalisation and ESS-gated resampling.
@@ -369,10 +392,10 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
 
     def resample_branch(args):
         pose, kmap, smap, bits, log_w = args
-        anc = resampling.resample(cfg.resampler, jnp.exp(log_w), noise.resample_u)
-        take = lambda x: jnp.take(x, anc, axis=0)
-        return (take(pose), take(kmap), take(smap), take(bits),
-                jnp.full((J,), -math.log(J), log_w.dtype), anc)
+        anc = resampling.keep_in_place(
+            resampling.resample(cfg.resampler, jnp.exp(log_w), noise.resample_u))
+        kmap, smap, bits = gather_particles((kmap, smap, bits), anc)
+        return jnp.take(pose, anc, axis=0), kmap, smap, bits, jnp.full((J,), -math.log(J), log_w.dtype), anc
 
     def keep_branch(args):
         pose, kmap, smap, bits, log_w = args

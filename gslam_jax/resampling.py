@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from jax import Array
 
 __all__ = ["ess", "multinomial", "systematic", "stratified", "residual", "RESAMPLERS",
-           "draw_uniforms", "resample"]
+           "draw_uniforms", "resample", "keep_in_place"]
 
 
 def ess(log_w: Array) -> Array:
@@ -85,3 +85,21 @@ def resample(scheme: str, w: Array, u: Array) -> Array:
     except KeyError:
         raise ValueError(f"unknown resampler '{scheme}'; choose one of {sorted(RESAMPLERS)}") from None
     return fn(w, u)
+
+
+def keep_in_place(ancestors: Array) -> Array:
+    """The same multiset of ancestors, arranged so that every surviving particle keeps its slot.
+
+    Slot i gets ancestor i when particle i has offspring; the slots of particles without
+    offspring, in increasing order, get the extra copies, parents in increasing order. Maps then
+    only move into slots whose particle died, from slots that keep theirs, so resampling can
+    copy them in place (``filter.gather_particles``). Particle order carries no meaning in the
+    filter, so this changes nothing but the cost.
+    """
+    J = ancestors.shape[0]
+    counts = jnp.bincount(ancestors, length=J)
+    extras = jnp.repeat(jnp.arange(J, dtype=jnp.int32), jnp.maximum(counts - 1, 0),
+                        total_repeat_length=J)
+    dead = counts == 0
+    rank = jnp.cumsum(dead) - 1  # position of each dead slot among the dead slots
+    return jnp.where(dead, extras[jnp.clip(rank, 0, J - 1)], jnp.arange(J)).astype(jnp.int32)

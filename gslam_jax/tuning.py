@@ -96,11 +96,12 @@ def _resample(state: gf.FilterState, noise: gf.UpdateNoise, cfg: gf.FilterConfig
     do = resampling.ess(sg(lw)) < cfg.resample_ratio * J
 
     def yes(s: gf.FilterState) -> gf.FilterState:
-        anc = resampling.resample(cfg.resampler, jnp.exp(sg(s.log_w)), noise.resample_u)
-        take = lambda x: jnp.take(x, anc, axis=0)
-        lwa = take(s.log_w)
-        return gf.FilterState(take(s.pose), -math.log(J) + (lwa - sg(lwa)), take(s.kmap),
-                              take(s.smap), take(s.known_bits))
+        anc = resampling.keep_in_place(
+            resampling.resample(cfg.resampler, jnp.exp(sg(s.log_w)), noise.resample_u))
+        lwa = jnp.take(s.log_w, anc)
+        kmap, smap, bits = gf.gather_particles((s.kmap, s.smap, s.known_bits), anc)
+        return gf.FilterState(jnp.take(s.pose, anc, axis=0), -math.log(J) + (lwa - sg(lwa)),
+                              kmap, smap, bits)
 
     return lax.cond(do, yes, lambda s: s, state)
 

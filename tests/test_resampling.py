@@ -53,3 +53,31 @@ def test_ess_bounds():
 def test_unknown_scheme_is_named():
     with pytest.raises(ValueError, match="unknown resampler 'bogus'"):
         resampling.resample("bogus", jnp.ones(3) / 3, jnp.zeros(3))
+
+
+def test_keep_in_place_rearranges_without_changing_the_multiset():
+    from gslam_jax.tiled.numerics import survivors_keep_slots
+
+    rng = np.random.default_rng(0)
+    for J in (1, 5, 64):
+        for _ in range(20):
+            high = J if rng.uniform() < 0.5 else max(J // 4, 1)  # few survivors, many copies
+            anc = rng.integers(0, high, J)
+            out = np.asarray(resampling.keep_in_place(jnp.asarray(anc, jnp.int32)))
+            assert sorted(out) == sorted(anc)
+            survivors = np.unique(anc)
+            assert np.all(out[survivors] == survivors)
+            np.testing.assert_array_equal(out, survivors_keep_slots(anc))  # independent NumPy
+
+
+def test_gather_particles_in_place_equals_take():
+    from gslam_jax import filter as gf
+
+    rng = np.random.default_rng(1)
+    J = 12
+    maps = (jnp.asarray(rng.normal(size=(J, 5, 7)), jnp.float32),
+            jnp.asarray(rng.integers(0, 9, (J, 2, 3, 2)), jnp.uint32))
+    anc = resampling.keep_in_place(jnp.asarray(rng.integers(0, 4, J), jnp.int32))
+    got = jax.jit(gf.gather_particles)(maps, anc)
+    for g, m in zip(got, maps):
+        np.testing.assert_array_equal(np.asarray(g), np.asarray(m)[np.asarray(anc)])

@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 __all__ = ["cos32", "sin32", "hypot32", "apply_motion", "lgamma_half", "log_predictive",
-           "combine", "ess", "RESAMPLERS", "resample"]
+           "combine", "ess", "RESAMPLERS", "resample", "survivors_keep_slots"]
 
 F32 = np.float32
 
@@ -159,3 +159,18 @@ def resample(scheme: str, w: np.ndarray, u: np.ndarray) -> np.ndarray:
     if scheme not in RESAMPLERS:
         raise ValueError(f"unknown resampler '{scheme}'; choose one of {sorted(RESAMPLERS)}")
     return RESAMPLERS[scheme](np.asarray(w, np.float64), np.asarray(u, np.float64)).astype(np.int64)
+
+
+def survivors_keep_slots(anc: np.ndarray) -> np.ndarray:
+    """Rearrange ancestors as the dense filter does before its in-place copy: a particle with
+    offspring keeps its own slot; the slots of particles without offspring, in increasing
+    order, take the remaining copies, parents in increasing order."""
+    anc = np.asarray(anc, np.int64)
+    J = anc.size
+    counts = np.bincount(anc, minlength=J)
+    out = np.arange(J)
+    extra = [p for p in range(J) for _ in range(max(counts[p] - 1, 0))]
+    dead = [i for i in range(J) if counts[i] == 0]
+    for slot, parent in zip(dead, extra, strict=True):
+        out[slot] = parent
+    return out

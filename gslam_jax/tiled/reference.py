@@ -165,7 +165,8 @@ def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: Filte
     anc = np.arange(J)
     resampled = e < cfg.resample_ratio * J
     if resampled:
-        anc = nm.resample(cfg.resampler, np.exp(log_w), np.asarray(noise.resample_u))
+        anc = nm.survivors_keep_slots(
+            nm.resample(cfg.resampler, np.exp(log_w), np.asarray(noise.resample_u)))
         old = state.maps
         state.maps = [old[a].share() for a in anc]
         for m in old:
