@@ -27,7 +27,6 @@ from gslam_jax.bench import environment
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.datasets.sim_stereo import load_sim_stereo
-from gslam_jax.localmap import LocalMapParams
 
 
 def _row(name: str, run, config: Config) -> dict:
@@ -53,10 +52,7 @@ def main() -> int:
     config = Config()
     config = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
                                                                     particles=args.particles))
-    lm = config.localmap
-    params = LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
-                            max_range=lm.max_range, min_height=lm.min_height,
-                            max_height=lm.max_height, travel=lm.travel)
+    params = slam.localmap_params(config)
     frames = args.frames or None
     env = environment()
     print(f"# {env['date']} | {env['processor']} | {env['cpus']} cpus | jax {env['jax']} | "

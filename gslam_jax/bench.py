@@ -61,6 +61,14 @@ def _synthetic_state(cfg: gf.FilterConfig, rng: np.random.Generator) -> gf.Filte
     return state._replace(pose=jnp.asarray(pose))
 
 
+def _physical_memory() -> int:
+    """Bytes of physical memory (sysconf), or a large number where unknown."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 1 << 62
+
+
 def _chained(fn, chain: int):
     """jit(scan of ``chain`` calls of fn(state) -> state), donating the state."""
 
@@ -113,8 +121,57 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
             "mb_per_particle": 2 * 4 * map_side * map_side / 1e6}
 
 
+def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0) -> dict:
+    """Whole-course wall time of the filter from a prepared Run (default settings otherwise):
+    the first ``run_slam`` compiles, the second is timed. Also the process's peak RSS."""
+    import dataclasses
+    import resource
+
+    from gslam_jax import slam
+    from gslam_jax.config import Config
+    from gslam_jax.datasets.sim import simulate_run
+
+    config = Config()
+    config = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
+                                                                    particles=particles))
+    run, _ = simulate_run(course, seed=seed, params=slam.localmap_params(config))
+    first = time.perf_counter()
+    slam.run_slam(run, config)
+    first = time.perf_counter() - first
+    t = time.perf_counter()
+    res = slam.run_slam(run, config)
+    wall = time.perf_counter() - t
+    cfg = slam.filter_config(config, run)
+    maps_mb = 2 * 4 * particles * cfg.map_shape[0] * cfg.map_shape[1] / 1e6
+    return {"course": course, "particles": particles, "frames": run.num_frames,
+            "local_maps": run.num_local_maps, "local": cfg.local_size,
+            "map": list(cfg.map_shape), "wall_s": wall, "first_call_s": first,
+            "resamples": int(res.resampled.sum()), "maps_mb": maps_mb,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3}
+
+
+def plot_scaling(rows: list[dict], path: Path) -> None:
+    """us per particle per update against J, one line per (mode, local, map)."""
+    from gslam_jax.plots import plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for key in sorted({(r["mode"], r["local"], r["map"]) for r in rows}):
+        pts = sorted((r["particles"], r["us_per_particle"]) for r in rows
+                     if (r["mode"], r["local"], r["map"]) == key)
+        ax.plot(*zip(*pts), marker="o", label=f"{key[0]}, local {key[1]}, map {key[2]}")
+    ax.set_xscale("log")
+    ax.set_xlabel("particles J")
+    ax.set_ylabel("us per particle per update")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int = 10,
-         modes=("ignore", "sample"), json_path: Path | None = None) -> int:
+         modes=("ignore", "sample"), json_path: Path | None = None, course: str | None = None,
+         course_particles: int = 200, plot_path: Path | None = None) -> int:
     """Print (and optionally save) the update cost over every combination of the arguments.
 
     The cost should be flat in the map size (each update touches one footprint per particle) and
@@ -134,11 +191,26 @@ def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int =
         for L in local:
             for side in map_side:
                 for J in particles:
+                    need = 2 * 4 * J * side * side
+                    if need > 0.5 * _physical_memory():
+                        print(f"{mode:>7} {J:>6} {L:>6} {side:>6}   skipped: the maps need "
+                              f"{need / 1e9:.1f} GB, over half of this machine's memory")
+                        continue
                     r = time_update(J, L, side, mode, repeats)
                     rows.append(r)
                     print(f"{mode:>7} {J:>6} {L:>6} {side:>6} {r['ms_per_update']:>10.2f} "
                           f"{r['us_per_particle']:>12.1f} {r['predict_us_per_particle']:>13.3f} "
                           f"{r['resample_ms']:>12.1f} {r['mb_per_particle']:>12.2f}", flush=True)
+    result = {"environment": env, "results": rows}
+    if course:
+        c = time_course(course, course_particles)
+        result["course"] = c
+        print(f"{course}, J = {c['particles']}, {c['frames']} frames, {c['local_maps']} local maps "
+              f"({c['local']}^2 cells), map {c['map'][0]} x {c['map'][1]}: {c['wall_s']:.2f} s "
+              f"after compilation ({c['first_call_s']:.1f} s with it), {c['resamples']} "
+              f"resamplings; maps {c['maps_mb']:.0f} MB, process peak RSS {c['peak_rss_mb']:.0f} MB")
+    if plot_path:
+        plot_scaling(rows, Path(plot_path))
     if json_path:
-        Path(json_path).write_text(json.dumps({"environment": env, "results": rows}, indent=2))
+        Path(json_path).write_text(json.dumps(result, indent=2))
     return 0

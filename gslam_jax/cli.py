@@ -39,13 +39,10 @@ class ProgressBar:
 
 def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int], None]):
     """Return (Run, description) for the chosen source."""
-    from gslam_jax.localmap import LocalMapParams
     from gslam_jax.run import load_run
+    from gslam_jax.slam import localmap_params
 
-    lm = config.localmap
-    params = LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
-                            max_range=lm.max_range, min_height=lm.min_height,
-                            max_height=lm.max_height, travel=lm.travel)
+    params = localmap_params(config)
     if args.run_file is not None:
         return load_run(args.run_file), str(args.run_file), None
     if args.source == "sim":
@@ -256,7 +253,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from gslam_jax.bench import main as bench_main
-    return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json)
+    return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json,
+                      course=args.course, course_particles=args.course_particles,
+                      plot_path=args.plot)
 
 
 def cmd_table1(args: argparse.Namespace) -> int:
@@ -348,6 +347,10 @@ def _build_rest(sub) -> None:
     p.add_argument("--repeats", type=int, default=10)
     p.add_argument("--mode", choices=["ignore", "sample"], nargs="+", default=["ignore", "sample"])
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
+    p.add_argument("--plot", type=Path, help="also plot us per particle against J (PNG)")
+    p.add_argument("--course", help="also time a whole simulated course after compilation "
+                   "(e.g. mars-yard-a), default settings")
+    p.add_argument("--course-particles", type=int, default=200)
     p.set_defaults(func=cmd_bench)
 
     from gslam_jax.table1 import PAPER_TABLE1

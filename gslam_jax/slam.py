@@ -17,10 +17,11 @@ import numpy as np
 
 from gslam_jax import cells, filter as gf
 from gslam_jax.config import Config, ConfigError
+from gslam_jax.localmap import LocalMapParams
 from gslam_jax.motion import MotionParams
 from gslam_jax.run import Run
 
-__all__ = ["MapExtent", "map_extent", "filter_config", "filter_params", "local_observations",
+__all__ = ["MapExtent", "map_extent", "localmap_params", "filter_config", "filter_params", "local_observations",
            "RunArrays", "run_arrays", "SlamResult", "run_slam", "ExtentWarning"]
 
 
@@ -44,6 +45,14 @@ def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin:
     cells_needed = np.ceil((hi - lo) / resolution).astype(int)
     shape = tuple(int(max(window, 8 * math.ceil(n / 8))) for n in cells_needed)
     return MapExtent((float(lo[0]), float(lo[1])), shape)  # type: ignore[arg-type]
+
+
+def localmap_params(config: Config) -> LocalMapParams:
+    """How a config's [localmap] and [map] sections turn points into local maps."""
+    lm = config.localmap
+    return LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
+                          max_range=lm.max_range, min_height=lm.min_height,
+                          max_height=lm.max_height, travel=lm.travel)
 
 
 def filter_config(config: Config, run: Run) -> gf.FilterConfig:

@@ -15,7 +15,6 @@ import numpy as np
 
 from gslam_jax import metrics, slam
 from gslam_jax.config import Config, FilterSection, load_config
-from gslam_jax.localmap import LocalMapParams
 
 __all__ = ["PAPER_TABLE1", "run_course", "main"]
 
@@ -33,9 +32,7 @@ def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
     """Simulate one course and run Gamma-SLAM on it; returns the Table I row for this seed."""
     from gslam_jax.datasets.sim import simulate_run
 
-    lm = config.localmap
-    params = LocalMapParams(resolution=config.map.resolution, cells=lm.cells, max_range=lm.max_range,
-                            min_height=lm.min_height, max_height=lm.max_height, travel=lm.travel)
+    params = slam.localmap_params(config)
     t0 = time.perf_counter()
     run, _ = simulate_run(course, seed=seed, params=params)
     sim_s = time.perf_counter() - t0
