@@ -34,7 +34,7 @@ from gslam_jax.motion import MotionParams, apply_motion
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepInfo", "RunOutput",
            "init", "predict", "update", "step", "scan_frames", "frame_keys", "run_filter",
            "backtrack_path", "motion_noise", "update_noise", "window_origin", "gather_particles",
-           "observation_cells", "log_importance"]
+           "Observation", "compact_observation", "observation_cells", "log_importance"]
 
 UNKNOWN_MODES = ("ignore", "sample")
 
@@ -56,6 +56,12 @@ class FilterConfig(NamedTuple):
     unknown_cells: str = "sample"
     unknown_samples: int = 1024
     update_map: bool = True
+    observed_cells: int = 0
+
+    @property
+    def max_observed(self) -> int:
+        """M: how many observed local cells one update evaluates (``observed_cells`` or L*L)."""
+        return self.observed_cells or self.local_size ** 2
 
     @property
     def block(self) -> int:
@@ -83,6 +89,9 @@ class FilterConfig(NamedTuple):
         if min(H, W) < self.window:
             raise ValueError(f"map_shape {self.map_shape} is smaller than the update window "
                              f"{self.window} cells")
+        if not 0 <= self.observed_cells <= self.local_size ** 2:
+            raise ValueError(f"observed_cells {self.observed_cells} must lie in [0, "
+                             f"{self.local_size ** 2}] (0: every local cell)")
         if self.unknown_samples < 1:
             raise ValueError("unknown_samples must be at least 1")
         if self.num_particles < 1:
@@ -127,6 +136,7 @@ class StepInfo(NamedTuple):
     log_lik: Array       # log mean weight increment (log marginal likelihood term), 0 if none
     extent_violations: Array  # particles with observed local cells outside the map extent
     empty_obs: Array     # bool: the local map had no informative cell
+    dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
 
 
 def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
@@ -182,27 +192,54 @@ def window_origin(pose: Array, cfg: FilterConfig) -> tuple[Array, Array, Array]:
     return ci_, cj_, (ci_ != oi) | (cj_ != oj)
 
 
-def observation_cells(pose: Array, cfg: FilterConfig) -> tuple[Array, Array]:
-    """The map cell under each local cell seen from ``pose`` (paper 6.1: "rotate and translate
-    the observation"): flat map indices [L*L] and whether each lies inside the map.
+class Observation(NamedTuple):
+    """The observed cells of one local map, compacted (paper 6.3: compute where it matters).
 
-    Local cell (a, b) covers robot-frame x in [a - L/2, a - L/2 + 1) cells (y likewise with b);
-    its centre is rotated by the particle's heading, translated to its position, and takes the
-    map cell it falls in. Every local cell lands in exactly one map cell, so no observation is
-    dropped or counted twice; off-map cells get index H*W and are masked, never wrapped.
+    The first ``count`` entries are the cells with k > 0 in row-major order; the rest are
+    padding (index 0, k = S = 0) up to the static length M = ``cfg.max_observed``.
+    """
+
+    index: Array    # [M] int32 flat local cell index a * L + b
+    k: Array        # [M]
+    S: Array        # [M]
+    dropped: Array  # observed cells that did not fit in M (0 when M is large enough)
+
+
+def compact_observation(local_obs: Array, cfg: FilterConfig) -> Observation:
+    """[L, L, 2] local map (k, S) -> its observed cells (``Observation``), once per update."""
+    M = cfg.max_observed
+    k = local_obs[..., 0].reshape(-1)
+    S = local_obs[..., 1].reshape(-1)
+    observed = k > 0
+    index = jnp.nonzero(observed, size=M, fill_value=0)[0].astype(jnp.int32)
+    count = jnp.sum(observed)
+    valid = jnp.arange(M) < count
+    return Observation(index, jnp.where(valid, k[index], 0.0), jnp.where(valid, S[index], 0.0),
+                       jnp.maximum(count - M, 0).astype(jnp.int32))
+
+
+def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig) -> tuple[Array, Array]:
+    """The map cell under each given local cell seen from ``pose`` (paper 6.1: "rotate and
+    translate the observation"): flat map indices and whether each lies inside the map.
+
+    Local cell (a, b) (flat index a * L + b) covers robot-frame x in [a - L/2, a - L/2 + 1)
+    cells (y likewise with b); its centre is rotated by the particle's heading, translated to
+    its position, and takes the map cell it falls in. Every local cell lands in exactly one map
+    cell, so no observation is dropped or counted twice; off-map cells get index H*W and are
+    masked, never wrapped.
     """
     H, W = cfg.map_shape
     L = cfg.local_size
     # Robot position in cells, and local cell centres in cells (small numbers: float32-safe).
     px = (pose[0] - cfg.map_origin[0]) / cfg.resolution
     py = (pose[1] - cfg.map_origin[1]) / cfg.resolution
-    centre = jnp.arange(L, dtype=jnp.float32) - (L // 2) + 0.5
+    ca = (local_index // L).astype(jnp.float32) - (L // 2) + 0.5
+    cb = (local_index % L).astype(jnp.float32) - (L // 2) + 0.5
     c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    gi = jnp.floor(px + (c * centre[:, None] - s * centre[None, :])).astype(jnp.int32)
-    gj = jnp.floor(py + (s * centre[:, None] + c * centre[None, :])).astype(jnp.int32)
+    gi = jnp.floor(px + (c * ca - s * cb)).astype(jnp.int32)
+    gj = jnp.floor(py + (s * ca + c * cb)).astype(jnp.int32)
     on_map = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
-    flat = jnp.where(on_map, gi * W + gj, H * W)
-    return flat.reshape(-1), on_map.reshape(-1)
+    return jnp.where(on_map, gi * W + gj, H * W), on_map
 
 
 def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
@@ -239,11 +276,11 @@ def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borr
 class _Footprint(NamedTuple):
     """What one update reads from the maps, per particle (stacked to [J, ...] by vmap)."""
 
-    cells: Array     # [L*L] flat map index under each local cell (H*W off the map)
+    cells: Array     # [M] flat map index under each observed local cell (H*W off the map)
     off_map: Array   # some observed local cell fell outside the map
-    k_obs: Array     # [L*L] the local map, zero where its cell fell off the map
+    k_obs: Array     # [M] the observed cells, zero where their cell fell off the map
     S_obs: Array
-    k_prior: Array   # [L*L] map statistics under the local cells
+    k_prior: Array   # [M] map statistics under the observed cells
     S_prior: Array
     k_draws: Array   # [unknown_samples] borrowed known cells ([0] in "ignore" mode)
     S_draws: Array
@@ -251,19 +288,17 @@ class _Footprint(NamedTuple):
 
 
 def _particle_reads(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_u: Array,
-                    local_obs: Array, cfg: FilterConfig) -> _Footprint:
+                    obs: Observation, cfg: FilterConfig) -> _Footprint:
     """Everything one particle's update reads from its map (vmapped over particles)."""
-    flat, on_map = observation_cells(pose, cfg)
-    k_local = local_obs[..., 0].reshape(-1)
-    S_local = local_obs[..., 1].reshape(-1)
-    k_obs = jnp.where(on_map, k_local, 0.0)
-    S_obs = jnp.where(on_map, S_local, 0.0)
+    flat, on_map = observation_cells(pose, obs.index, cfg)
+    k_obs = jnp.where(on_map, obs.k, 0.0)
+    S_obs = jnp.where(on_map, obs.S, 0.0)
     # Scalar gathers with in-bounds indices: several times faster on CPU than clipping ones.
     safe = jnp.where(on_map, flat, 0)
     k_prior = jnp.where(on_map, kmap.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
     S_prior = jnp.where(on_map, smap.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
     if cfg.unknown_cells == "sample":
-        # unknown_samples uniform known cells; local cell c borrows draw c mod unknown_samples
+        # unknown_samples uniform known cells; observed cell c borrows draw c mod unknown_samples
         # (see _borrowed), so every unknown cell borrows a uniformly random known cell (draws
         # are shared between cells unknown_samples apart, which keeps the search cost
         # independent of the local map). Only the draws are read from the big map.
@@ -274,7 +309,7 @@ def _particle_reads(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_
     else:
         kb = Sb = jnp.zeros((0,), kmap.dtype)
         can_borrow = jnp.bool_(False)
-    off_map = jnp.any(~on_map & (k_local > 0))
+    off_map = jnp.any(~on_map & (obs.k > 0))
     return _Footprint(flat, off_map, k_obs, S_obs, k_prior, S_prior, kb, Sb, can_borrow)
 
 
@@ -300,7 +335,7 @@ def _log_lambda(f: _Footprint, params: FilterParams, cfg: FilterConfig, log_pred
                          f.can_borrow)
 
 
-def _log_lambda_fast(f: _Footprint, local_obs: Array, params: FilterParams,
+def _log_lambda_fast(f: _Footprint, obs: Observation, params: FilterParams,
                      cfg: FilterConfig) -> Array:
     """``_log_lambda`` with the table-only lgamma when every k'' fits the table (same numbers).
 
@@ -312,25 +347,23 @@ def _log_lambda_fast(f: _Footprint, local_obs: Array, params: FilterParams,
     k_prior_max = jnp.max(f.k_prior)
     if cfg.unknown_cells == "sample":
         k_prior_max = jnp.maximum(k_prior_max, jnp.max(f.k_draws))
-    bound = jnp.maximum(k_prior_max, 1.0) + jnp.maximum(jnp.max(local_obs[..., 0]), 1.0)
+    bound = jnp.maximum(k_prior_max, 1.0) + jnp.maximum(jnp.max(obs.k), 1.0)
     return lax.cond(bound < cells.LGAMMA_TABLE_SIZE,
                     lambda f: _log_lambda(f, params, cfg, cells.log_predictive_integer_table),
                     lambda f: _log_lambda(f, params, cfg, cells.log_predictive_integer), f)
 
 
 def _write_footprints(kmap: Array, smap: Array, bits: Array, pose: Array, flat: Array,
-                      local_obs: Array, cfg: FilterConfig):
+                      obs: Observation, cfg: FilterConfig):
     """Add the local map into every particle's map (eq. 14: k'' = k' + k, S'' = S' + S) and
     refresh the known-cell bits around it. Off-map cells (index H*W) are dropped."""
     if not cfg.update_map:
         return kmap, smap, bits
     H, W = cfg.map_shape
-    k_local = local_obs[..., 0].reshape(-1)
-    S_local = local_obs[..., 1].reshape(-1)
 
     def one(kmap, smap, bits, pose, flat):
-        kmap = kmap.reshape(-1).at[flat].add(k_local, mode="drop").reshape(H, W)
-        smap = smap.reshape(-1).at[flat].add(S_local, mode="drop").reshape(H, W)
+        kmap = kmap.reshape(-1).at[flat].add(obs.k, mode="drop").reshape(H, W)
+        smap = smap.reshape(-1).at[flat].add(obs.S, mode="drop").reshape(H, W)
         if cfg.unknown_cells == "sample":
             b, Wn = unknown.BLOCK, cfg.window
             oi, oj, _ = window_origin(pose, cfg)
@@ -372,9 +405,10 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred.
     """
     J = cfg.num_particles
-    reads = jax.vmap(partial(_particle_reads, local_obs=local_obs, cfg=cfg))(
+    obs = compact_observation(local_obs, cfg)
+    reads = jax.vmap(partial(_particle_reads, obs=obs, cfg=cfg))(
         state.pose, state.kmap, state.smap, state.known_bits, noise.unknown_u)
-    log_lam = _log_lambda_fast(reads, local_obs, params, cfg)
+    log_lam = _log_lambda_fast(reads, obs, params, cfg)
     unnorm = state.log_w + log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
@@ -388,7 +422,7 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     H, W = cfg.map_shape
     flat = jnp.minimum(reads.cells, H * W + do_resample.astype(jnp.int32))
     kmap, smap, bits = _write_footprints(state.kmap, state.smap, state.known_bits, state.pose,
-                                         flat, local_obs, cfg)
+                                         flat, obs, cfg)
 
     def resample_branch(args):
         pose, kmap, smap, bits, log_w = args
@@ -407,7 +441,7 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     info = StepInfo(pose=pose, ancestors=anc, log_w=log_w, ess=ess, resampled=do_resample,
                     updated=jnp.bool_(True), log_lik=log_lik,
                     extent_violations=jnp.sum(reads.off_map).astype(jnp.int32),
-                    empty_obs=~jnp.any(local_obs[..., 0] > 0))
+                    empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped)
     return new_state, info
 
 
@@ -427,7 +461,8 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
     return StepInfo(pose=state.pose, ancestors=jnp.arange(J, dtype=jnp.int32), log_w=state.log_w,
                     ess=resampling.ess(state.log_w), resampled=jnp.bool_(False),
                     updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
-                    extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False))
+                    extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False),
+                    dropped_cells=jnp.int32(0))
 
 
 class RunOutput(NamedTuple):

@@ -21,7 +21,8 @@ from gslam_jax.localmap import LocalMapParams
 from gslam_jax.motion import MotionParams
 from gslam_jax.run import Run
 
-__all__ = ["MapExtent", "map_extent", "localmap_params", "filter_config", "filter_params", "local_observations",
+__all__ = ["MapExtent", "map_extent", "localmap_params", "observed_cells", "filter_config",
+           "filter_params", "local_observations",
            "RunArrays", "run_arrays", "SlamResult", "run_slam", "ExtentWarning"]
 
 
@@ -55,6 +56,17 @@ def localmap_params(config: Config) -> LocalMapParams:
                           max_height=lm.max_height, travel=lm.travel)
 
 
+def observed_cells(run: Run, multiple: int = 128) -> int:
+    """The filter's static cap M on observed cells per update: the most informative cells
+    (n >= 2 points) of any of the Run's local maps, rounded up to ``multiple``, at most L*L.
+    Every update then evaluates M cells instead of L*L (about 40% of them at 10 m range)."""
+    if run.num_local_maps == 0:
+        return 0
+    L = int(run.local_maps.shape[1])
+    most = int(np.max(np.sum(run.local_maps[..., 0] >= 2, axis=(1, 2))))
+    return min(L * L, multiple * max(1, math.ceil(most / multiple)))
+
+
 def filter_config(config: Config, run: Run) -> gf.FilterConfig:
     """Static filter settings for this Run (map sized from its VO path)."""
     if not math.isclose(run.resolution, config.map.resolution, rel_tol=1e-6):
@@ -70,7 +82,7 @@ def filter_config(config: Config, run: Run) -> gf.FilterConfig:
         num_particles=f.particles, map_shape=extent.shape, map_origin=extent.origin,
         resolution=config.map.resolution, local_size=L, resampler=f.resampler,
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
-        unknown_samples=f.unknown_samples).validate()
+        unknown_samples=f.unknown_samples, observed_cells=observed_cells(run)).validate()
 
 
 def filter_params(config: Config) -> gf.FilterParams:
@@ -178,6 +190,10 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     final_best = int(np.argmax(np.asarray(state.log_w)))
     path = np.asarray(gf.backtrack_path(jnp.asarray(infos.pose), jnp.asarray(infos.ancestors),
                                         jnp.int32(final_best)))
+    dropped = int(np.sum(infos.dropped_cells))
+    if dropped:  # observed_cells(run) sizes M so that this cannot happen
+        raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "
+                           f"observed_cells = {cfg.max_observed}")
     violations = int(np.sum(infos.extent_violations))
     if violations:
         warnings.warn(f"{violations} particle updates reached the edge of the "

@@ -111,7 +111,8 @@ def test_observation_cells_match_float64_geometry():
     mismatches = 0
     for _ in range(50):
         pose = np.array([rng.uniform(-3.5, 3.5), rng.uniform(-2.5, 6.0), rng.uniform(-np.pi, np.pi)])
-        flat, on_map = map(np.asarray, gf.observation_cells(jnp.asarray(pose, jnp.float32), cfg))
+        flat, on_map = map(np.asarray, gf.observation_cells(
+            jnp.asarray(pose, jnp.float32), jnp.arange(L * L, dtype=jnp.int32), cfg))
         c, s = np.cos(pose[2]), np.sin(pose[2])
         gi = np.floor((pose[0] + c * a - s * b - cfg.map_origin[0]) / RES).astype(int).ravel()
         gj = np.floor((pose[1] + s * a + c * b - cfg.map_origin[1]) / RES).astype(int).ravel()
@@ -135,7 +136,7 @@ def test_update_adds_every_on_map_cell_once():
         state = gf.init(cfg)._replace(pose=jnp.asarray([pose], jnp.float32))
         noise = gf.update_noise(jax.random.key(0), cfg)
         new, info = gf.update(state, local, noise, gf.FilterParams(), cfg)
-        _, on_map = gf.observation_cells(state.pose[0], cfg)
+        _, on_map = gf.observation_cells(state.pose[0], jnp.arange(L * L, dtype=jnp.int32), cfg)
         expected = float(np.sum(k.ravel()[np.asarray(on_map)]))
         assert float(jnp.sum(new.kmap)) == expected
         assert int(info.extent_violations) == int(expected < k.sum())
@@ -149,3 +150,31 @@ def test_empty_local_maps_leave_weights_unchanged_and_are_counted():
     assert res.empty_observations == run.num_local_maps
     assert not res.resampled.any()
     np.testing.assert_allclose(res.ess, 8.0, rtol=1e-5)
+
+
+@pytest.mark.parametrize("mode", ["ignore", "sample"])
+def test_compacted_update_equals_full_and_reports_overflow(mode):
+    """Evaluating only the observed cells (observed_cells = M) gives the same weights and maps
+    as evaluating all L*L; a cap below the observed count is reported, not silent."""
+    run, _ = make_run(seed=2, steps=30)
+    obs = jnp.asarray(slam.local_observations(run, 1e-6))
+    L = obs.shape[1]
+    M = slam.observed_cells(run)
+    assert M < L * L
+    base = gf.FilterConfig(8, (160, 160), (-8.0, -12.8), RES, L, unknown_cells=mode,
+                           unknown_samples=64)
+    outs = []
+    for cap in (0, M):
+        cfg = base._replace(observed_cells=cap)
+        outs.append(gf.run_filter(jax.random.key(1), gf.FilterParams(),
+                                  jnp.asarray(run.controls, jnp.float32),
+                                  jnp.asarray(run.obs_index), obs, cfg))
+    full, compact = outs
+    np.testing.assert_allclose(compact.infos.log_w, full.infos.log_w, atol=1e-5)
+    np.testing.assert_array_equal(compact.final_state.kmap, full.final_state.kmap)
+    assert int(np.sum(compact.infos.dropped_cells)) == 0
+    small = base._replace(observed_cells=8)
+    state = gf.init(small)
+    _, info = gf.update(state, obs[0], gf.update_noise(jax.random.key(0), small),
+                        gf.FilterParams(), small)
+    assert int(info.dropped_cells) == int(np.sum(np.asarray(obs[0, ..., 0]) > 0)) - 8 > 0

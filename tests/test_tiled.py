@@ -61,7 +61,7 @@ def _equivalence() -> dict:
     from synthetic import make_run
 
     from gslam_jax import filter as gf
-    from gslam_jax.slam import local_observations, map_extent
+    from gslam_jax.slam import local_observations, map_extent, observed_cells
     from gslam_jax.tiled.compare import DenseOutput, check_agreement
     from gslam_jax.tiled.reference import run_tiled
 
@@ -73,7 +73,8 @@ def _equivalence() -> dict:
         probe = gf.FilterConfig(16, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
         ext = map_extent(run.vo_poses(), L, 0.16, -2.5, probe.window)  # footprints reach the edge
         cfg = gf.FilterConfig(16, ext.shape, ext.origin, 0.16, L, unknown_cells=mode,
-                              unknown_samples=64).validate()
+                              unknown_samples=64, observed_cells=observed_cells(run)).validate()
+        assert cfg.max_observed < L * L  # the compacted update is what is compared
         key = jax.random.key(3)
         params = gf.FilterParams()
         d = gf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),

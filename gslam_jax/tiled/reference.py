@@ -12,8 +12,8 @@ Shared semantics with the dense filter (they define "the same numbers"):
   are skipped (the particle is flagged).
 * "sample" mode: each particle gets ``unknown_samples`` uniforms u; draw d is its
   floor(u_d * N_known)-th known cell in the order (8 x 8 blocks row-major, row-major inside a
-  block); the local cell with flat index c (row-major) borrows draw c mod unknown_samples,
-  for the weight only.
+  block); the c-th observed local cell (k > 0, counted row-major from 0) borrows draw
+  c mod unknown_samples, for the weight only.
 * Random numbers come from the dense module's drawing functions, so both filters see the same
   draws; nothing else of the dense implementation is used.
 """
@@ -130,7 +130,8 @@ def _particle(tmap: TileMap, pose: np.ndarray, cs: tuple, obs: np.ndarray, u: np
         if keys.size and new.any():
             total = keys.size
             r = np.clip(np.floor(u * F32(total)).astype(np.int64), 0, total - 1)
-            c = np.flatnonzero(new) % cfg.unknown_samples  # local cell c borrows draw c mod N
+            rank = np.cumsum(k_loc > 0) - 1  # c-th observed local cell borrows draw c mod N
+            c = rank[new] % cfg.unknown_samples
             pick = r[c]
             sum_new = float(np.sum(nm.log_predictive(k_obs[new], S_obs[new], kk[pick], SS[pick])))
     log_lam = nm.combine(sum_prev, int(prev.sum()), sum_new, int(has.sum()),
