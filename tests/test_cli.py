@@ -52,3 +52,10 @@ def test_bench_writes_every_figure(tmp_path, capsys):
             assert r[key] > 0, (key, r)
         assert r["resample_ms"] >= 0
     assert "us/particle" in capsys.readouterr().out
+
+
+def test_building_the_parser_does_not_import_jax():
+    """`gslam compare --exact` sets XLA_FLAGS before JAX starts; the parser must not start it."""
+    code = ("import sys; from gslam_jax.cli import build_parser; build_parser(); "
+            "sys.exit(1 if 'jax' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
