@@ -62,3 +62,11 @@ def test_increments_2d_integrate_back():
     out = integrate_controls(u, poses[0])
     np.testing.assert_allclose(out[:, :2], poses[:, :2], atol=1e-12)
     np.testing.assert_allclose(np.angle(np.exp(1j * (out[:, 2] - poses[:, 2]))), 0, atol=1e-12)
+
+
+def test_batched_rodrigues_matches_scipy():
+    from gslam_jax.vo.estimate import _rotations
+
+    rng = np.random.default_rng(3)
+    w = np.concatenate([rng.normal(scale=0.7, size=(20, 3)), np.zeros((1, 3)), [[1e-14, 0, 0]]])
+    np.testing.assert_allclose(_rotations(w), Rotation.from_rotvec(w).as_matrix(), atol=1e-12)

@@ -43,10 +43,10 @@ class MotionEstimate(NamedTuple):
 
 
 def project(cam: Camera, x: np.ndarray) -> np.ndarray:
-    """[N, 3] camera points -> [N, 3] (u, v, disparity)."""
-    z = x[:, 2]
-    return np.stack([cam.fx * x[:, 0] / z + cam.cx, cam.fy * x[:, 1] / z + cam.cy,
-                     cam.fx * cam.baseline / z], axis=1)
+    """[..., 3] camera points -> [..., 3] (u, v, disparity)."""
+    z = x[..., 2]
+    return np.stack([cam.fx * x[..., 0] / z + cam.cx, cam.fy * x[..., 1] / z + cam.cy,
+                     cam.fx * cam.baseline / z], axis=-1)
 
 
 def triangulate(cam: Camera, j: np.ndarray) -> np.ndarray:
@@ -64,32 +64,46 @@ def rigid_fit(pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
     return make_transform(r, ca - r @ cb)
 
 
+def _rotations(w: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula for a batch of rotation vectors [P, 3] -> [P, 3, 3]."""
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < 1e-12
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(safe) / safe)                 # sin(theta) / theta
+    b = np.where(small, 0.0, (1.0 - np.cos(safe)) / safe ** 2)    # (1 - cos(theta)) / theta^2
+    k = np.zeros((len(w), 3, 3))
+    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
+
+
 def _residuals(params: np.ndarray, cam: Camera, ja: np.ndarray, jb: np.ndarray,
                wa: np.ndarray, wb: np.ndarray) -> np.ndarray:
-    r = rotvec_to_matrix(params[:3])
-    t = params[3:]
-    ea = ja - project(cam, wb @ r.T + t)
-    eb = jb - project(cam, (wa - t) @ r)
-    return np.concatenate([ea, eb], axis=1)  # [N, 6]
+    """Reprojection residuals [P, N, 6] for P motions ``params`` [P, 6] (rotvec, t) at once:
+    frame-b points moved into a against ja, frame-a points moved into b against jb."""
+    r = _rotations(params[:, :3])
+    t = params[:, None, 3:]
+    ea = ja - project(cam, np.einsum("nj,pij->pni", wb, r) + t)
+    eb = jb - project(cam, np.einsum("pnj,pji->pni", wa - t, r))
+    return np.concatenate([ea, eb], axis=-1)
 
 
 def _lm(params: np.ndarray, cam: Camera, ja, jb, wa, wb, iters: int
         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     lam = 1e-3
-    res = _residuals(params, cam, ja, jb, wa, wb).ravel()
+    res = _residuals(params[None], cam, ja, jb, wa, wb)[0].ravel()
     cost = res @ res
-    jac = np.empty((res.size, 6))
+    steps = 1e-6 * np.eye(6)
     for _ in range(iters):
-        for k in range(6):  # forward differences: 6 vectorised residual evaluations
-            step = np.zeros(6)
-            step[k] = 1e-6
-            jac[:, k] = (_residuals(params + step, cam, ja, jb, wa, wb).ravel() - res) / 1e-6
+        # Forward differences: the 6 perturbed residual sets in one batched evaluation.
+        perturbed = _residuals(params + steps, cam, ja, jb, wa, wb).reshape(6, -1)
+        jac = ((perturbed - res) / 1e-6).T
         jtj, jtr = jac.T @ jac, jac.T @ res
         improved = False
         while lam < 1e8:
             delta = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-12), -jtr)
             trial = params + delta
-            r_trial = _residuals(trial, cam, ja, jb, wa, wb).ravel()
+            r_trial = _residuals(trial[None], cam, ja, jb, wa, wb)[0].ravel()
             c_trial = r_trial @ r_trial
             if c_trial < cost:
                 params, res, lam, improved = trial, r_trial, max(lam / 10, 1e-9), True
