@@ -125,13 +125,21 @@ def _lgamma_half_difference(k_big: Array, k_small: Array) -> Array:
     return jnp.where(k_big >= 16.0, stirling, table)
 
 
+def _log_complement(r: Array, q: Array) -> Array:
+    """log(1 - r) given r and its separately rounded complement q: log1p(-r) while r < 1/2,
+    log q above (each accurate to float32 rounding where it is used)."""
+    return jnp.where(r < 0.5, jnp.log1p(-r), jnp.log(q))
+
+
 def log_predictive_integer(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array) -> Array:
     """``log_predictive`` (eq. 26) for integer-valued k, k', arranged for float32.
 
     Eq. 26 is a small difference of large terms (k'' log S'' and lgamma(k''/2) reach 1e4 for
-    well-observed cells). Rewritten with r = S / S'':
-        lgamma(k''/2) - lgamma(k/2) - lgamma(k'/2) + 1/2 [k log r + k' log1p(-r)] - log S + log k,
-    with the lgamma difference taken against the larger of k, k'.
+    well-observed cells). Rewritten with r = S / S'' and q = S' / S'' = 1 - r:
+        lgamma(k''/2) - lgamma(k/2) - lgamma(k'/2) + 1/2 [k log r + k' log q] - log S + log k,
+    with the lgamma difference taken against the larger of k, k', and log q taken as log1p(-r)
+    for small r and from the rounded ratio q near r = 1 (a flat prior cell under a tall
+    observation), where 1 - r has no digits left.
     """
     k_big = jnp.maximum(k_obs, k_prior)
     k_small = jnp.minimum(k_obs, k_prior)
@@ -139,7 +147,7 @@ def log_predictive_integer(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: 
     r = S_obs / S2
     log_S_obs = jnp.log(S_obs)
     return (_lgamma_half_difference(k_big, k_small) - lgamma_half(k_small)
-            + 0.5 * (k_obs * jnp.log(r) + k_prior * jnp.log1p(-r))
+            + 0.5 * (k_obs * jnp.log(r) + k_prior * _log_complement(r, S_prior / S2))
             - log_S_obs + jnp.log(k_obs))
 
 
@@ -181,5 +189,5 @@ def log_predictive_integer_table(k_obs: Array, S_obs: Array, k_prior: Array, S_p
     table = jnp.asarray(_LGAMMA_HALF_DIFF).reshape(-1).at[small].get(mode="promise_in_bounds")
     diff = jnp.where(k_big >= 16.0, stirling, table)
     return (diff - _table(k_small)
-            + 0.5 * (k_obs * jnp.log(r) + k_prior * jnp.log1p(-r))
+            + 0.5 * (k_obs * jnp.log(r) + k_prior * _log_complement(r, S_prior / S2))
             - log_S_obs + jnp.log(k_obs))

@@ -103,3 +103,18 @@ def test_expected_std_matches_monte_carlo():
     h = rng.gamma(k / 2, 2 / S, 1_000_000)
     assert float(cells.expected_std(k, S)) == pytest.approx(np.mean(h ** -0.5), rel=3e-3)
     assert np.isnan(float(cells.expected_std(0.0, 0.0)))
+
+
+@pytest.mark.parametrize("fn", [cells.log_predictive_integer, cells.log_predictive_integer_table])
+def test_float32_eq26_when_one_variance_dwarfs_the_other(fn):
+    """A flat prior cell (S' floored at k' * 1e-6) under a tall observation, and the reverse:
+    S / S'' is within float32 rounding of 1, where log1p(-S / S'') loses every digit."""
+    rng = np.random.default_rng(5)
+    k = rng.integers(1, 40, 400).astype(np.float32)
+    kp = rng.integers(1, 400, 400).astype(np.float32)
+    tall, flat = rng.gamma(2, 0.05, 400), 1e-6 * rng.uniform(1, 3, 400)
+    for v, vp in ((tall, flat), (flat, tall)):
+        S, Sp = (k * v).astype(np.float32), (kp * vp).astype(np.float32)
+        with enable_x64(True):
+            ref = np.asarray(cells.log_predictive(*(x.astype(np.float64) for x in (k, S, kp, Sp))))
+        np.testing.assert_allclose(np.asarray(fn(k, S, kp, Sp)), ref, atol=5e-4, rtol=1e-6)
