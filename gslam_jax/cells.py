@@ -19,7 +19,7 @@ from jax.scipy.special import gammaln
 
 __all__ = ["stats_from_points", "obs_from_stats", "merge_stats", "conjugate_update",
            "log_predictive", "log_predictive_integer", "log_predictive_integer_table",
-           "lgamma_half", "log_likelihood_given_precision", "expected_std", "LGAMMA_TABLE_SIZE"]
+           "log_v_obs", "lgamma_half", "log_likelihood_given_precision", "expected_std", "LGAMMA_TABLE_SIZE"]
 
 
 def stats_from_points(z: np.ndarray) -> np.ndarray:
@@ -125,10 +125,17 @@ def _lgamma_half_difference(k_big: Array, k_small: Array) -> Array:
     return jnp.where(k_big >= 16.0, stirling, table)
 
 
-def _log_complement(r: Array, q: Array) -> Array:
-    """log(1 - r) given r and its separately rounded complement q: log1p(-r) while r < 1/2,
-    log q above (each accurate to float32 rounding where it is used)."""
-    return jnp.where(r < 0.5, jnp.log1p(-r), jnp.log(q))
+def _log_ratios(S_obs: Array, S_prior: Array) -> tuple[Array, Array]:
+    """(log r, log q) with r = S / S'' and q = S' / S'' = 1 - r, both to float32 rounding.
+
+    Only the smaller ratio m = min(S, S') / S'' <= 1/2 is formed: the smaller log is log m and
+    the larger is log1p(-m). (1 - r has no digits left when one variance dwarfs the other, e.g.
+    a flat prior cell under a tall observation.) Two logs and one division per cell.
+    """
+    m = jnp.minimum(S_obs, S_prior) / (S_obs + S_prior)
+    log_m, log_rest = jnp.log(m), jnp.log1p(-m)
+    obs_smaller = S_obs <= S_prior
+    return jnp.where(obs_smaller, log_m, log_rest), jnp.where(obs_smaller, log_rest, log_m)
 
 
 def log_predictive_integer(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array) -> Array:
@@ -137,24 +144,21 @@ def log_predictive_integer(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: 
     Eq. 26 is a small difference of large terms (k'' log S'' and lgamma(k''/2) reach 1e4 for
     well-observed cells). Rewritten with r = S / S'' and q = S' / S'' = 1 - r:
         lgamma(k''/2) - lgamma(k/2) - lgamma(k'/2) + 1/2 [k log r + k' log q] - log S + log k,
-    with the lgamma difference taken against the larger of k, k', and log q taken as log1p(-r)
-    for small r and from the rounded ratio q near r = 1 (a flat prior cell under a tall
-    observation), where 1 - r has no digits left.
+    with the lgamma difference taken against the larger of k, k', and log r, log q from the
+    smaller of the two ratios (``_log_ratios``).
     """
     k_big = jnp.maximum(k_obs, k_prior)
     k_small = jnp.minimum(k_obs, k_prior)
-    S2 = S_obs + S_prior
-    r = S_obs / S2
-    log_S_obs = jnp.log(S_obs)
+    log_r, log_q = _log_ratios(S_obs, S_prior)
     return (_lgamma_half_difference(k_big, k_small) - lgamma_half(k_small)
-            + 0.5 * (k_obs * jnp.log(r) + k_prior * _log_complement(r, S_prior / S2))
-            - log_S_obs + jnp.log(k_obs))
+            + 0.5 * (k_obs * log_r + k_prior * log_q) - jnp.log(S_obs) + jnp.log(k_obs))
 
 
 # Fast path of ``log_predictive_integer`` for arrays whose k'' = k + k' are all below
 # LGAMMA_TABLE_SIZE (the caller checks; the filter does it once per update): the Stirling
 # fallback of ``lgamma_half`` is then never selected, so it is not computed, and the small-k
-# table difference is one lookup in a float32 table of the same float32 differences.
+# table difference is one lookup in a float32 table of the same float32 differences. (Table
+# lookups are gathers, several times dearer on CPU than a log: two per cell is the budget.)
 _SMALL = 16
 _LGAMMA_HALF_F32 = _LGAMMA_HALF.astype(np.float32)
 _LGAMMA_HALF_DIFF = np.zeros((_SMALL, _SMALL), np.float32)
@@ -168,17 +172,24 @@ def _table(k: Array) -> Array:
     return jnp.asarray(_LGAMMA_HALF_F32).at[idx].get(mode="promise_in_bounds")
 
 
-def log_predictive_integer_table(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array) -> Array:
-    """``log_predictive_integer`` where every k_obs + k_prior < LGAMMA_TABLE_SIZE, same numbers.
+def log_v_obs(k_obs: Array, S_obs: Array) -> Array:
+    """log v = log(S / k) of observed cells (0 where k = 0): the last term of eq. 26, which
+    depends on the observation only and so can be computed once for all particles."""
+    has = k_obs > 0
+    return jnp.where(has, jnp.log(jnp.where(has, S_obs, 1.0)) - jnp.log(jnp.where(has, k_obs, 1.0)),
+                     0.0)
+
+
+def log_predictive_integer_table(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
+                                 log_v: Array | None = None) -> Array:
+    """``log_predictive_integer`` where every k_obs + k_prior < LGAMMA_TABLE_SIZE.
 
     Valid only under that bound (and k_obs, k_prior >= 0): callers must check it and use
-    ``log_predictive_integer`` otherwise.
+    ``log_predictive_integer`` otherwise. ``log_v`` (= ``log_v_obs(k_obs, S_obs)``, broadcast
+    against the other arguments) may be passed in when it is shared by many priors.
     """
     k_big = jnp.maximum(k_obs, k_prior)
     k_small = jnp.minimum(k_obs, k_prior)
-    S2 = S_obs + S_prior
-    r = S_obs / S2
-    log_S_obs = jnp.log(S_obs)
     x = jnp.maximum(0.5 * k_big, 8.0)
     a = 0.5 * k_small
     y = x + a
@@ -188,6 +199,7 @@ def log_predictive_integer_table(k_obs: Array, S_obs: Array, k_prior: Array, S_p
         + jnp.clip(k_small, 0, _SMALL - 1).astype(jnp.int32)
     table = jnp.asarray(_LGAMMA_HALF_DIFF).reshape(-1).at[small].get(mode="promise_in_bounds")
     diff = jnp.where(k_big >= 16.0, stirling, table)
-    return (diff - _table(k_small)
-            + 0.5 * (k_obs * jnp.log(r) + k_prior * _log_complement(r, S_prior / S2))
-            - log_S_obs + jnp.log(k_obs))
+    log_r, log_q = _log_ratios(S_obs, S_prior)
+    if log_v is None:
+        log_v = jnp.log(S_obs) - jnp.log(k_obs)
+    return diff - _table(k_small) + 0.5 * (k_obs * log_r + k_prior * log_q) - log_v

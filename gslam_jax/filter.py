@@ -274,43 +274,74 @@ def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borr
 
 
 class _Footprint(NamedTuple):
-    """What one update reads from the maps, per particle (stacked to [J, ...] by vmap)."""
+    """What one update reads from the maps ([J, ...] leaves, one row per particle)."""
 
-    cells: Array     # [M] flat map index under each observed local cell (H*W off the map)
-    off_map: Array   # some observed local cell fell outside the map
-    k_obs: Array     # [M] the observed cells, zero where their cell fell off the map
+    cells: Array     # [J, M] flat map index under each observed local cell (H*W off the map)
+    off_map: Array   # [J] some observed local cell fell outside the map
+    k_obs: Array     # [J, M] the observed cells, zero where their cell fell off the map
     S_obs: Array
-    k_prior: Array   # [M] map statistics under the observed cells
+    k_prior: Array   # [J, M] map statistics under the observed cells
     S_prior: Array
-    k_draws: Array   # [unknown_samples] borrowed known cells ([0] in "ignore" mode)
+    k_draws: Array   # [J, unknown_samples] borrowed known cells ([J, 0] in "ignore" mode)
     S_draws: Array
-    can_borrow: Array
+    can_borrow: Array  # [J]
 
 
-def _particle_reads(pose: Array, kmap: Array, smap: Array, bits: Array, unknown_u: Array,
-                    obs: Observation, cfg: FilterConfig) -> _Footprint:
-    """Everything one particle's update reads from its map (vmapped over particles)."""
-    flat, on_map = observation_cells(pose, obs.index, cfg)
+def _read_footprints(state: FilterState, obs: Observation, unknown_u: Array,
+                     cfg: FilterConfig) -> _Footprint:
+    """Everything the update reads from the particles' maps."""
+    flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(state.pose)
     k_obs = jnp.where(on_map, obs.k, 0.0)
     S_obs = jnp.where(on_map, obs.S, 0.0)
-    # Scalar gathers with in-bounds indices: several times faster on CPU than clipping ones.
-    safe = jnp.where(on_map, flat, 0)
-    k_prior = jnp.where(on_map, kmap.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
-    S_prior = jnp.where(on_map, smap.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
     if cfg.unknown_cells == "sample":
         # unknown_samples uniform known cells; observed cell c borrows draw c mod unknown_samples
         # (see _borrowed), so every unknown cell borrows a uniformly random known cell (draws
         # are shared between cells unknown_samples apart, which keeps the search cost
         # independent of the local map). Only the draws are read from the big map.
-        idx, total = unknown.sample_known_cells(bits, unknown_u)
-        kb = kmap.reshape(-1).at[idx].get(mode="promise_in_bounds")
-        Sb = smap.reshape(-1).at[idx].get(mode="promise_in_bounds")
+        idx, total = jax.vmap(unknown.sample_known_cells)(state.known_bits, unknown_u)
+        drawn = jnp.ones(idx.shape, bool)
+        kb, Sb = _read_cells(state.kmap, idx, drawn), _read_cells(state.smap, idx, drawn)
         can_borrow = total > 0
     else:
-        kb = Sb = jnp.zeros((0,), kmap.dtype)
-        can_borrow = jnp.bool_(False)
-    off_map = jnp.any(~on_map & (obs.k > 0))
-    return _Footprint(flat, off_map, k_obs, S_obs, k_prior, S_prior, kb, Sb, can_borrow)
+        J = cfg.num_particles
+        kb = Sb = jnp.zeros((J, 0), state.kmap.dtype)
+        can_borrow = jnp.zeros((J,), bool)
+    return _Footprint(flat, jnp.any(~on_map & (obs.k > 0), axis=1), k_obs, S_obs,
+                      _read_cells(state.kmap, flat, on_map), _read_cells(state.smap, flat, on_map),
+                      kb, Sb, can_borrow)
+
+
+def _global_cells(maps: Array, cells_: Array) -> Array | None:
+    """[J, M] per-particle flat map indices -> indices into ``maps.reshape(-1)`` ([J*H*W]),
+    or None where J*H*W does not fit int32. One 1-D gather or scatter over all particles'
+    maps costs about a third less on CPU than the vmapped (batched) one."""
+    J, H, W = maps.shape
+    if J * H * W >= 2 ** 31:
+        return None
+    return cells_ + (jnp.arange(J, dtype=jnp.int32) * (H * W))[:, None]
+
+
+def _read_cells(maps: Array, cells_: Array, on_map: Array) -> Array:
+    """maps[j].flat[cells_[j, m]] where on_map, else 0 ([J, H, W], [J, M] -> [J, M])."""
+    safe = jnp.where(on_map, cells_, 0)
+    glob = _global_cells(maps, safe)
+    if glob is None:
+        vals = jax.vmap(lambda m, c: m.reshape(-1).at[c].get(mode="promise_in_bounds"))(maps, safe)
+    else:
+        vals = maps.reshape(-1).at[glob].get(mode="promise_in_bounds")
+    return jnp.where(on_map, vals, 0.0)
+
+
+def _add_to_cells(maps: Array, cells_: Array, values: Array) -> Array:
+    """maps[j].flat[cells_[j, m]] += values[m] (eq. 14); cells_ == H*W (off the map) dropped."""
+    J, H, W = maps.shape
+    glob = _global_cells(maps, cells_)
+    if glob is None:
+        return jax.vmap(lambda m, c: m.reshape(-1).at[c].add(values, mode="drop").reshape(H, W))(
+            maps, cells_)
+    glob = jnp.where(cells_ < H * W, glob, J * H * W)
+    vals = jnp.broadcast_to(values, cells_.shape)
+    return maps.reshape(-1).at[glob].add(vals, mode="drop").reshape(J, H, W)
 
 
 def _borrowed(draws: Array, n: int) -> Array:
@@ -348,8 +379,10 @@ def _log_lambda_fast(f: _Footprint, obs: Observation, params: FilterParams,
     if cfg.unknown_cells == "sample":
         k_prior_max = jnp.maximum(k_prior_max, jnp.max(f.k_draws))
     bound = jnp.maximum(k_prior_max, 1.0) + jnp.maximum(jnp.max(obs.k), 1.0)
+    # log v of each observed cell is shared by every particle: computed once, not J times.
+    table = partial(cells.log_predictive_integer_table, log_v=cells.log_v_obs(obs.k, obs.S))
     return lax.cond(bound < cells.LGAMMA_TABLE_SIZE,
-                    lambda f: _log_lambda(f, params, cfg, cells.log_predictive_integer_table),
+                    lambda f: _log_lambda(f, params, cfg, table),
                     lambda f: _log_lambda(f, params, cfg, cells.log_predictive_integer), f)
 
 
@@ -359,20 +392,18 @@ def _write_footprints(kmap: Array, smap: Array, bits: Array, pose: Array, flat: 
     refresh the known-cell bits around it. Off-map cells (index H*W) are dropped."""
     if not cfg.update_map:
         return kmap, smap, bits
-    H, W = cfg.map_shape
-
-    def one(kmap, smap, bits, pose, flat):
-        kmap = kmap.reshape(-1).at[flat].add(obs.k, mode="drop").reshape(H, W)
-        smap = smap.reshape(-1).at[flat].add(obs.S, mode="drop").reshape(H, W)
-        if cfg.unknown_cells == "sample":
-            b, Wn = unknown.BLOCK, cfg.window
-            oi, oj, _ = window_origin(pose, cfg)
-            known = lax.dynamic_slice(kmap, (oi, oj), (Wn, Wn)) > 0
-            bits = lax.dynamic_update_slice(bits, unknown.pack_known(known),
-                                            (oi // b, oj // b, 0))
+    kmap = _add_to_cells(kmap, flat, obs.k)
+    smap = _add_to_cells(smap, flat, obs.S)
+    if cfg.unknown_cells != "sample":
         return kmap, smap, bits
 
-    return jax.vmap(one)(kmap, smap, bits, pose, flat)
+    def refresh(kmap, bits, pose):
+        b, Wn = unknown.BLOCK, cfg.window
+        oi, oj, _ = window_origin(pose, cfg)
+        known = lax.dynamic_slice(kmap, (oi, oj), (Wn, Wn)) > 0
+        return lax.dynamic_update_slice(bits, unknown.pack_known(known), (oi // b, oj // b, 0))
+
+    return kmap, smap, jax.vmap(refresh)(kmap, bits, pose)
 
 
 def gather_particles(particles, ancestors: Array):
@@ -406,8 +437,7 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     """
     J = cfg.num_particles
     obs = compact_observation(local_obs, cfg)
-    reads = jax.vmap(partial(_particle_reads, obs=obs, cfg=cfg))(
-        state.pose, state.kmap, state.smap, state.known_bits, noise.unknown_u)
+    reads = _read_footprints(state, obs, noise.unknown_u, cfg)
     log_lam = _log_lambda_fast(reads, obs, params, cfg)
     unnorm = state.log_w + log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment

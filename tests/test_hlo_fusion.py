@@ -7,8 +7,8 @@ windows, and what these tests pin down:
 
 * One elementwise loop fusion per importance term holds every lgamma table lookup (``gather``
   from the f32[LGAMMA_TABLE_SIZE] table, or from the small-k difference table of the fast
-  kernel) together with the log / log1p ops of that term (the Stirling difference, log r,
-  log1p(-r)). No lookup sits in a fusion without logs, and no table is read anywhere else.
+  kernel) together with the log / log1p ops of that term (the Stirling difference, and log m,
+  log1p(-m) of the smaller variance ratio). No lookup sits in a fusion without logs, and no table is read anywhere else.
   In "ignore" mode that is a single fusion holding *all* logs of the computation. In "sample"
   mode there are two such fusions (G_prev and G_new terms of eq. 31); log S and log k of the
   observation are shared by both terms, so XLA computes each once in a small producer fusion
@@ -124,7 +124,7 @@ def test_log_gamma_terms_are_fused_and_reduced_directly(mode, kernel):
     for f in lookup:
         assert f.kind == "kLoop"
         assert any(_is_table(s) for s in f.inner_params.values()), f.inner_params
-        assert _logs(f) >= 4, (f.name, f.ops)  # Stirling difference + log r + log1p(-r) at least
+        assert _logs(f) >= 4, (f.name, f.ops)  # Stirling difference + log m + log1p(-m) at least
         assert f.shape.startswith(f"f32[{J},{WN},{WN}]"), f.shape
     # Every log op of the computation is in those fusions, except (sample mode) log S and log k
     # of the observation, each computed once in a one-log producer feeding both term fusions.
