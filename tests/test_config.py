@@ -1,5 +1,7 @@
 """TOML configs: defaults, unknown keys, wrong types, malformed files, overrides."""
 
+import re
+
 import pytest
 
 from gslam_jax.config import Config, ConfigError, apply_overrides, config_to_toml, load_config
@@ -54,3 +56,30 @@ def test_shipped_configs_load():
             load_space(path)
         else:
             load_config(path)
+
+
+def test_table1_per_course_sections_override_only_their_course(tmp_path):
+    from gslam_jax.table1 import load_table_config
+
+    path = tmp_path / "t.toml"
+    path.write_text("[filter]\nparticles = 50\n[motion]\nalpha_d = 0.04\n"
+                    "[course.mars-yard-b.motion]\nalpha_theta_d = 0.03\n")
+    shared, per_course = load_table_config(path)
+    assert shared.motion.alpha_d == 0.04 and shared.motion.alpha_theta_d == 0.01
+    b = per_course["mars-yard-b"]
+    assert (b.motion.alpha_d, b.motion.alpha_theta_d, b.filter.particles) == (0.04, 0.03, 50)
+    assert set(per_course) == {"mars-yard-b"}
+
+
+@pytest.mark.parametrize("text, named", [
+    ("[course.mars-yard-z.motion]\nalpha_d = 0.1\n", "course.mars-yard-z"),
+    ("[course.maze.motion]\nalpha_dd = 0.1\n", "alpha_dd"),
+    ("[course.maze.motion]\nalpha_d = 'x'\n", "[course.maze]"),
+])
+def test_table1_bad_course_sections_are_named(tmp_path, text, named):
+    from gslam_jax.table1 import load_table_config
+
+    path = tmp_path / "t.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=re.escape(named)):
+        load_table_config(path)
