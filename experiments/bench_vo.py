@@ -56,22 +56,24 @@ def main() -> None:
         vo = StereoVO(cam, VOParams(features=FeatureParams(max_features=args.max_features,
                                                            grid=(8, 4)), disparity=mode))
         vo.step(*pairs[0], disparity=disps[0])
-        times, inliers = [], []
+        times, inliers, matches = [], [], []
         for (left, right), disp in zip(pairs[1:], disps[1:]):
             t0 = time.perf_counter()
             res = vo.step(left, right, disparity=disp)
             times.append(time.perf_counter() - t0)
             inliers.append(res.n_inliers)
-        vo_stats[mode] = (times, inliers)
+            matches.append(res.n_matches)
+        vo_stats[mode] = (times, inliers, matches)
     print(f"# {datetime.date.today()} | {platform.processor() or platform.machine()} | "
           f"python {platform.python_version()} | numpy {np.__version__} | opencv {cv2.__version__}"
           f" | cv2 threads {cv2.getNumThreads()}")
     for mode, label in (("dense", "feature disparity from the dense map (front-end default)"),
                         ("lk", "sparse LK stereo per feature")):
-        times, inliers = vo_stats[mode]
+        times, inliers, matches = vo_stats[mode]
         print(f"VO {W}x{H}, {label}: {1e3 * np.median(times):.1f} ms/frame median "
               f"({1e3 * np.mean(times):.1f} mean) over {len(times)} frames, "
-              f"{np.mean(inliers):.0f} inlier features/frame")
+              f"{np.mean(matches):.0f} tracked (matched) and {np.mean(inliers):.0f} inlier "
+              f"features/frame")
     print(f"dense stereo SGBM {W}x{H}, 64 disparities: {1e3 * np.median(dense):.1f} ms/frame median")
     print(clique_timing())
 
