@@ -18,7 +18,7 @@ from jax import Array
 from jax.scipy.special import gammaln
 
 __all__ = ["stats_from_points", "obs_from_stats", "merge_stats", "conjugate_update",
-           "log_predictive", "log_predictive_integer", "log_predictive_integer_table",
+           "log_predictive", "log_predictive_integer",
            "log_v_obs", "lgamma_half", "log_likelihood_given_precision", "expected_std", "LGAMMA_TABLE_SIZE"]
 
 
@@ -109,22 +109,6 @@ def lgamma_half(k: Array) -> Array:
     return jnp.where(k < LGAMMA_TABLE_SIZE, looked_up, stirling)
 
 
-def _lgamma_half_difference(k_big: Array, k_small: Array) -> Array:
-    """lgamma((k_big + k_small)/2) - lgamma(k_big/2) without float32 cancellation.
-
-    For x = k_big/2 >= 8 the difference of Stirling's series is taken term by term
-    ((x - 1/2) log1p(a/x) + a log(x + a) - a + ..., error < 1e-7); below, both values are small
-    and the table difference is exact to float32 rounding.
-    """
-    x = jnp.maximum(0.5 * k_big, 8.0)
-    a = 0.5 * k_small
-    y = x + a
-    stirling = ((x - 0.5) * jnp.log1p(a / x) + a * jnp.log(y) - a
-                + (1.0 / 12.0) * (1.0 / y - 1.0 / x) - (1.0 / 360.0) * (1.0 / y**3 - 1.0 / x**3))
-    table = lgamma_half(k_big + k_small) - lgamma_half(k_big)
-    return jnp.where(k_big >= 16.0, stirling, table)
-
-
 def _log_ratios(S_obs: Array, S_prior: Array) -> tuple[Array, Array]:
     """(log r, log q) with r = S / S'' and q = S' / S'' = 1 - r, both to float32 rounding.
 
@@ -138,38 +122,14 @@ def _log_ratios(S_obs: Array, S_prior: Array) -> tuple[Array, Array]:
     return jnp.where(obs_smaller, log_m, log_rest), jnp.where(obs_smaller, log_rest, log_m)
 
 
-def log_predictive_integer(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array) -> Array:
-    """``log_predictive`` (eq. 26) for integer-valued k, k', arranged for float32.
-
-    Eq. 26 is a small difference of large terms (k'' log S'' and lgamma(k''/2) reach 1e4 for
-    well-observed cells). Rewritten with r = S / S'' and q = S' / S'' = 1 - r:
-        lgamma(k''/2) - lgamma(k/2) - lgamma(k'/2) + 1/2 [k log r + k' log q] - log S + log k,
-    with the lgamma difference taken against the larger of k, k', and log r, log q from the
-    smaller of the two ratios (``_log_ratios``).
-    """
-    k_big = jnp.maximum(k_obs, k_prior)
-    k_small = jnp.minimum(k_obs, k_prior)
-    log_r, log_q = _log_ratios(S_obs, S_prior)
-    return (_lgamma_half_difference(k_big, k_small) - lgamma_half(k_small)
-            + 0.5 * (k_obs * log_r + k_prior * log_q) - jnp.log(S_obs) + jnp.log(k_obs))
-
-
-# Fast path of ``log_predictive_integer`` for arrays whose k'' = k + k' are all below
-# LGAMMA_TABLE_SIZE (the caller checks; the filter does it once per update): the Stirling
-# fallback of ``lgamma_half`` is then never selected, so it is not computed, and the small-k
-# table difference is one lookup in a float32 table of the same float32 differences. (Table
-# lookups are gathers, several times dearer on CPU than a log: two per cell is the budget.)
+# lgamma(k''/2) - lgamma(k_big/2) for k_big < 16: a table of the float32 differences of the
+# float32 table values (both are small there, so the difference is exact to float32 rounding).
 _SMALL = 16
 _LGAMMA_HALF_F32 = _LGAMMA_HALF.astype(np.float32)
 _LGAMMA_HALF_DIFF = np.zeros((_SMALL, _SMALL), np.float32)
 for _b in range(_SMALL):
     for _s in range(_b + 1):
         _LGAMMA_HALF_DIFF[_b, _s] = _LGAMMA_HALF_F32[_b + _s] - _LGAMMA_HALF_F32[_b]
-
-
-def _table(k: Array) -> Array:
-    idx = jnp.clip(k, 0, LGAMMA_TABLE_SIZE - 1).astype(jnp.int32)
-    return jnp.asarray(_LGAMMA_HALF_F32).at[idx].get(mode="promise_in_bounds")
 
 
 def log_v_obs(k_obs: Array, S_obs: Array) -> Array:
@@ -180,13 +140,19 @@ def log_v_obs(k_obs: Array, S_obs: Array) -> Array:
                      0.0)
 
 
-def log_predictive_integer_table(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
-                                 log_v: Array | None = None) -> Array:
-    """``log_predictive_integer`` where every k_obs + k_prior < LGAMMA_TABLE_SIZE.
+def log_predictive_integer(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
+                           log_v: Array | None = None) -> Array:
+    """``log_predictive`` (eq. 26) for integer-valued k, k' >= 1, arranged for float32.
 
-    Valid only under that bound (and k_obs, k_prior >= 0): callers must check it and use
-    ``log_predictive_integer`` otherwise. ``log_v`` (= ``log_v_obs(k_obs, S_obs)``, broadcast
-    against the other arguments) may be passed in when it is shared by many priors.
+    Eq. 26 is a small difference of large terms (k'' log S'' and lgamma(k''/2) reach 1e4 for
+    well-observed cells). Rewritten with r = S / S'' and q = S' / S'' = 1 - r:
+        lgamma(k''/2) - lgamma(k_big/2) - lgamma(k_small/2) + 1/2 [k log r + k' log q] - log v,
+    with k_big, k_small the larger and smaller of k, k'. The lgamma difference is Stirling's
+    series differenced term by term for k_big >= 16 ((x - 1/2) log1p(a/x) + a log(x + a) - a
+    + ..., error < 1e-7) and a 16 x 16 table below; lgamma(k_small/2) is a table lookup
+    (Stirling above ``LGAMMA_TABLE_SIZE``); log r, log q come from the smaller of the two ratios
+    (``_log_ratios``). Two table lookups per cell, valid for every k (no branch for the caller).
+    ``log_v`` = ``log_v_obs(k_obs, S_obs)`` may be passed in when many priors share it.
     """
     k_big = jnp.maximum(k_obs, k_prior)
     k_small = jnp.minimum(k_obs, k_prior)
@@ -202,4 +168,4 @@ def log_predictive_integer_table(k_obs: Array, S_obs: Array, k_prior: Array, S_p
     log_r, log_q = _log_ratios(S_obs, S_prior)
     if log_v is None:
         log_v = jnp.log(S_obs) - jnp.log(k_obs)
-    return diff - _table(k_small) + 0.5 * (k_obs * log_r + k_prior * log_q) - log_v
+    return diff - lgamma_half(k_small) + 0.5 * (k_obs * log_r + k_prior * log_q) - log_v

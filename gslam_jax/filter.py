@@ -368,22 +368,9 @@ def _log_lambda(f: _Footprint, params: FilterParams, cfg: FilterConfig, log_pred
 
 def _log_lambda_fast(f: _Footprint, obs: Observation, params: FilterParams,
                      cfg: FilterConfig) -> Array:
-    """``_log_lambda`` with the table-only lgamma when every k'' fits the table (same numbers).
-
-    k'' = k + k' of every evaluated cell is at most max(local k) + max(prior k over the
-    footprints and the draws) (masked cells use k = k' = 1); when that bound is below the lgamma
-    table size the Stirling fallback is never selected, so the cheaper kernel gives the same
-    values. NaN in k fails the test and takes the exact path.
-    """
-    k_prior_max = jnp.max(f.k_prior)
-    if cfg.unknown_cells == "sample":
-        k_prior_max = jnp.maximum(k_prior_max, jnp.max(f.k_draws))
-    bound = jnp.maximum(k_prior_max, 1.0) + jnp.maximum(jnp.max(obs.k), 1.0)
-    # log v of each observed cell is shared by every particle: computed once, not J times.
-    table = partial(cells.log_predictive_integer_table, log_v=cells.log_v_obs(obs.k, obs.S))
-    return lax.cond(bound < cells.LGAMMA_TABLE_SIZE,
-                    lambda f: _log_lambda(f, params, cfg, table),
-                    lambda f: _log_lambda(f, params, cfg, cells.log_predictive_integer), f)
+    """``_log_lambda`` with log v of each observed cell computed once for all particles."""
+    kernel = partial(cells.log_predictive_integer, log_v=cells.log_v_obs(obs.k, obs.S))
+    return _log_lambda(f, params, cfg, kernel)
 
 
 def _write_footprints(kmap: Array, smap: Array, bits: Array, pose: Array, flat: Array,
