@@ -75,12 +75,24 @@ def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int]
     raise SystemExit(f"unknown source {args.source!r}")
 
 
+def _load_config(args: argparse.Namespace):
+    """--config (with the [course.<name>.*] tables of a Table I config applied for a simulated
+    --course), then the --set overrides."""
+    from gslam_jax.config import apply_overrides
+    from gslam_jax.table1 import load_table_config
+
+    shared, per_course = load_table_config(args.config)
+    simulated = getattr(args, "run_file", None) is None and args.source in ("sim", "sim-stereo")
+    config = per_course.get(args.course, shared) if simulated else shared
+    return apply_overrides(config, args.set or [])
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from gslam_jax import slam
-    from gslam_jax.config import apply_overrides, config_to_toml, load_config
+    from gslam_jax.config import config_to_toml
     from gslam_jax.io import save_map, write_kitti, write_tum
 
-    config = apply_overrides(load_config(args.config), args.set or [])
+    config = _load_config(args)
     run, description, sim_info = _load_source(args, config, ProgressBar("front-end"))
     if args.save_run:
         from gslam_jax.run import save_run
@@ -198,9 +210,7 @@ def _gps_outputs(out: Path, args: argparse.Namespace, run, result) -> dict:
 
 
 def _config_and_run(args: argparse.Namespace):
-    from gslam_jax.config import apply_overrides, load_config
-
-    config = apply_overrides(load_config(args.config), args.set or [])
+    config = _load_config(args)
     run, description, _ = _load_source(args, config, ProgressBar("front-end"))
     print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps")
     return config, run

@@ -43,17 +43,22 @@ def test_missing_file_and_bad_override(tmp_path):
 
 
 def test_shipped_configs_load():
-    """Every file in configs/ is a filter config or (with a [space] table) a search space."""
+    """Every file in configs/ is a filter config, a Table I config (with [course.*] tables) or
+    (with a [space] table) a search space."""
     import tomllib
     from pathlib import Path
 
     from gslam_jax.search import load_space
+    from gslam_jax.table1 import load_table_config
 
     paths = sorted((Path(__file__).parents[1] / "configs").glob("*.toml"))
     assert paths
     for path in paths:
-        if "space" in tomllib.loads(path.read_text()):
+        data = tomllib.loads(path.read_text())
+        if "space" in data:
             load_space(path)
+        elif "course" in data:
+            load_table_config(path)
         else:
             load_config(path)
 
