@@ -140,18 +140,25 @@ def describe(filtered: np.ndarray, uv: np.ndarray, window: int) -> np.ndarray:
 
 
 def match_sad(a: Features, b: Features, radius_px: float, max_sad: float) -> np.ndarray:
-    """Mutually best SAD matches within ``radius_px``; returns [K, 2] index pairs (i in a, j in b)."""
+    """Mutually best SAD matches within ``radius_px``; returns [K, 2] index pairs (i in a, j in b).
+
+    Nearest neighbours under the L1 norm in both directions with ``cv2.batchDistance`` (masked to
+    candidates within the radius), so no per-match Python objects are made.
+    """
     if len(a.uv) == 0 or len(b.uv) == 0:
         return np.zeros((0, 2), np.int64)
-    d2 = ((a.uv[:, None, :] - b.uv[None, :, :]) ** 2).sum(-1)
-    near = (d2 <= radius_px * radius_px).astype(np.uint8)
-    bf = cv2.BFMatcher(cv2.NORM_L1)
-    fwd = bf.match(a.desc, b.desc, near)
-    bwd = {m.queryIdx: m.trainIdx for m in bf.match(b.desc, a.desc, np.ascontiguousarray(near.T))}
-    limit = max_sad * a.desc.shape[1]
-    good = [(m.queryIdx, m.trainIdx) for m in fwd
-            if m.distance <= limit and bwd.get(m.trainIdx) == m.queryIdx]
-    return np.array(good, np.int64).reshape(-1, 2)
+    dx = a.uv[:, None, 0] - b.uv[None, :, 0]
+    dy = a.uv[:, None, 1] - b.uv[None, :, 1]
+    near = (dx * dx + dy * dy <= radius_px * radius_px).astype(np.uint8)
+    dist, fwd = cv2.batchDistance(a.desc, b.desc, cv2.CV_32F, normType=cv2.NORM_L1, K=1,
+                                  mask=near)
+    _, bwd = cv2.batchDistance(b.desc, a.desc, cv2.CV_32F, normType=cv2.NORM_L1, K=1,
+                               mask=np.ascontiguousarray(near.T))
+    dist, fwd, bwd = dist[:, 0], fwd[:, 0], bwd[:, 0]
+    ok = (fwd >= 0) & (dist <= max_sad * a.desc.shape[1])
+    i = np.nonzero(ok)[0]
+    i = i[bwd[fwd[i]] == i]
+    return np.column_stack([i, fwd[i]]).astype(np.int64).reshape(-1, 2)
 
 
 def refine_matches(img_a: np.ndarray, img_b: np.ndarray, uv_a: np.ndarray, uv_b: np.ndarray,
