@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
-           "Config", "load_config", "parse_config", "apply_overrides", "config_to_toml"]
+           "Config", "read_toml", "load_config", "parse_config", "apply_overrides", "config_to_toml"]
 
 
 class ConfigError(ValueError):
@@ -139,18 +139,22 @@ def parse_config(data: dict[str, Any], source: str = "<config>", base: Config | 
     return dataclasses.replace(base, **sections).validate(source)
 
 
-def load_config(path: str | Path | None) -> Config:
-    """Defaults, or a TOML file over the defaults."""
-    if path is None:
-        return Config()
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """A config file's TOML table; a missing file or bad TOML is a ConfigError naming it."""
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: no such config file")
     try:
-        data = tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: malformed TOML: {err}") from err
-    return parse_config(data, str(path))
+
+
+def load_config(path: str | Path | None) -> Config:
+    """Defaults, or a TOML file over the defaults."""
+    if path is None:
+        return Config()
+    return parse_config(read_toml(path), str(path))
 
 
 def apply_overrides(config: Config, overrides: list[str]) -> Config:

@@ -366,13 +366,6 @@ def _log_lambda(f: _Footprint, params: FilterParams, cfg: FilterConfig, log_pred
                          f.can_borrow)
 
 
-def _log_lambda_fast(f: _Footprint, obs: Observation, params: FilterParams,
-                     cfg: FilterConfig) -> Array:
-    """``_log_lambda`` with log v of each observed cell computed once for all particles."""
-    kernel = partial(cells.log_predictive_integer, log_v=cells.log_v_obs(obs.k, obs.S))
-    return _log_lambda(f, params, cfg, kernel)
-
-
 def _write_footprints(kmap: Array, smap: Array, bits: Array, pose: Array, flat: Array,
                       obs: Observation, cfg: FilterConfig):
     """Add the local map into every particle's map (eq. 14: k'' = k' + k, S'' = S' + S) and
@@ -425,7 +418,9 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     J = cfg.num_particles
     obs = compact_observation(local_obs, cfg)
     reads = _read_footprints(state, obs, noise.unknown_u, cfg)
-    log_lam = _log_lambda_fast(reads, obs, params, cfg)
+    # log v of each observed cell is shared by every particle: computed once, not J times.
+    kernel = partial(cells.log_predictive_integer, log_v=cells.log_v_obs(obs.k, obs.S))
+    log_lam = _log_lambda(reads, params, cfg, kernel)
     unnorm = state.log_w + log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax import metrics, slam
-from gslam_jax.config import Config, ConfigError, config_to_toml, parse_config
+from gslam_jax.config import Config, ConfigError, config_to_toml, parse_config, read_toml
 
 __all__ = ["PAPER_TABLE1", "load_table_config", "run_course", "main"]
 
@@ -37,15 +37,7 @@ def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config
     """
     if path is None:
         return Config(), {}
-    import tomllib
-
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"{path}: no such config file")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path}: malformed TOML: {err}") from err
+    data = read_toml(path)
     per_course = data.pop("course", {})
     base = parse_config(data, str(path))
     if not isinstance(per_course, dict):
