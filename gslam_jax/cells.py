@@ -18,8 +18,8 @@ from jax import Array
 from jax.scipy.special import gammaln
 
 __all__ = ["stats_from_points", "obs_from_stats", "merge_stats", "conjugate_update",
-           "log_predictive", "log_predictive_integer",
-           "log_v_obs", "lgamma_half", "log_likelihood_given_precision", "expected_std", "LGAMMA_TABLE_SIZE"]
+           "log_predictive", "log_predictive_integer", "log_v_obs", "lgamma_half",
+           "log_likelihood_given_precision", "expected_std", "LGAMMA_TABLE_SIZE"]
 
 
 def stats_from_points(z: np.ndarray) -> np.ndarray:
