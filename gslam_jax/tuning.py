@@ -153,7 +153,9 @@ def objective_fn(log_values: Array, keys: Array, base: gf.FilterParams, inputs: 
     """Loss to minimise at log parameter values [d], averaged over independent runs ``keys``
     [K]: ``-loglik / updates`` or the mean expected squared error (m^2)."""
     params = params_from_values(jnp.exp(log_values), names, base)
-    obj = jax.vmap(lambda k: sw_objectives(k, params, inputs, cfg))(keys)
+    # lax.map, not vmap: under vmap the data-dependent resampling cond would become a select
+    # over every map (both branches run, the copy loop over the whole batch).
+    obj = lax.map(lambda k: sw_objectives(k, params, inputs, cfg), keys)
     if objective == "loglik":
         n_upd = jnp.maximum(jnp.sum(inputs.obs_index >= 0), 1)
         return -jnp.mean(obj.loglik) / n_upd

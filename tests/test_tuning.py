@@ -55,30 +55,31 @@ def test_forward_values_equal_the_filter(short_run):
 
 
 def test_gradient_matches_central_differences(short_run):
-    """The estimator's gradient of the supervised objective agrees in sign with central
-    differences of the same objective under common random numbers (16 runs averaged, 3x too
-    much motion noise, so the gradient is well away from zero), and within 20% for beta_prev.
+    """The estimator's gradient of the supervised objective agrees in sign and within 20% with
+    central differences of the same objective under common random numbers, for every alpha and
+    beta_prev (ESS-gated resampling on, 3x too much motion noise so the gradient is well away
+    from zero).
 
-    alpha_d is checked in sign only: its estimate carries the transition score alone, while the
-    finite difference also sees the map cells that the moved poses land in (a discrete effect
-    the estimator cannot differentiate); over key sets it came out 20-70% below (issue #6).
+    The alphas' gradient is a score-function estimate (high variance): over 8 disjoint sets of
+    32 runs its relative standard error at 256 runs was about 9% (alpha_d), 3% (alpha_theta_d)
+    and 3% (alpha_theta); the finite differences' 4%, 7% and 2%. Hence 256 runs here.
     """
-    J, K, h = 64, 16, 0.3
-    names = ("alpha_d", "beta_prev")
-    config = _config(J, ratio=0.0, alpha_d=0.15, alpha_theta_d=0.03, alpha_theta=0.15)
+    J, K, h = 64, 256, 0.3
+    names = ("alpha_d", "alpha_theta_d", "alpha_theta", "beta_prev")
+    config = _config(J, ratio=0.5, alpha_d=0.15, alpha_theta_d=0.03, alpha_theta=0.15)
     inputs, cfg = TU.make_inputs(short_run, config)
     base = slam.filter_params(config)
-    x = jnp.log(jnp.asarray([0.15, 0.05], jnp.float32))
+    x = jnp.log(jnp.asarray([0.15, 0.03, 0.15, 0.05], jnp.float32))
     keys = jax.random.split(jax.random.key(0), K)
     _, g = TU._value_and_grad(x, keys, base, inputs, names, cfg, "supervised")
-    steps = jnp.concatenate([h * jnp.eye(2), -h * jnp.eye(2)])
-    f = jax.jit(jax.vmap(TU.objective_fn, in_axes=(0,) + (None,) * 6),
-                static_argnames=("names", "cfg", "objective"))
-    vals = np.asarray(f(x + steps, keys, base, inputs, names, cfg, "supervised"))
-    fd = (vals[:2] - vals[2:]) / (2 * h)
+    f = jax.jit(TU.objective_fn, static_argnames=("names", "cfg", "objective"))
+    d = len(names)
+    vals = np.array([float(f(x + s, keys, base, inputs, names, cfg, "supervised"))
+                     for s in np.concatenate([h * np.eye(d), -h * np.eye(d)])])
+    fd = (vals[:d] - vals[d:]) / (2 * h)
     g = np.asarray(g)
     assert np.all(np.sign(g) == np.sign(fd)), (g, fd)
-    np.testing.assert_allclose(g[1], fd[1], rtol=0.2)
+    np.testing.assert_allclose(g, fd, rtol=0.2)
 
 
 def test_tune_moves_towards_lower_loss_and_checks_input(short_run):
