@@ -42,12 +42,14 @@ from gslam_jax.run import Run
 
 __all__ = ["PARAM_NAMES", "DESIGNS", "OBJECTIVES", "SearchError", "SearchSpace", "SearchResult",
            "parse_space", "load_space", "design_points", "halton", "sobol", "params_from_values",
-           "rigid_rms", "objective_value", "evaluate", "search", "auto_batch", "rank"]
+           "rigid_rms", "objective_value", "evaluate", "search", "auto_batch", "chunk_size",
+           "default_inner", "rank"]
 
 PARAM_NAMES = ("alpha_d", "alpha_theta_d", "alpha_theta", "beta_prev", "beta_new")
 DESIGNS = ("grid", "random", "halton", "sobol")
 OBJECTIVES = ("rms", "loglik")
 PATHS = ("mean", "best")
+PROGRESS_CHUNKS = 8  # chunks of a search whose sets run one after another (progress reports)
 
 
 class SearchError(ValueError):
@@ -297,9 +299,11 @@ def _batch_fn(key: Array, inputs: _Inputs, base: gf.FilterParams, names: tuple[s
         return objective_value(out, objective, inputs.reference, inputs.mask, path)
 
     def block(values: Array) -> Array:
+        if inner == 1:  # never vmap, not even a block of one set: the conds would become selects
+            return lax.map(one, values)
         if inner >= values.shape[0]:
             return jax.vmap(one)(values)
-        return lax.map(one, values, batch_size=inner if inner > 1 else None)
+        return lax.map(one, values, batch_size=inner)
 
     return block
 
@@ -323,24 +327,23 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterPar
              batch: int | None = None, devices: Sequence[jax.Device] | None = None,
              progress: Callable[[int, int], None] | None = None, inner: int | None = None
              ) -> np.ndarray:
-    """Objective for every row of ``values`` [P, d]: equal chunks of ``batch`` rows (a multiple
-    of the device count; the last chunk padded), each sharded over a 1-D mesh on the parameter
-    axis (``NamedSharding``, ``shard_map``). One compilation for all chunks.
+    """Objective for every row of ``values`` [P, d]: balanced chunks of at most about ``batch``
+    rows (``chunk_size``: a multiple of the device count; the last chunk padded), each sharded
+    over a 1-D mesh on the parameter axis (``NamedSharding``, ``shard_map``). One compilation
+    for all chunks.
 
     inner: sets vmapped together on one device. vmap turns the filter's data-dependent
     ``lax.cond`` (resample or not) into a select over every map, so on CPU the sets of a device
     run one after another in ``lax.map`` (inner=1, the default there); accelerators default to
-    vmapping the whole per-device block.
+    vmapping the whole per-device block (``default_inner``).
     """
     devices = list(devices or jax.devices())
     nd = len(devices)
     P = values.shape[0]
-    batch = P if batch is None else batch
-    batch = max(nd, nd * math.ceil(min(batch, P) / nd))
+    batch = chunk_size(P, P if batch is None else batch, nd)
     mesh = Mesh(np.asarray(devices), ("p",))
-    if inner is None:
-        inner = 1 if devices[0].platform == "cpu" else batch
-    inner_ = max(1, min(int(inner), batch // nd))
+    inner = default_inner(devices) if inner is None else inner
+    inner_ = max(1, min(batch // nd if inner is None else int(inner), batch // nd))
     sharded = NamedSharding(mesh, PartitionSpec("p"))
     replicated = NamedSharding(mesh, PartitionSpec())
     inputs = jax.device_put(inputs, replicated)
@@ -361,13 +364,31 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterPar
     return out
 
 
+def default_inner(devices: Sequence[jax.Device]) -> int | None:
+    """Sets vmapped together per device: 1 on CPU (``lax.map``, see ``evaluate``), None (the
+    whole per-device block) on accelerators."""
+    return 1 if devices[0].platform == "cpu" else None
+
+
+def chunk_size(num_sets: int, max_batch: int, num_devices: int) -> int:
+    """Sets per chunk: the fewest chunks of at most ``max_batch`` sets, balanced and rounded
+    up to a multiple of the device count, so that the padding of the last chunk (which keeps
+    one compiled shape) stays below one set per device and chunk. (Chunks of ``max_batch`` =
+    47 for 64 sets would pad the second chunk to 47 and evaluate 94 sets.)"""
+    chunks = math.ceil(num_sets / max(1, min(max_batch, num_sets)))
+    return num_devices * math.ceil(num_sets / (chunks * num_devices))
+
+
 def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None = None,
-               num_devices: int = 1) -> int:
+               num_devices: int = 1, inner: int | None = None) -> int:
     """Largest number of parameter sets per chunk whose filter states fit in ``budget_bytes``
     (default: a quarter of the first device's memory if it reports it, else 2 GiB per device).
 
-    Per set: the maps (k, S) [J, H, W] float32, about 3 live copies during an update
+    Per vmapped set: the maps (k, S) [J, H, W] float32, about 3 live copies during an update
     (old, updated, resampled under vmap), plus the per-frame poses/ancestors/weights [T, J].
+    With ``inner`` sets vmapped per device in a ``lax.map`` (CPU: 1), only those are live at a
+    time: memory does not bound the chunk (checked for the ``inner`` sets, then a bound far
+    above any design is returned).
     """
     if budget_bytes is None:
         stats = {}
@@ -380,7 +401,13 @@ def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None
     J = cfg.num_particles
     H, W = cfg.map_shape
     per_set = 3 * 2 * 4 * J * H * W + num_frames * J * 4 * 6
-    return max(1, int(budget_bytes // per_set))
+    if inner is None:
+        return max(1, int(budget_bytes // per_set))
+    if num_devices * inner * per_set > budget_bytes:
+        raise SearchError(f"{inner} vmapped parameter sets per device need "
+                          f"{num_devices * inner * per_set / 2**20:.0f} MiB, over the budget of "
+                          f"{budget_bytes / 2**20:.0f} MiB; lower inner or the particle count")
+    return 2 ** 31 - 1
 
 
 class SearchResult(NamedTuple):
@@ -481,7 +508,11 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
                           "the same key (common random numbers); repeat the search with "
                           "different keys instead")
     nd = len(devices or jax.devices())
-    batch = batch or auto_batch(cfg, run.num_frames, num_devices=nd)
+    if batch is None:
+        inner_default = default_inner(list(devices or jax.devices())) if inner is None else inner
+        batch = auto_batch(cfg, run.num_frames, num_devices=nd, inner=inner_default)
+        if inner_default is not None:  # sets run one after another: chunks for progress reports
+            batch = min(batch, math.ceil(len(values) / PROGRESS_CHUNKS))
     t0 = time.perf_counter()
     compile_s = 0.0
     first = [True]

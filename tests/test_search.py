@@ -102,6 +102,19 @@ def test_rigid_rms_matches_metrics():
     assert abs(got - want) < 1e-4
 
 
+@pytest.mark.parametrize("sets, max_batch, devices", [(64, 47, 1), (64, 47, 2), (100, 30, 2),
+                                                      (5, 3, 1), (7, 64, 2), (3, 1, 2)])
+def test_chunks_are_balanced(sets, max_batch, devices):
+    """Brute force: the fewest chunks of <= max_batch sets (at least one per device), padding
+    below one set per device and chunk."""
+    b = S.chunk_size(sets, max_batch, devices)
+    chunks = -(-sets // b)
+    assert b % devices == 0
+    assert b <= max(max_batch, devices) + devices - 1
+    assert chunks == -(-sets // max(1, min(max_batch, sets))) or b == devices
+    assert chunks * b - sets < chunks * devices
+
+
 def test_search_ranks_and_writes(small_run, tmp_path):
     space = S.parse_space({"alpha_d": [0.01, 0.1], "alpha_theta_d": [0.002, 0.05]})
     res = S.search(small_run, CONFIG, space, "halton", 5, "rms", batch=3)
