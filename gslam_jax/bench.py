@@ -25,7 +25,7 @@ from jax import lax
 
 from gslam_jax import filter as gf
 
-__all__ = ["environment", "time_update", "main"]
+__all__ = ["environment", "physical_memory", "time_update", "main"]
 
 
 def environment() -> dict:
@@ -61,7 +61,7 @@ def _synthetic_state(cfg: gf.FilterConfig, rng: np.random.Generator) -> gf.Filte
     return state._replace(pose=jnp.asarray(pose))
 
 
-def _physical_memory() -> int:
+def physical_memory() -> int:
     """Bytes of physical memory (sysconf), or a large number where unknown."""
     try:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
@@ -192,7 +192,7 @@ def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int =
             for side in map_side:
                 for J in particles:
                     need = 2 * 4 * J * side * side
-                    if need > 0.5 * _physical_memory():
+                    if need > 0.5 * physical_memory():
                         print(f"{mode:>7} {J:>6} {L:>6} {side:>6}   skipped: the maps need "
                               f"{need / 1e9:.1f} GB, over half of this machine's memory")
                         continue

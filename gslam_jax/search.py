@@ -37,6 +37,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from gslam_jax import filter as gf
 from gslam_jax import slam
+from gslam_jax.bench import physical_memory
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 
@@ -382,7 +383,8 @@ def chunk_size(num_sets: int, max_batch: int, num_devices: int) -> int:
 def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None = None,
                num_devices: int = 1, inner: int | None = None) -> int:
     """Largest number of parameter sets per chunk whose filter states fit in ``budget_bytes``
-    (default: a quarter of the first device's memory if it reports it, else 2 GiB per device).
+    (default: a quarter of each device's memory if the first reports it, else half of the
+    host's physical memory, which CPU devices share).
 
     Per vmapped set: the maps (k, S) [J, H, W] float32, about 3 live copies during an update
     (old, updated, resampled under vmap), plus the per-frame poses/ancestors/weights [T, J].
@@ -397,7 +399,8 @@ def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None
         except Exception:  # noqa: BLE001 - CPU backends may not implement memory_stats
             stats = {}
         limit = stats.get("bytes_limit")
-        budget_bytes = (0.25 * limit if limit else 2.0 * 2**30) * num_devices
+        # Accelerators report their own memory; CPU devices share the host's.
+        budget_bytes = 0.25 * limit * num_devices if limit else 0.5 * physical_memory()
     J = cfg.num_particles
     H, W = cfg.map_shape
     per_set = 3 * 2 * 4 * J * H * W + num_frames * J * 4 * 6
