@@ -333,15 +333,20 @@ def _read_cells(maps: Array, cells_: Array, on_map: Array) -> Array:
 
 
 def _add_to_cells(maps: Array, cells_: Array, values: Array) -> Array:
-    """maps[j].flat[cells_[j, m]] += values[m] (eq. 14); cells_ == H*W (off the map) dropped."""
+    """maps[j].flat[cells_[j, m]] += values[m] (eq. 14); cells_ >= H*W (off the map) skipped.
+
+    Skipped entries add 0 to cell 0 instead of being dropped as out of bounds, so the scatter
+    can promise in-bounds indices: no bounds check per element (about 15% of the update on
+    CPU, measured A/B in one process)."""
     J, H, W = maps.shape
     glob = _global_cells(maps, cells_)
     if glob is None:
         return jax.vmap(lambda m, c: m.reshape(-1).at[c].add(values, mode="drop").reshape(H, W))(
             maps, cells_)
-    glob = jnp.where(cells_ < H * W, glob, J * H * W)
-    vals = jnp.broadcast_to(values, cells_.shape)
-    return maps.reshape(-1).at[glob].add(vals, mode="drop").reshape(J, H, W)
+    on_map = cells_ < H * W
+    glob = jnp.where(on_map, glob, 0)
+    vals = jnp.where(on_map, jnp.broadcast_to(values, cells_.shape), 0.0)
+    return maps.reshape(-1).at[glob].add(vals, mode="promise_in_bounds").reshape(J, H, W)
 
 
 def _borrowed(draws: Array, n: int) -> Array:
