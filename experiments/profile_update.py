@@ -1,0 +1,88 @@
+"""Where one local-map update spends its time: XLA's own per-thunk trace of ``filter.update``.
+
+Runs the same chained updates as ``gslam bench`` under ``jax.profiler`` and sums the trace
+events of every fused computation per update (XLA CPU runs independent thunks, e.g. the k and S
+scatter-adds, on different threads, so the rows can add up to more than the wall time).
+
+    python experiments/profile_update.py --particles 200 --local 64 --map 640
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import sys
+import tempfile
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from gslam_jax import filter as gf  # noqa: E402
+from gslam_jax.bench import _chained, _synthetic_state, environment  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> dict[str, float]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--particles", type=int, default=200)
+    ap.add_argument("--local", type=int, default=64)
+    ap.add_argument("--map", type=int, default=640)
+    ap.add_argument("--mode", default="ignore", choices=gf.UNKNOWN_MODES)
+    ap.add_argument("--calls", type=int, default=3, help="traced calls of --chain updates")
+    ap.add_argument("--chain", type=int, default=10)
+    ap.add_argument("--top", type=int, default=15)
+    args = ap.parse_args(argv)
+
+    J, L, side = args.particles, args.local, args.map
+    rng = np.random.default_rng(0)
+    cfg = gf.FilterConfig(num_particles=J, map_shape=(side, side),
+                          map_origin=(-0.08 * side, -0.08 * side), resolution=0.16,
+                          local_size=L, unknown_cells=args.mode, resample_ratio=0.0)
+    k = rng.integers(0, 30, (L, L)).astype(np.float32)
+    obs = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
+    params = gf.FilterParams()
+    noise = gf.update_noise(jax.random.key(0), cfg)
+
+    def one(s: gf.FilterState) -> gf.FilterState:
+        s = gf.update(s, obs, noise, params, cfg)[0]
+        # Move the particles a little so that XLA cannot hoist the reads out of the loop.
+        return s._replace(pose=s.pose + 1e-4 * jnp.tanh(s.log_w)[:, None])
+
+    fn = _chained(one, args.chain)
+    state = jax.block_until_ready(fn(_synthetic_state(cfg, rng)))  # compile
+    with tempfile.TemporaryDirectory() as tmp:
+        jax.profiler.start_trace(tmp)
+        for _ in range(args.calls):
+            state = jax.block_until_ready(fn(state))
+        jax.profiler.stop_trace()
+        trace = sorted(glob.glob(f"{tmp}/**/*.xplane.pb", recursive=True))[-1]
+        data = jax.profiler.ProfileData.from_file(trace)
+        per = collections.Counter()
+        wall = collections.Counter()
+        for plane in data.planes:
+            for line in plane.lines:
+                for ev in line.events:
+                    if line.name.startswith("tf_XLAEigen"):
+                        if ev.name == "ThunkExecutor::Execute":
+                            wall[line.name] += ev.duration_ns
+                        else:
+                            per[ev.name] += ev.duration_ns
+    updates = args.calls * args.chain
+    print(f"profile of filter.update: J = {J}, local {L}, map {side}, {args.mode}; "
+          f"{updates} updates")
+    print(f"  {environment()}")
+    busy = {name: ns / updates / 1e6 for name, ns in wall.items()}
+    print("  busy ms per update per XLA thread: "
+          + ", ".join(f"{v:.2f}" for v in sorted(busy.values(), reverse=True)))
+    rows = {name: ns / updates / 1e6 for name, ns in per.most_common(args.top)}
+    for name, ms in rows.items():
+        print(f"  {ms:8.3f} ms  {1e3 * ms / J:7.2f} us/particle  {name}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
