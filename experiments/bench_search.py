@@ -9,8 +9,6 @@ Both sides are timed after compilation; the ratio is printed with the machine an
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -28,6 +26,7 @@ from gslam_jax.bench import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
 from gslam_jax.localmap import LocalMapParams  # noqa: E402
+from common import report  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -99,12 +98,10 @@ def main(argv: list[str] | None = None) -> dict:
                "devices": len(jax.devices()), "batched_s": round(batched, 3),
                "loop_s": round(looped, 3),
                "batched_s_all": [round(t, 3) for t in batched_times],
-               "loop_s_all": [round(t, 3) for t in loop_times], "speedup": round(looped / batched, 2),
+               "loop_s_all": [round(t, 3) for t in loop_times],
+               "speedup": round(looped / batched, 2),
                "max_objective_difference_m": agree, "environment": environment()}
-    print(json.dumps(figures, indent=2))
-    if args.out:
-        Path(args.out).write_text(json.dumps(figures, indent=2))
-    return figures
+    return report(figures, args.out)
 
 
 if __name__ == "__main__":

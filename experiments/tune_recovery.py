@@ -11,56 +11,33 @@ fresh filter keys (``--eval-keys``); the search ranks by the mean over ``--searc
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
-import sys
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
+from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_run, report
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from gslam_jax import search as S  # noqa: E402
-from gslam_jax import slam  # noqa: E402
-from gslam_jax import tuning as TU  # noqa: E402
-from gslam_jax.bench import environment  # noqa: E402
-from gslam_jax.config import Config, FilterSection, MapSection, MotionSection  # noqa: E402
-from gslam_jax.datasets.sim import simulate_run  # noqa: E402
-from gslam_jax.localmap import LocalMapParams  # noqa: E402
-from gslam_jax.sim.vonoise import VO_PROFILES  # noqa: E402
-
-ALPHAS = ("alpha_d", "alpha_theta_d", "alpha_theta")
+from gslam_jax import search as S
+from gslam_jax import tuning as TU
+from gslam_jax.bench import environment
+from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
 
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--course", default="mars-yard-a")
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--particles", type=int, default=64)
+    add_known_noise_arguments(ap)
     ap.add_argument("--objective", default="loglik", choices=TU.TUNE_OBJECTIVES)
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--lr", type=float, default=0.05)
     ap.add_argument("--runs", type=int, default=4, help="filter runs per gradient")
-    ap.add_argument("--unknown", default="ignore", choices=("ignore", "sample"),
-                    help="unknown-cell mode of the filter (eq. 30 or eq. 31)")
     ap.add_argument("--search", type=int, default=256, help="search points (0: skip)")
     ap.add_argument("--search-keys", type=int, default=4,
                     help="filter keys averaged per search point")
     ap.add_argument("--eval-keys", type=int, default=8,
                     help="fresh filter keys averaged for the reported RMS figures")
-    ap.add_argument("--white", action="store_true",
-                    help="VO noise of eqs. 1-3 only (no bias, no failures): the model is exact")
-    ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
 
-    lm = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0, cells=32)
-    vo = VO_PROFILES[args.course]
-    if args.white:
-        vo = dataclasses.replace(vo, scale_bias_std=0.0, heading_bias_std=0.0, failure_rate=0.0)
-    run, info = simulate_run(args.course, 0, lm, max_frames=args.frames, vo_noise=vo)
-    true = {k: getattr(info.vo_noise, k) for k in ALPHAS}
+    run, true = known_noise_run(args)
     start = {k: 3.0 * v for k, v in true.items()}
     config = Config(filter=FilterSection(particles=args.particles, unknown_cells=args.unknown),
                     map=MapSection(margin=2.0), motion=MotionSection(**start))
@@ -70,14 +47,10 @@ def main(argv: list[str] | None = None) -> dict:
     tune_s = time.perf_counter() - t0
     rel = {k: res.values[k] / true[k] - 1.0 for k in ALPHAS}
 
-    inputs, cfg = slam.run_arrays(run, config)
-    base = slam.filter_params(config)
+    averaged = key_averaged(run, config)
 
     def mean_rms(values: np.ndarray, keys: range) -> np.ndarray:
-        """RMS of each parameter set [P, 3] averaged over filter keys (common random numbers
-        across the sets for each key)."""
-        return np.mean([S.evaluate(values, jax.random.key(k), inputs, base, ALPHAS, cfg, "rms")
-                        for k in keys], axis=0)
+        return averaged(values, keys, "rms")
 
     # Fresh keys for the final comparison: a single run's RMS is noisy (0.06 vs 0.19 m at
     # nearby parameters), and the minimum of 256 noisy values is biased low.
@@ -104,10 +77,7 @@ def main(argv: list[str] | None = None) -> dict:
                        rms_search_best=float(mean_rms(best[None], eval_keys)[0]))
         figures["rms_ratio_tuned_to_search"] = figures["rms_tuned"] / figures["rms_search_best"]
     figures["environment"] = environment()
-    print(json.dumps(figures, indent=2, default=float))
-    if args.out:
-        Path(args.out).write_text(json.dumps(figures, indent=2, default=float))
-    return figures
+    return report(figures, args.out)
 
 
 if __name__ == "__main__":

@@ -343,8 +343,9 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterPar
     P = values.shape[0]
     batch = chunk_size(P, P if batch is None else batch, nd)
     mesh = Mesh(np.asarray(devices), ("p",))
+    per_device = batch // nd
     inner = default_inner(devices) if inner is None else inner
-    inner_ = max(1, min(batch // nd if inner is None else int(inner), batch // nd))
+    inner_ = per_device if inner is None else max(1, min(int(inner), per_device))
     sharded = NamedSharding(mesh, PartitionSpec("p"))
     replicated = NamedSharding(mesh, PartitionSpec())
     inputs = jax.device_put(inputs, replicated)
@@ -510,11 +511,11 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
         raise SearchError("crn=False is not supported by the batched search: every set uses "
                           "the same key (common random numbers); repeat the search with "
                           "different keys instead")
-    nd = len(devices or jax.devices())
+    devices = list(devices or jax.devices())
+    inner = default_inner(devices) if inner is None else inner
     if batch is None:
-        inner_default = default_inner(list(devices or jax.devices())) if inner is None else inner
-        batch = auto_batch(cfg, run.num_frames, num_devices=nd, inner=inner_default)
-        if inner_default is not None:  # sets run one after another: chunks for progress reports
+        batch = auto_batch(cfg, run.num_frames, num_devices=len(devices), inner=inner)
+        if inner is not None:  # sets run one after another: chunks for progress reports
             batch = min(batch, math.ceil(len(values) / PROGRESS_CHUNKS))
     t0 = time.perf_counter()
     compile_s = 0.0

@@ -1,0 +1,71 @@
+"""Shared by the tuning experiments: a simulated run with known VO noise, objectives averaged
+over filter keys, and the JSON report every experiment prints (and optionally writes)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+from typing import Callable
+
+import jax
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from gslam_jax import search as S  # noqa: E402
+from gslam_jax import slam  # noqa: E402
+from gslam_jax.config import Config  # noqa: E402
+from gslam_jax.datasets.sim import simulate_run  # noqa: E402
+from gslam_jax.localmap import LocalMapParams  # noqa: E402
+from gslam_jax.run import Run  # noqa: E402
+from gslam_jax.sim.vonoise import VO_PROFILES  # noqa: E402
+
+ALPHAS = ("alpha_d", "alpha_theta_d", "alpha_theta")
+
+
+def add_known_noise_arguments(ap: argparse.ArgumentParser) -> None:
+    """--course, --frames, --particles, --unknown, --white, --out."""
+    ap.add_argument("--course", default="mars-yard-a")
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--particles", type=int, default=64)
+    ap.add_argument("--unknown", default="ignore", choices=("ignore", "sample"),
+                    help="unknown-cell mode of the filter (eq. 30 or eq. 31)")
+    ap.add_argument("--white", action="store_true",
+                    help="VO noise of eqs. 1-3 only (no bias, no failures): the model is exact")
+    ap.add_argument("--out", default=None, help="write the figures as JSON here")
+
+
+def known_noise_run(args: argparse.Namespace) -> tuple[Run, dict[str, float]]:
+    """The simulated run (seed 0, 2.5 m range, 32x32 local maps) and its true VO alphas."""
+    lm = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0, cells=32)
+    vo = VO_PROFILES[args.course]
+    if args.white:
+        vo = dataclasses.replace(vo, scale_bias_std=0.0, heading_bias_std=0.0, failure_rate=0.0)
+    run, info = simulate_run(args.course, 0, lm, max_frames=args.frames, vo_noise=vo)
+    return run, {k: getattr(info.vo_noise, k) for k in ALPHAS}
+
+
+def key_averaged(run: Run, config: Config, names: tuple[str, ...] = ALPHAS
+                 ) -> Callable[[np.ndarray, range, str], np.ndarray]:
+    """f(values [P, d], keys, objective) -> [P]: the objective of each parameter set averaged
+    over the filter keys (common random numbers across the sets for each key)."""
+    inputs, cfg = slam.run_arrays(run, config)
+    base = slam.filter_params(config)
+
+    def f(values: np.ndarray, keys: range, objective: str) -> np.ndarray:
+        return np.mean([S.evaluate(values, jax.random.key(k), inputs, base, names, cfg,
+                                   objective) for k in keys], axis=0)
+
+    return f
+
+
+def report(figures: dict, out: str | None) -> dict:
+    """Print the figures as JSON and write them to ``out`` if given."""
+    text = json.dumps(figures, indent=2, default=float)
+    print(text)
+    if out:
+        Path(out).write_text(text)
+    return figures
