@@ -1,6 +1,7 @@
 """TOML configs: defaults, unknown keys, wrong types, malformed files, overrides."""
 
 import re
+from pathlib import Path
 
 import pytest
 
@@ -88,3 +89,21 @@ def test_table1_bad_course_sections_are_named(tmp_path, text, named):
     path.write_text(text)
     with pytest.raises(ConfigError, match=re.escape(named)):
         load_table_config(path)
+
+
+PAPER = Path(__file__).resolve().parents[2] / "shared" / "paper" / "gamma-slam-jfr2009.txt"
+
+
+def test_paper_table1_figures_match_the_papers_text():
+    """The reference column printed beside the simulated Table I is the paper's own."""
+    from gslam_jax.table1 import PAPER_TABLE1
+
+    if not PAPER.is_file():
+        pytest.skip(f"the paper's text is not at {PAPER}")
+    text = PAPER.read_text(encoding="utf-8", errors="replace")
+    rows = {"mars-yard-a": "Mars Yard A", "mars-yard-b": "Mars Yard B",
+            "arroyo-a": "Arroyo Seco A", "arroyo-b": "Arroyo Seco B", "maze": "SwRI maze"}
+    for course, label in rows.items():
+        m = re.search(re.escape(label) + r"\s+(\d+)\s+(\d+\.\d+)\s+(\d+\.\d+)", text)
+        assert m, label
+        assert PAPER_TABLE1[course] == (int(m[1]), float(m[2]), float(m[3])), course
