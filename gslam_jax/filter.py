@@ -37,6 +37,7 @@ __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepIn
            "Observation", "compact_observation", "observation_cells", "log_importance"]
 
 UNKNOWN_MODES = ("ignore", "sample")
+CPU_BLOCK_CELLS = 102_400  # footprint cells per update pass on CPU (FilterConfig.update_block)
 
 
 class FilterConfig(NamedTuple):
@@ -57,6 +58,24 @@ class FilterConfig(NamedTuple):
     unknown_samples: int = 1024
     update_map: bool = True
     observed_cells: int = 0
+    particle_block: int = 0
+
+    @property
+    def update_block(self) -> int:
+        """Particles per pass of the update's read-weigh-write (``particle_block``; 0: auto).
+
+        Each pass reads a block's footprints, weighs them (eq. 26) and adds the local map to
+        them (eq. 14) while they are still in cache. Auto: on a CPU, blocks of about
+        ``CPU_BLOCK_CELLS`` footprint cells (25 particles of a 64 x 64 local map: 23% less
+        time per update than one pass over J = 200, A/B in one process); on accelerators,
+        one pass over all particles (the device wants them all at once).
+        """
+        J = self.num_particles
+        if self.particle_block:
+            return min(self.particle_block, J)
+        if jax.default_backend() != "cpu":
+            return J
+        return max(1, min(J, CPU_BLOCK_CELLS // self.max_observed))
 
     @property
     def max_observed(self) -> int:
@@ -96,6 +115,8 @@ class FilterConfig(NamedTuple):
             raise ValueError("unknown_samples must be at least 1")
         if self.num_particles < 1:
             raise ValueError("num_particles must be at least 1")
+        if self.particle_block < 0:
+            raise ValueError(f"particle_block {self.particle_block} must be >= 0 (0: auto)")
         return self
 
 
@@ -274,23 +295,24 @@ def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borr
 
 
 class _Footprint(NamedTuple):
-    """What one update reads from the maps ([J, ...] leaves, one row per particle)."""
+    """What one update reads from the maps for a block of n particles ([n, ...] leaves)."""
 
-    cells: Array     # [J, M] flat map index under each observed local cell (H*W off the map)
-    off_map: Array   # [J] some observed local cell fell outside the map
-    k_obs: Array     # [J, M] the observed cells, zero where their cell fell off the map
+    cells: Array     # [n, M] flat map index under each observed local cell (H*W off the map)
+    off_map: Array   # [n] some observed local cell fell outside the map
+    k_obs: Array     # [n, M] the observed cells, zero where their cell fell off the map
     S_obs: Array
-    k_prior: Array   # [J, M] map statistics under the observed cells
+    k_prior: Array   # [n, M] map statistics under the observed cells
     S_prior: Array
-    k_draws: Array   # [J, unknown_samples] borrowed known cells ([J, 0] in "ignore" mode)
+    k_draws: Array   # [n, unknown_samples] borrowed known cells ([n, 0] in "ignore" mode)
     S_draws: Array
-    can_borrow: Array  # [J]
+    can_borrow: Array  # [n]
 
 
-def _read_footprints(state: FilterState, obs: Observation, unknown_u: Array,
-                     cfg: FilterConfig) -> _Footprint:
-    """Everything the update reads from the particles' maps."""
-    flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(state.pose)
+def _read_footprints(kflat: Array, sflat: Array, bits: Array, pose: Array, rows: Array,
+                     unknown_u: Array, obs: Observation, cfg: FilterConfig) -> _Footprint:
+    """Everything the update reads from the maps of particles ``rows`` ([n]; ``pose``, ``bits``
+    and ``unknown_u`` are theirs). kflat, smap: [J, H*W] maps of all particles."""
+    flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(pose)
     k_obs = jnp.where(on_map, obs.k, 0.0)
     S_obs = jnp.where(on_map, obs.S, 0.0)
     if cfg.unknown_cells == "sample":
@@ -298,55 +320,47 @@ def _read_footprints(state: FilterState, obs: Observation, unknown_u: Array,
         # (see _borrowed), so every unknown cell borrows a uniformly random known cell (draws
         # are shared between cells unknown_samples apart, which keeps the search cost
         # independent of the local map). Only the draws are read from the big map.
-        idx, total = jax.vmap(unknown.sample_known_cells)(state.known_bits, unknown_u)
+        idx, total = jax.vmap(unknown.sample_known_cells)(bits, unknown_u)
         drawn = jnp.ones(idx.shape, bool)
-        kb, Sb = _read_cells(state.kmap, idx, drawn), _read_cells(state.smap, idx, drawn)
+        kb, Sb = _read_cells(kflat, rows, idx, drawn), _read_cells(sflat, rows, idx, drawn)
         can_borrow = total > 0
     else:
-        J = cfg.num_particles
-        kb = Sb = jnp.zeros((J, 0), state.kmap.dtype)
-        can_borrow = jnp.zeros((J,), bool)
+        kb = Sb = jnp.zeros((pose.shape[0], 0), kflat.dtype)
+        can_borrow = jnp.zeros((pose.shape[0],), bool)
     return _Footprint(flat, jnp.any(~on_map & (obs.k > 0), axis=1), k_obs, S_obs,
-                      _read_cells(state.kmap, flat, on_map), _read_cells(state.smap, flat, on_map),
+                      _read_cells(kflat, rows, flat, on_map), _read_cells(sflat, rows, flat, on_map),
                       kb, Sb, can_borrow)
 
 
-def _global_cells(maps: Array, cells_: Array) -> Array | None:
-    """[J, M] per-particle flat map indices -> indices into ``maps.reshape(-1)`` ([J*H*W]),
-    or None where J*H*W does not fit int32. One 1-D gather or scatter over all particles'
-    maps costs about a third less on CPU than the vmapped (batched) one."""
-    J, H, W = maps.shape
-    if J * H * W >= 2 ** 31:
-        return None
-    return cells_ + (jnp.arange(J, dtype=jnp.int32) * (H * W))[:, None]
+def _indices(maps: Array, rows: Array, cells_: Array) -> tuple[Array, ...]:
+    """Index of cells_[i, m] of particle rows[i] in ``maps`` [J, H*W]: one flat index into
+    ``maps.reshape(-1)`` where J*H*W fits int32 (a 1-D gather or scatter costs about a third
+    less on CPU than a batched one), else the (row, cell) pair."""
+    J, HW = maps.shape
+    if J * HW < 2 ** 31:
+        return (rows[:, None] * HW + cells_,)
+    return jnp.broadcast_to(rows[:, None], cells_.shape), cells_
 
 
-def _read_cells(maps: Array, cells_: Array, on_map: Array) -> Array:
-    """maps[j].flat[cells_[j, m]] where on_map, else 0 ([J, H, W], [J, M] -> [J, M])."""
-    safe = jnp.where(on_map, cells_, 0)
-    glob = _global_cells(maps, safe)
-    if glob is None:
-        vals = jax.vmap(lambda m, c: m.reshape(-1).at[c].get(mode="promise_in_bounds"))(maps, safe)
-    else:
-        vals = maps.reshape(-1).at[glob].get(mode="promise_in_bounds")
-    return jnp.where(on_map, vals, 0.0)
+def _read_cells(maps: Array, rows: Array, cells_: Array, on_map: Array) -> Array:
+    """maps[rows[i], cells_[i, m]] where on_map, else 0 ([J, H*W], [n], [n, M] -> [n, M])."""
+    idx = _indices(maps, rows, jnp.where(on_map, cells_, 0))
+    flat = maps.reshape(-1) if len(idx) == 1 else maps
+    return jnp.where(on_map, flat.at[idx].get(mode="promise_in_bounds"), 0.0)
 
 
-def _add_to_cells(maps: Array, cells_: Array, values: Array) -> Array:
-    """maps[j].flat[cells_[j, m]] += values[m] (eq. 14); cells_ >= H*W (off the map) skipped.
+def _add_to_cells(maps: Array, rows: Array, cells_: Array, values: Array) -> Array:
+    """maps[rows[i], cells_[i, m]] += values[m] (eq. 14); cells_ >= H*W (off the map) skipped.
 
     Skipped entries add 0 to cell 0 instead of being dropped as out of bounds, so the scatter
     can promise in-bounds indices: no bounds check per element (about 15% of the update on
     CPU, measured A/B in one process)."""
-    J, H, W = maps.shape
-    glob = _global_cells(maps, cells_)
-    if glob is None:
-        return jax.vmap(lambda m, c: m.reshape(-1).at[c].add(values, mode="drop").reshape(H, W))(
-            maps, cells_)
-    on_map = cells_ < H * W
-    glob = jnp.where(on_map, glob, 0)
+    on_map = cells_ < maps.shape[1]
+    idx = _indices(maps, rows, jnp.where(on_map, cells_, 0))
     vals = jnp.where(on_map, jnp.broadcast_to(values, cells_.shape), 0.0)
-    return maps.reshape(-1).at[glob].add(vals, mode="promise_in_bounds").reshape(J, H, W)
+    if len(idx) == 1:
+        return maps.reshape(-1).at[idx].add(vals, mode="promise_in_bounds").reshape(maps.shape)
+    return maps.at[idx].add(vals, mode="promise_in_bounds")
 
 
 def _borrowed(draws: Array, n: int) -> Array:
@@ -356,7 +370,7 @@ def _borrowed(draws: Array, n: int) -> Array:
 
 
 def _log_lambda(f: _Footprint, params: FilterParams, cfg: FilterConfig, log_pred) -> Array:
-    """[J] log importance factors from the stacked reads (eq. 26 with eq. 30 / 31)."""
+    """[n] log importance factors from the stacked reads (eq. 26 with eq. 30 / 31)."""
 
     def one(k_obs, S_obs, k_prior, S_prior, kb, Sb, can_borrow):
         if cfg.unknown_cells == "sample":
@@ -371,16 +385,58 @@ def _log_lambda(f: _Footprint, params: FilterParams, cfg: FilterConfig, log_pred
                          f.can_borrow)
 
 
-def _write_footprints(kmap: Array, smap: Array, bits: Array, pose: Array, flat: Array,
-                      obs: Observation, cfg: FilterConfig):
-    """Add the local map into every particle's map (eq. 14: k'' = k' + k, S'' = S' + S) and
-    refresh the known-cell bits around it. Off-map cells (index H*W) are dropped."""
-    if not cfg.update_map:
-        return kmap, smap, bits
-    kmap = _add_to_cells(kmap, flat, obs.k)
-    smap = _add_to_cells(smap, flat, obs.S)
-    if cfg.unknown_cells != "sample":
-        return kmap, smap, bits
+class _Weighed(NamedTuple):
+    kflat: Array     # [J, H*W] maps after eq. 14
+    sflat: Array
+    log_lam: Array   # [J] log importance factors (eqs. 26, 30 / 31) against the old maps
+    off_map: Array   # [J] some observed local cell fell outside the map
+
+
+def _weigh_block(w: _Weighed, j0: Array, n: int, state: FilterState, obs: Observation,
+                 unknown_u: Array, params: FilterParams, cfg: FilterConfig, log_pred) -> _Weighed:
+    """Particles j0 .. j0+n-1: read their footprints, weigh them, add the local map."""
+    rows = j0 + jnp.arange(n, dtype=jnp.int32)
+    take = partial(lax.dynamic_slice_in_dim, start_index=j0, slice_size=n)
+    f = _read_footprints(w.kflat, w.sflat, take(state.known_bits), take(state.pose), rows,
+                         take(unknown_u), obs, cfg)
+    log_lam = _log_lambda(f, params, cfg, log_pred)
+    kflat, sflat = w.kflat, w.sflat
+    if cfg.update_map:
+        # Write only after every read of these maps (the known-cell draws included): the
+        # target cells are made to depend on the weights by a min() that never changes them
+        # (cells <= H*W). Without that ordering XLA copies the whole maps before the update.
+        after = (jnp.sum(log_lam) > 0).astype(jnp.int32)
+        cells_ = jnp.minimum(f.cells, kflat.shape[1] + after)
+        kflat = _add_to_cells(kflat, rows, cells_, obs.k)
+        sflat = _add_to_cells(sflat, rows, cells_, obs.S)
+    put = partial(lax.dynamic_update_slice_in_dim, start_index=j0, axis=0)
+    return _Weighed(kflat, sflat, put(w.log_lam, log_lam), put(w.off_map, f.off_map))
+
+
+def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
+                     params: FilterParams, cfg: FilterConfig, log_pred) -> _Weighed:
+    """Eq. 26 weights of every particle against its map, and eq. 14 into that map, one block
+    of ``cfg.update_block`` particles at a time (see ``FilterConfig.particle_block``)."""
+    J, H, W = state.kmap.shape
+    B = cfg.update_block
+    w = _Weighed(state.kmap.reshape(J, H * W), state.smap.reshape(J, H * W),
+                 jnp.zeros((J,), state.log_w.dtype), jnp.zeros((J,), bool))
+    block = partial(_weigh_block, state=state, obs=obs, unknown_u=unknown_u, params=params,
+                    cfg=cfg, log_pred=log_pred)
+    full, tail = divmod(J, B)
+    if full == 1:
+        w = block(w, jnp.int32(0), B)
+    else:
+        w = lax.fori_loop(0, full, lambda b, w: block(w, b * B, B), w)
+    if tail:
+        w = block(w, jnp.int32(full * B), tail)
+    return w
+
+
+def _refresh_known_bits(kmap: Array, bits: Array, pose: Array, cfg: FilterConfig) -> Array:
+    """"sample" mode: the known-cell bits around each particle's footprint, after eq. 14."""
+    if cfg.unknown_cells != "sample" or not cfg.update_map:
+        return bits
 
     def refresh(kmap, bits, pose):
         b, Wn = unknown.BLOCK, cfg.window
@@ -388,7 +444,7 @@ def _write_footprints(kmap: Array, smap: Array, bits: Array, pose: Array, flat: 
         known = lax.dynamic_slice(kmap, (oi, oj), (Wn, Wn)) > 0
         return lax.dynamic_update_slice(bits, unknown.pack_known(known), (oi // b, oj // b, 0))
 
-    return kmap, smap, jax.vmap(refresh)(kmap, bits, pose)
+    return jax.vmap(refresh)(kmap, bits, pose)
 
 
 def gather_particles(particles, ancestors: Array):
@@ -422,24 +478,16 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     """
     J = cfg.num_particles
     obs = compact_observation(local_obs, cfg)
-    reads = _read_footprints(state, obs, noise.unknown_u, cfg)
     # log v of each observed cell is shared by every particle: computed once, not J times.
     kernel = partial(cells.log_predictive_integer, log_v=cells.log_v_obs(obs.k, obs.S))
-    log_lam = _log_lambda(reads, params, cfg, kernel)
-    unnorm = state.log_w + log_lam
+    w = _weigh_and_write(state, obs, noise.unknown_u, params, cfg, kernel)
+    unnorm = state.log_w + w.log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
     ess = resampling.ess(log_w)
     do_resample = ess < cfg.resample_ratio * J
-
-    # Write only after every read of the old maps (the known-cell draws included): the target
-    # cells are made to depend on the resampling decision, hence on all the weights, by a
-    # min() that never changes them (cells <= H * W). Without that ordering XLA copies the
-    # whole [J, H, W] maps before updating them in place.
-    H, W = cfg.map_shape
-    flat = jnp.minimum(reads.cells, H * W + do_resample.astype(jnp.int32))
-    kmap, smap, bits = _write_footprints(state.kmap, state.smap, state.known_bits, state.pose,
-                                         flat, obs, cfg)
+    kmap, smap = w.kflat.reshape(state.kmap.shape), w.sflat.reshape(state.smap.shape)
+    bits = _refresh_known_bits(kmap, state.known_bits, state.pose, cfg)
 
     def resample_branch(args):
         pose, kmap, smap, bits, log_w = args
@@ -457,7 +505,7 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     new_state = FilterState(pose, log_w, kmap, smap, bits)
     info = StepInfo(pose=pose, ancestors=anc, log_w=log_w, ess=ess, resampled=do_resample,
                     updated=jnp.bool_(True), log_lik=log_lik,
-                    extent_violations=jnp.sum(reads.off_map).astype(jnp.int32),
+                    extent_violations=jnp.sum(w.off_map).astype(jnp.int32),
                     empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped)
     return new_state, info
 
