@@ -107,5 +107,36 @@ def test_tiled_reference_reproduces_dense_filter():
     assert max(r["off_map_updates"] for r in res.values()) > 0  # the off-map rule is exercised
 
 
+def test_dense_update_timing_replays_the_run():
+    """`gslam compare` times the dense updates by replaying the run frame by frame: the replay
+    must make the same resampling decisions as the scanned run (same draws), one time each."""
+    import jax
+    import jax.numpy as jnp
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from synthetic import make_run
+
+    from gslam_jax import filter as gf
+    from gslam_jax.slam import local_observations, map_extent
+    from gslam_jax.tiled.compare import time_dense_updates
+
+    run, _ = make_run(seed=1, steps=40)
+    obs = local_observations(run, 1e-4)
+    L = obs.shape[1]
+    probe = gf.FilterConfig(12, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells="ignore")
+    ext = map_extent(run.vo_poses(), L, 0.16, 1.0, probe.window)
+    cfg = gf.FilterConfig(12, ext.shape, ext.origin, 0.16, L, unknown_cells="ignore",
+                          resample_ratio=0.9).validate()
+    key, params = jax.random.key(5), gf.FilterParams()
+    scanned = gf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
+                            jnp.asarray(run.obs_index), jnp.asarray(obs), cfg,
+                            jnp.asarray(run.start_pose(), jnp.float32))
+    seconds, resampled = time_dense_updates(key, params, run, obs, cfg)
+    at_updates = np.asarray(scanned.infos.resampled)[np.asarray(run.obs_index) >= 0]
+    assert seconds.shape == (run.num_local_maps,) and np.all(seconds > 0)
+    assert at_updates.sum() >= 2
+    np.testing.assert_array_equal(resampled, at_updates)
+
+
 if __name__ == "__main__":
     print(json.dumps(_equivalence()))
