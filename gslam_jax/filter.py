@@ -311,7 +311,7 @@ class _Footprint(NamedTuple):
 def _read_footprints(kflat: Array, sflat: Array, bits: Array, pose: Array, rows: Array,
                      unknown_u: Array, obs: Observation, cfg: FilterConfig) -> _Footprint:
     """Everything the update reads from the maps of particles ``rows`` ([n]; ``pose``, ``bits``
-    and ``unknown_u`` are theirs). kflat, smap: [J, H*W] maps of all particles."""
+    and ``unknown_u`` are theirs). kflat, sflat: [J, H*W] maps of all particles."""
     flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(pose)
     k_obs = jnp.where(on_map, obs.k, 0.0)
     S_obs = jnp.where(on_map, obs.S, 0.0)
