@@ -10,6 +10,7 @@ beside the figures.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -92,12 +93,13 @@ def _best_seconds(fn, state, repeats: int):
 
 
 def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
-                seed: int = 0, chain: int = 10) -> dict:
+                seed: int = 0, chain: int = 10, particle_block: int = 0) -> dict:
     """Per-update cost for J particles: best of ``repeats`` scans of ``chain`` updates."""
     rng = np.random.default_rng(seed)
     cfg = gf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
                           map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
-                          local_size=local, unknown_cells=mode, resample_ratio=0.0)
+                          local_size=local, unknown_cells=mode, resample_ratio=0.0,
+                          particle_block=particle_block)
     k = rng.integers(0, 30, (local, local)).astype(np.float32)
     obs = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
     params = gf.FilterParams()
@@ -115,6 +117,7 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     sec_resample, state = _best_seconds(resample, state, repeats)
     per = 1.0 / chain
     return {"particles": J, "local": local, "map": map_side, "mode": mode,
+            "particle_block": cfg.update_block,
             "ms_per_update": 1e3 * sec * per, "us_per_particle": 1e6 * sec * per / J,
             "predict_us_per_particle": 1e6 * sec_predict * per / J,
             "resample_ms": 1e3 * max(sec_resample - sec, 0.0) * per,
@@ -151,14 +154,17 @@ def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0
 
 
 def plot_scaling(rows: list[dict], path: Path) -> None:
-    """us per particle per update against J, one line per (mode, local, map)."""
+    """us per particle per update against J, one line per (mode, local, map, block setting)."""
     from gslam_jax.plots import plt
 
+    def line(r):
+        return r["mode"], r["local"], r["map"], r.get("block_setting", 0)
+
     fig, ax = plt.subplots(figsize=(6, 4))
-    for key in sorted({(r["mode"], r["local"], r["map"]) for r in rows}):
-        pts = sorted((r["particles"], r["us_per_particle"]) for r in rows
-                     if (r["mode"], r["local"], r["map"]) == key)
-        ax.plot(*zip(*pts), marker="o", label=f"{key[0]}, local {key[1]}, map {key[2]}")
+    for key in sorted({line(r) for r in rows}):
+        pts = sorted((r["particles"], r["us_per_particle"]) for r in rows if line(r) == key)
+        block = f", block {key[3]}" if key[3] else ""
+        ax.plot(*zip(*pts), marker="o", label=f"{key[0]}, local {key[1]}, map {key[2]}{block}")
     ax.set_xscale("log")
     ax.set_xlabel("particles J")
     ax.set_ylabel("us per particle per update")
@@ -171,12 +177,15 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
 
 def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int = 10,
          modes=("ignore", "sample"), json_path: Path | None = None, course: str | None = None,
-         course_particles: int = 200, plot_path: Path | None = None) -> int:
+         course_particles: int = 200, plot_path: Path | None = None,
+         particle_block=(0,)) -> int:
     """Print (and optionally save) the update cost over every combination of the arguments.
 
     The cost should be flat in the map size (each update touches one footprint per particle) and
-    linear in J; the last column divides by J so both are easy to read off.
+    linear in J; the last column divides by J so both are easy to read off. ``particle_block``
+    (0: automatic) takes several values to compare block sizes in one process.
     """
+    particle_block = [particle_block] if isinstance(particle_block, int) else list(particle_block)
     local = [local] if isinstance(local, int) else list(local)
     map_side = [map_side] if isinstance(map_side, int) else list(map_side)
     env = environment()
@@ -185,20 +194,22 @@ def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int =
     for k, v in env.items():
         print(f"  {k}: {v}")
     rows = []
-    print(f"{'mode':>7} {'J':>6} {'local':>6} {'map':>6} {'ms/update':>10} {'us/particle':>12} "
+    print(f"{'mode':>7} {'J':>6} {'local':>6} {'map':>6} {'block':>6} {'ms/update':>10} {'us/particle':>12} "
           f"{'predict us/p':>13} {'resample ms':>12} {'MB/particle':>12}")
     for mode in modes:
         for L in local:
             for side in map_side:
-                for J in particles:
+                for J, block in itertools.product(particles, particle_block):
                     need = 2 * 4 * J * side * side
                     if need > 0.5 * physical_memory():
                         print(f"{mode:>7} {J:>6} {L:>6} {side:>6}   skipped: the maps need "
                               f"{need / 1e9:.1f} GB, over half of this machine's memory")
                         continue
-                    r = time_update(J, L, side, mode, repeats)
+                    r = time_update(J, L, side, mode, repeats, particle_block=block)
+                    r["block_setting"] = block
                     rows.append(r)
-                    print(f"{mode:>7} {J:>6} {L:>6} {side:>6} {r['ms_per_update']:>10.2f} "
+                    print(f"{mode:>7} {J:>6} {L:>6} {side:>6} {r['particle_block']:>6} "
+                          f"{r['ms_per_update']:>10.2f} "
                           f"{r['us_per_particle']:>12.1f} {r['predict_us_per_particle']:>13.3f} "
                           f"{r['resample_ms']:>12.1f} {r['mb_per_particle']:>12.2f}", flush=True)
     result = {"environment": env, "results": rows}

@@ -265,7 +265,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from gslam_jax.bench import main as bench_main
     return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json,
                       course=args.course, course_particles=args.course_particles,
-                      plot_path=args.plot)
+                      plot_path=args.plot, particle_block=args.particle_block)
 
 
 def cmd_table1(args: argparse.Namespace) -> int:
@@ -361,6 +361,9 @@ def _build_rest(sub) -> None:
     p.add_argument("--course", help="also time a whole simulated course after compilation "
                    "(e.g. mars-yard-a), default settings")
     p.add_argument("--course-particles", type=int, default=200)
+    p.add_argument("--particle-block", type=int, nargs="+", default=[0],
+                   help="particles per pass of the update (0: automatic); several values "
+                   "compare block sizes in one process")
     p.set_defaults(func=cmd_bench)
 
     from gslam_jax.sim.courses import COURSES  # light (no JAX): compare --exact needs that

@@ -35,6 +35,9 @@ class FilterSection:
     beta_prev: float = 0.05
     beta_new: float = 0.05
     seed: int = 0
+    # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
+    # a CPU, all particles on an accelerator; FilterConfig.update_block)
+    particle_block: int = 0
 
 
 @dataclass(frozen=True)
@@ -85,6 +88,7 @@ class Config:
             (f.unknown_samples >= 1, "filter", "unknown_samples", "must be at least 1"),
             (f.beta_prev > 0, "filter", "beta_prev", "must be positive"),
             (f.beta_new > 0, "filter", "beta_new", "must be positive"),
+            (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             (all(getattr(self.motion, k) >= 0 for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),
              "motion", "alpha_*", "must be non-negative"),
             (m.resolution > 0, "map", "resolution", "must be positive"),

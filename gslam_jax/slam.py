@@ -82,7 +82,8 @@ def filter_config(config: Config, run: Run) -> gf.FilterConfig:
         num_particles=f.particles, map_shape=extent.shape, map_origin=extent.origin,
         resolution=config.map.resolution, local_size=L, resampler=f.resampler,
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
-        unknown_samples=f.unknown_samples, observed_cells=observed_cells(run)).validate()
+        unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
+        particle_block=f.particle_block).validate()
 
 
 def filter_params(config: Config) -> gf.FilterParams:

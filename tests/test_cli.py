@@ -44,9 +44,9 @@ def test_bench_writes_every_figure(tmp_path, capsys):
     """A tiny bench sweep: one row per combination, every figure finite and positive."""
     out = tmp_path / "bench.json"
     assert main(["bench", "--particles", "4", "8", "--local", "16", "--map", "64", "--mode",
-                 "ignore", "--repeats", "1", "--json", str(out)]) == 0
+                 "ignore", "--repeats", "1", "--particle-block", "0", "3", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["results"]
-    assert [r["particles"] for r in rows] == [4, 8]
+    assert [(r["particles"], r["particle_block"]) for r in rows] == [(4, 4), (4, 3), (8, 8), (8, 3)]
     for r in rows:
         for key in ("ms_per_update", "us_per_particle", "predict_us_per_particle", "mb_per_particle"):
             assert r[key] > 0, (key, r)

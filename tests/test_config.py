@@ -27,6 +27,7 @@ def test_round_trip_through_toml(tmp_path):
     ("[filter]\nparticles = \"many\"\n", r"bad\.toml: \[filter\] particles: expected int, got str"),
     ("[map]\nresolution = -1.0\n", r"bad\.toml: \[map\] resolution must be positive"),
     ("[filter]\nresampler = \"best\"\n", r"bad\.toml: \[filter\] resampler must be one of"),
+    ("[filter]\nparticle_block = -2\n", r"bad\.toml: \[filter\] particle_block must be >= 0"),
     ("[filter\nparticles = 3\n", r"bad\.toml: malformed TOML"),
 ])
 def test_bad_configs_name_file_section_and_key(tmp_path, text, match):
