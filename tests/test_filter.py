@@ -209,3 +209,26 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
     assert big._replace(particle_block=7).update_block == 7
     with pytest.raises(ValueError, match="particle_block"):
         big._replace(particle_block=-1).validate()
+
+
+@pytest.mark.parametrize("M", [200, 256])
+def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
+    """Eq. 31 with the D draws passed as they are (the layout the update uses) equals eq. 31
+    with every cell's borrowed draw spelled out (cell c takes draw c mod D), padded or not."""
+    rng = np.random.default_rng(M)
+    D = 64
+    k = rng.integers(0, 12, M).astype(np.float32)
+    S = (k * rng.gamma(2.0, 0.01, M)).astype(np.float32)
+    kp = np.where(rng.uniform(size=M) < 0.5, rng.integers(1, 40, M), 0).astype(np.float32)
+    Sp = (kp * rng.gamma(2.0, 0.01, M)).astype(np.float32)
+    kd = np.where(rng.uniform(size=D) < 0.8, rng.integers(1, 400, D), 0).astype(np.float32)
+    Sd = (kd * rng.gamma(2.0, 0.02, D)).astype(np.float32)
+    params = gf.FilterParams(beta_prev=0.3, beta_new=0.7)
+    spelled = gf.log_importance(k, S, kp, Sp, kd[np.arange(M) % D], Sd[np.arange(M) % D],
+                                jnp.bool_(True), params, "sample")
+    from gslam_jax.cells import log_v_obs
+    drawn = gf._log_importance(jnp.asarray(k), jnp.asarray(S), jnp.asarray(kp), jnp.asarray(Sp),
+                               jnp.asarray(kd), jnp.asarray(Sd), jnp.bool_(True), params,
+                               "sample", log_v_obs(jnp.asarray(k), jnp.asarray(S)))
+    np.testing.assert_allclose(float(drawn), float(spelled), rtol=1e-5)
+    assert float(spelled) != 0.0
