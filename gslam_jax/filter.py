@@ -34,7 +34,8 @@ from gslam_jax.motion import MotionParams, apply_motion
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepInfo", "RunOutput",
            "init", "predict", "update", "step", "scan_frames", "frame_keys", "run_filter",
            "backtrack_path", "motion_noise", "update_noise", "window_origin", "gather_particles",
-           "Observation", "compact_observation", "observation_cells", "log_importance"]
+           "written_rows", "Observation", "compact_observation", "observation_cells",
+           "log_importance"]
 
 UNKNOWN_MODES = ("ignore", "sample")
 CPU_BLOCK_CELLS = 102_400  # footprint cells per update pass on CPU (FilterConfig.update_block)
@@ -136,6 +137,7 @@ class FilterState(NamedTuple):
     kmap: Array        # [J, H, W] degrees of freedom k
     smap: Array        # [J, H, W] sums of squared deviations S
     known_bits: Array  # [J, H/8, W/8, 2] uint32
+    rows: Array        # [2] int32: map rows [lo, hi) that any update may have written so far
 
 
 class UpdateNoise(NamedTuple):
@@ -173,6 +175,7 @@ def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
         kmap=jnp.zeros((J, H, W), jnp.float32),
         smap=jnp.zeros((J, H, W), jnp.float32),
         known_bits=jnp.zeros((J,) + nb + (2,), jnp.uint32),
+        rows=jnp.array([H, 0], jnp.int32),
     )
 
 
@@ -455,6 +458,17 @@ def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
     return w
 
 
+def written_rows(rows: Array, pose: Array, cfg: FilterConfig) -> Array:
+    """``rows`` [lo, hi) widened to every map row an update from ``pose`` [J, 3] can write: a
+    local cell centre lies within L / sqrt(2) cells of the particle (``observation_cells``)."""
+    H = cfg.map_shape[0]
+    reach = math.ceil(cfg.local_size / math.sqrt(2.0)) + 1
+    r = jnp.floor((pose[:, 0] - cfg.map_origin[0]) / cfg.resolution)
+    r = jnp.clip(jnp.nan_to_num(r, nan=0.0), -reach, H + reach).astype(jnp.int32)
+    return jnp.stack([jnp.maximum(jnp.minimum(rows[0], jnp.min(r) - reach), 0),
+                      jnp.minimum(jnp.maximum(rows[1], jnp.max(r) + reach + 1), H)])
+
+
 def _refresh_known_bits(kmap: Array, bits: Array, pose: Array, cfg: FilterConfig) -> Array:
     """"sample" mode: the known-cell bits around each particle's footprint, after eq. 14."""
     if cfg.unknown_cells != "sample" or not cfg.update_map:
@@ -469,25 +483,46 @@ def _refresh_known_bits(kmap: Array, bits: Array, pose: Array, cfg: FilterConfig
     return jax.vmap(refresh)(kmap, bits, pose)
 
 
-def gather_particles(particles, ancestors: Array):
+ROW_BAND = 64  # map rows per copy when resampling copies only the written rows
+
+
+def gather_particles(particles, ancestors: Array, rows: Array | None = None):
     """``x[ancestors]`` for every array of the pytree ``particles`` ([J, ...] leaves), in place.
 
     ``ancestors`` must keep every surviving particle in its own slot (``resampling.
     keep_in_place``): then only the slots of particles without offspring are overwritten, one
     [H, W] map at a time, from slots that are never overwritten. No second [J, H, W] buffer is
     allocated, and only the dead particles' maps are copied (about a third of J for uniform
-    weights) instead of all J.
+    weights) instead of all J. With ``rows`` [lo, hi) (``FilterState.rows``), the [J, H, W]
+    leaves are copied only over those rows, in bands of ``ROW_BAND``: no update has written
+    the others, which are zero in every map (e.g. 121 dead particles, 234 of 400 rows: 6.4-7.1
+    ms against 9.4-10.7 ms for whole maps).
     """
     J = ancestors.shape[0]
     moved = ancestors != jnp.arange(J, dtype=ancestors.dtype)
     slots = jnp.nonzero(moved, size=J, fill_value=0)[0]
 
+    def whole(x, src, dst):
+        return lax.dynamic_update_index_in_dim(
+            x, lax.dynamic_index_in_dim(x, src, keepdims=False), dst, 0)
+
+    def banded(x, src, dst):
+        H, W = x.shape[1:]
+        band = min(ROW_BAND, H)
+
+        def one_band(b, x):
+            start = jnp.minimum(rows[0] + b * band, H - band)
+            piece = lax.dynamic_slice(x, (src, start, 0), (1, band, W))
+            return lax.dynamic_update_slice(x, piece, (dst, start, 0))
+
+        return lax.fori_loop(0, (rows[1] - rows[0] + band - 1) // band, one_band, x)
+
     def copy_one(n, particles):
         dst = slots[n]
         src = ancestors[dst]
         return jax.tree.map(
-            lambda x: lax.dynamic_update_index_in_dim(
-                x, lax.dynamic_index_in_dim(x, src, keepdims=False), dst, 0), particles)
+            lambda x: banded(x, src, dst) if rows is not None and x.ndim == 3
+            else whole(x, src, dst), particles)
 
     return lax.fori_loop(0, jnp.sum(moved), copy_one, particles)
 
@@ -508,12 +543,13 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
     do_resample = ess < cfg.resample_ratio * J
     kmap, smap = w.kflat.reshape(state.kmap.shape), w.sflat.reshape(state.smap.shape)
     bits = _refresh_known_bits(kmap, state.known_bits, state.pose, cfg)
+    rows = written_rows(state.rows, state.pose, cfg)
 
     def resample_branch(args):
         pose, kmap, smap, bits, log_w = args
         anc = resampling.keep_in_place(
             resampling.resample(cfg.resampler, jnp.exp(log_w), noise.resample_u))
-        kmap, smap, bits = gather_particles((kmap, smap, bits), anc)
+        kmap, smap, bits = gather_particles((kmap, smap, bits), anc, rows)
         return jnp.take(pose, anc, axis=0), kmap, smap, bits, jnp.full((J,), -math.log(J), log_w.dtype), anc
 
     def keep_branch(args):
@@ -522,7 +558,7 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
 
     pose, kmap, smap, bits, log_w, anc = lax.cond(
         do_resample, resample_branch, keep_branch, (state.pose, kmap, smap, bits, log_w))
-    new_state = FilterState(pose, log_w, kmap, smap, bits)
+    new_state = FilterState(pose, log_w, kmap, smap, bits, rows)
     info = StepInfo(pose=pose, ancestors=anc, log_w=log_w, ess=ess, resampled=do_resample,
                     updated=jnp.bool_(True), log_lik=log_lik,
                     extent_violations=jnp.sum(w.off_map).astype(jnp.int32),

@@ -99,9 +99,9 @@ def _resample(state: gf.FilterState, noise: gf.UpdateNoise, cfg: gf.FilterConfig
         anc = resampling.keep_in_place(
             resampling.resample(cfg.resampler, jnp.exp(sg(s.log_w)), noise.resample_u))
         lwa = jnp.take(s.log_w, anc)
-        kmap, smap, bits = gf.gather_particles((s.kmap, s.smap, s.known_bits), anc)
+        kmap, smap, bits = gf.gather_particles((s.kmap, s.smap, s.known_bits), anc, s.rows)
         return gf.FilterState(jnp.take(s.pose, anc, axis=0), -math.log(J) + (lwa - sg(lwa)),
-                              kmap, smap, bits)
+                              kmap, smap, bits, s.rows)
 
     return lax.cond(do, yes, lambda s: s, state)
 

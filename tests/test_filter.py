@@ -232,3 +232,20 @@ def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
                                "sample", log_v_obs(jnp.asarray(k), jnp.asarray(S)))
     np.testing.assert_allclose(float(drawn), float(spelled), rtol=1e-5)
     assert float(spelled) != 0.0
+
+
+@pytest.mark.parametrize("mode", ["ignore", "sample"])
+def test_written_rows_cover_every_written_cell(mode):
+    """FilterState.rows, which bounds what resampling copies, holds every map row with data
+    after a run with resampling."""
+    run, _ = make_run(seed=3, steps=40)
+    obs = jnp.asarray(slam.local_observations(run, 1e-6))
+    cfg = gf.FilterConfig(10, (160, 160), (-8.0, -12.8), RES, obs.shape[1], unknown_cells=mode,
+                          unknown_samples=64, resample_ratio=0.9)
+    out = gf.run_filter(jax.random.key(2), gf.FilterParams(),
+                        jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs, cfg)
+    assert int(np.sum(out.infos.resampled)) >= 2
+    lo, hi = (int(v) for v in out.final_state.rows)
+    written = np.nonzero(np.asarray(out.final_state.kmap).any(axis=(0, 2)))[0]
+    assert written.size and lo <= written.min() and written.max() < hi <= 160
+    assert hi - lo < 160  # the bound is useful, not the whole map

@@ -81,3 +81,25 @@ def test_gather_particles_in_place_equals_take():
     got = jax.jit(gf.gather_particles)(maps, anc)
     for g, m in zip(got, maps):
         np.testing.assert_array_equal(np.asarray(g), np.asarray(m)[np.asarray(anc)])
+
+
+@pytest.mark.parametrize("lo, hi", [(0, 0), (3, 40), (90, 150), (0, 150)])
+def test_gather_particles_copies_only_the_written_rows(lo, hi):
+    """With a row range, maps whose rows outside [lo, hi) are zero come out as x[anc] (bands of
+    ROW_BAND rows, the last one shifted back inside the map); rows outside are not copied."""
+    from gslam_jax import filter as gf
+
+    rng = np.random.default_rng(lo + hi)
+    J, H, W = 10, 150, 9
+    k = np.zeros((J, H, W), np.float32)
+    k[:, lo:hi] = rng.normal(size=(J, hi - lo, W))
+    bits = rng.integers(0, 9, (J, 3, 2, 2)).astype(np.uint32)
+    anc = resampling.keep_in_place(jnp.asarray(rng.integers(0, 3, J), jnp.int32))
+    rows = jnp.array([lo, hi], jnp.int32)
+    got = jax.jit(gf.gather_particles)((jnp.asarray(k), jnp.asarray(bits)), anc, rows)
+    np.testing.assert_array_equal(np.asarray(got[0]), k[np.asarray(anc)])
+    np.testing.assert_array_equal(np.asarray(got[1]), bits[np.asarray(anc)])
+    if hi <= H - gf.ROW_BAND:  # the last row, out of every band, keeps each slot's own value
+        k[:, H - 1] = np.arange(J)[:, None]
+        got = jax.jit(gf.gather_particles)((jnp.asarray(k),), anc, rows)[0]
+        np.testing.assert_array_equal(np.asarray(got)[:, H - 1, 0], np.arange(J))
