@@ -12,6 +12,7 @@ from typing import Callable
 import numpy as np
 
 from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still set XLA_FLAGS
+from gslam_jax.sim.courses import COURSES  # light (no JAX) too
 
 __all__ = ["main"]
 
@@ -336,7 +337,8 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (see README)")
     p.add_argument("--source", choices=["sim", "sim-stereo", "kitti", "euroc"], default="sim",
                    help="where frames come from when no Run file is given (default: sim)")
-    p.add_argument("--course", default="mars-yard-a", help="simulated course (default mars-yard-a)")
+    p.add_argument("--course", default="mars-yard-a", choices=COURSES, metavar="COURSE",
+                   help=f"simulated course: {', '.join(COURSES)} (default mars-yard-a)")
     p.add_argument("--path", type=Path, help="dataset folder for --source kitti/euroc")
     p.add_argument("--seed", type=int, default=0, help="simulation seed")
     p.add_argument("--max-frames", type=int, help="simulate only the first N frames of the course")
@@ -358,7 +360,8 @@ def _build_rest(sub) -> None:
     p.add_argument("--mode", choices=["ignore", "sample"], nargs="+", default=["ignore", "sample"])
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     p.add_argument("--plot", type=Path, help="also plot us per particle against J (PNG)")
-    p.add_argument("--course", help="also time a whole simulated course after compilation "
+    p.add_argument("--course", choices=COURSES, metavar="COURSE",
+                   help="also time a whole simulated course after compilation "
                    "(e.g. mars-yard-a), default settings")
     p.add_argument("--course-particles", type=int, default=200)
     p.add_argument("--particle-block", type=int, nargs="+", default=[0],
@@ -366,9 +369,8 @@ def _build_rest(sub) -> None:
                    "compare block sizes in one process")
     p.set_defaults(func=cmd_bench)
 
-    from gslam_jax.sim.courses import COURSES  # light (no JAX): compare --exact needs that
     p = sub.add_parser("table1", help="the paper's Table I on the five simulated courses")
-    p.add_argument("--courses", nargs="+", default=list(COURSES))
+    p.add_argument("--courses", nargs="+", default=list(COURSES), choices=COURSES, metavar="COURSE")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--particles", type=int, default=200)
     p.add_argument("--config", type=Path)

@@ -7,6 +7,7 @@ the filter is compiled. The native file format is exactly the fields below (see 
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 from typing import NamedTuple
 
@@ -154,6 +155,8 @@ def load_run(path: str | Path) -> Run:
     path = Path(path)
     if not path.exists():
         raise RunError(f"{path}: no such file")
+    if not zipfile.is_zipfile(path):  # np.load would try it as .npy, then as a pickle
+        raise RunError(f"{path}: not a .npz archive (not a zip file)")
     try:
         data = np.load(path, allow_pickle=False)
     except Exception as err:  # numpy raises several types for corrupt archives

@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import pytest
 from synthetic import make_run
 
 from gslam_jax.cli import main
@@ -38,6 +39,10 @@ def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
     save_run(tmp_path / "r.npz", run)
     assert main(["run", str(tmp_path / "r.npz"), "--config", str(bad)]) == 2
     assert "unknown key 'particls'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # argparse's usage error, before any JAX work
+        main(["run", "--course", "mars-yard-c"])
+    assert exit_.value.code == 2
+    assert "invalid choice: 'mars-yard-c'" in capsys.readouterr().err
 
 
 def test_bench_writes_every_figure(tmp_path, capsys):

@@ -45,5 +45,8 @@ def test_out_of_range_obs_index_and_corrupt_file(tmp_path):
     with pytest.raises(RunError, match="frame 3 refers to local map 99"):
         load_run(tmp_path / "c.npz")
     (tmp_path / "d.npz").write_bytes(b"not a zip")
-    with pytest.raises(RunError, match=r"d\.npz: not a readable \.npz"):
+    with pytest.raises(RunError, match=r"d\.npz: not a \.npz archive"):
         load_run(tmp_path / "d.npz")
+    np.save(tmp_path / "e.npy", np.zeros(3))  # an .npy is no Run either (np.load would accept it)
+    with pytest.raises(RunError, match=r"e\.npy: not a \.npz archive"):
+        load_run(tmp_path / "e.npy")
