@@ -55,6 +55,25 @@ def test_lm_recovers_motion_and_covariance_is_calibrated():
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
 
 
+def test_inliers_are_the_matches_of_the_final_fit():
+    """Outliers are dropped once and the fit repeated; the inliers returned are the matches that
+    fit used, so refitting them alone (no gate) gives the same motion and residual."""
+    rng = np.random.default_rng(3)
+    rot = Rotation.from_euler("xyz", [0.2, 2.0, 0.1], degrees=True)
+    t = np.array([0.02, 0.01, 0.8])
+    wb = np.column_stack([rng.uniform(-8, 8, 60), rng.uniform(-1, 2, 60), rng.uniform(4, 25, 60)])
+    wa = rot.apply(wb) + t
+    ja = project(CAM, wa) + rng.normal(scale=0.2, size=wa.shape)
+    jb = project(CAM, wb) + rng.normal(scale=0.2, size=wb.shape)
+    ja[:8, 0] += 25.0                              # gross outliers
+    ja[8:20, 0] += np.linspace(0.5, 2.5, 12)       # graded ones, some near the gate
+    est = estimate_motion(CAM, ja, jb, gate_px=1.5)
+    assert not np.isin(np.arange(8), est.inliers).any()
+    again = estimate_motion(CAM, ja[est.inliers], jb[est.inliers], gate_px=1e9)
+    np.testing.assert_allclose(again.transform, est.transform, atol=1e-9)
+    np.testing.assert_allclose(again.rms, est.rms, rtol=1e-9)
+
+
 def test_increments_2d_integrate_back():
     from gslam_jax.run import integrate_controls
     poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.2, 0.3], [1.5, 1.0, 1.2], [1.0, 2.0, 3.0]])

@@ -121,7 +121,8 @@ def estimate_motion(cam: Camera, ja: np.ndarray, jb: np.ndarray, gate_px: float 
     """Motion T_ab from matched (u, v, d) observations ``ja`` [N, 3] and ``jb`` [N, 3].
 
     Requires N >= 3. Inliers are re-selected once: matches whose largest reprojection residual
-    exceeds ``gate_px`` are dropped and the fit repeated.
+    exceeds ``gate_px`` are dropped and the fit repeated on the rest (unless fewer than 3 would
+    remain). The returned inliers are the matches of the final fit.
     """
     if len(ja) < 3:
         raise ValueError(f"need at least 3 matches to estimate motion, got {len(ja)}")
@@ -129,13 +130,11 @@ def estimate_motion(cam: Camera, ja: np.ndarray, jb: np.ndarray, gate_px: float 
     t0 = rigid_fit(wa, wb)
     params = np.concatenate([matrix_to_rotvec(t0[:3, :3]), t0[:3, 3]])
     keep = np.arange(len(ja))
-    for _ in range(2):
-        params, res, jac = _lm(params, cam, ja[keep], jb[keep], wa[keep], wb[keep], iters)
-        err = np.abs(res).max(axis=1)
-        good = err <= gate_px
-        if good.all() or good.sum() < 3:
-            break
+    params, res, jac = _lm(params, cam, ja, jb, wa, wb, iters)
+    good = np.abs(res).max(axis=1) <= gate_px
+    if not good.all() and good.sum() >= 3:
         keep = keep[good]
+        params, res, jac = _lm(params, cam, ja[keep], jb[keep], wa[keep], wb[keep], iters)
     dof = max(res.size - 6, 1)
     sigma2 = float(res.ravel() @ res.ravel()) / dof
     jtj = jac.T @ jac
