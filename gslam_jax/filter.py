@@ -35,7 +35,7 @@ __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "StepIn
            "init", "predict", "update", "step", "scan_frames", "frame_keys", "run_filter",
            "backtrack_path", "motion_noise", "update_noise", "window_origin", "gather_particles",
            "written_rows", "Observation", "compact_observation", "observation_cells",
-           "log_importance"]
+           "log_importance", "best_slot"]
 
 UNKNOWN_MODES = ("ignore", "sample")
 CPU_BLOCK_CELLS = 102_400  # footprint cells per update pass on CPU (FilterConfig.update_block)
@@ -138,6 +138,8 @@ class FilterState(NamedTuple):
     smap: Array        # [J, H, W] sums of squared deviations S
     known_bits: Array  # [J, H/8, W/8, 2] uint32
     rows: Array        # [2] int32: map rows [lo, hi) that any update may have written so far
+    best: Array        # [] int32: slot of the highest-weight particle at the last update, taken
+                       # before its resampling (after one, the weights are all equal)
 
 
 class UpdateNoise(NamedTuple):
@@ -152,6 +154,7 @@ class StepInfo(NamedTuple):
 
     pose: Array          # [J, 3] after resampling
     ancestors: Array     # [J] index of each particle's parent before this frame's resampling
+    best: Array          # [] slot of the highest-weight particle (FilterState.best)
     log_w: Array         # [J] normalised weights after the frame
     ess: Array           # ESS after the weight update, before resampling (eq. 23)
     resampled: Array     # bool
@@ -176,6 +179,7 @@ def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
         smap=jnp.zeros((J, H, W), jnp.float32),
         known_bits=jnp.zeros((J,) + nb + (2,), jnp.uint32),
         rows=jnp.array([H, 0], jnp.int32),
+        best=jnp.int32(0),
     )
 
 
@@ -483,6 +487,14 @@ def _refresh_known_bits(kmap: Array, bits: Array, pose: Array, cfg: FilterConfig
     return jax.vmap(refresh)(kmap, bits, pose)
 
 
+def best_slot(log_w: Array, ancestors: Array) -> Array:
+    """Slot of the highest-weight particle. ``log_w`` [J] are the normalised weights before the
+    resampling that put particle ``ancestors[i]`` into slot i (the identity when none did).
+    After a resampling the weights are all equal, so the choice is made on the weights before
+    it; if the best particle left no offspring, this is the slot of the best one that did."""
+    return jnp.argmax(log_w[ancestors]).astype(jnp.int32)
+
+
 ROW_BAND = 64  # map rows per copy when resampling copies only the written rows
 
 
@@ -556,10 +568,11 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
         pose, kmap, smap, bits, log_w = args
         return pose, kmap, smap, bits, log_w, jnp.arange(J, dtype=jnp.int32)
 
-    pose, kmap, smap, bits, log_w, anc = lax.cond(
+    pose, kmap, smap, bits, new_log_w, anc = lax.cond(
         do_resample, resample_branch, keep_branch, (state.pose, kmap, smap, bits, log_w))
-    new_state = FilterState(pose, log_w, kmap, smap, bits, rows)
-    info = StepInfo(pose=pose, ancestors=anc, log_w=log_w, ess=ess, resampled=do_resample,
+    best = best_slot(log_w, anc)
+    new_state = FilterState(pose, new_log_w, kmap, smap, bits, rows, best)
+    info = StepInfo(pose=pose, ancestors=anc, best=best, log_w=new_log_w, ess=ess, resampled=do_resample,
                     updated=jnp.bool_(True), log_lik=log_lik,
                     extent_violations=jnp.sum(w.off_map).astype(jnp.int32),
                     empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped)
@@ -579,7 +592,8 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None, para
 
 def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
     J = cfg.num_particles
-    return StepInfo(pose=state.pose, ancestors=jnp.arange(J, dtype=jnp.int32), log_w=state.log_w,
+    return StepInfo(pose=state.pose, ancestors=jnp.arange(J, dtype=jnp.int32), best=state.best,
+                    log_w=state.log_w,
                     ess=resampling.ess(state.log_w), resampled=jnp.bool_(False),
                     updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
                     extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False),
@@ -598,7 +612,7 @@ class RunOutput(NamedTuple):
 
 def _summaries(info: StepInfo) -> tuple[Array, Array]:
     w = jnp.exp(info.log_w)
-    best = info.pose[jnp.argmax(info.log_w)]
+    best = info.pose[info.best]
     xy = w @ info.pose[:, :2]
     th = jnp.arctan2(w @ jnp.sin(info.pose[:, 2]), w @ jnp.cos(info.pose[:, 2]))
     return best, jnp.concatenate([xy, th[None]])
@@ -656,5 +670,5 @@ def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Arr
     state = init(cfg, start_pose)
     final, (infos, best, mean) = scan_frames(
         state, frame_keys(key, controls.shape[0]), controls, obs_index, local_obs, params, cfg)
-    path = backtrack_path(infos.pose, infos.ancestors, jnp.argmax(final.log_w))
+    path = backtrack_path(infos.pose, infos.ancestors, final.best)
     return RunOutput(final, infos, best, mean, path)

@@ -188,7 +188,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     infos = jax.tree.map(lambda *xs: np.concatenate(xs)[:T], *[o[0] for o in outputs])
     best = np.concatenate([o[1] for o in outputs])[:T]
     mean = np.concatenate([o[2] for o in outputs])[:T]
-    final_best = int(np.argmax(np.asarray(state.log_w)))
+    final_best = int(state.best)
     path = np.asarray(gf.backtrack_path(jnp.asarray(infos.pose), jnp.asarray(infos.ancestors),
                                         jnp.int32(final_best)))
     dropped = int(np.sum(infos.dropped_cells))

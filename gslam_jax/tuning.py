@@ -101,7 +101,7 @@ def _resample(state: gf.FilterState, noise: gf.UpdateNoise, cfg: gf.FilterConfig
         lwa = jnp.take(s.log_w, anc)
         kmap, smap, bits = gf.gather_particles((s.kmap, s.smap, s.known_bits), anc, s.rows)
         return gf.FilterState(jnp.take(s.pose, anc, axis=0), -math.log(J) + (lwa - sg(lwa)),
-                              kmap, smap, bits, s.rows)
+                              kmap, smap, bits, s.rows, gf.best_slot(sg(s.log_w), anc))
 
     return lax.cond(do, yes, lambda s: s, state)
 

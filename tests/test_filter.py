@@ -51,6 +51,33 @@ def test_particle_nearest_truth_gains_weight(mode):
     assert w[0] > 3 * np.sort(w)[-2]
 
 
+def test_best_particle_survives_resampling():
+    """After a resampling every weight is equal, so the best particle must be the one that was
+    best before it: the same update with and without resampling must name the same pose, also
+    on the frames that follow without an update."""
+    world = World(3)
+    truth = np.array([0.3, -0.2, 0.4])
+    J = 9
+    params = gf.FilterParams()
+    keep_cfg, resample_cfg = _cfg(J, resample_ratio=0.0), _cfg(J, resample_ratio=2.0)
+    state = gf.init(keep_cfg, jnp.asarray(truth, jnp.float32))
+    noise = gf.update_noise(jax.random.key(0), keep_cfg)
+    state, _ = gf.update(state, _local_obs(world, truth, 1), noise, params, keep_cfg)
+    offsets = np.array([[1.0, 0, 0], [0.5, 0, 0], [-0.5, 0, 0], [0, 0.5, 0], [0, -0.5, 0],
+                        [0.3, 0.3, 0.05], [0, 0, 0.1], [0, 0, 0], [0, 0, -0.1]])
+    state = state._replace(pose=jnp.asarray(truth + offsets, jnp.float32))
+    obs = _local_obs(world, truth, 2)
+    kept, kept_info = gf.update(jax.tree.map(jnp.copy, state), obs, noise, params, keep_cfg)
+    resampled, info = gf.update(state, obs, noise, params, resample_cfg)
+    assert bool(info.resampled) and not bool(kept_info.resampled)
+    assert np.ptp(np.asarray(info.log_w)) == 0.0  # equal weights: argmax would say slot 0
+    assert int(np.argmax(kept_info.log_w)) == 7 == int(kept.best)
+    np.testing.assert_array_equal(resampled.pose[resampled.best], state.pose[7])
+    moved, moved_info = gf.step(jax.random.key(1), resampled, jnp.zeros(3), None, params,
+                                resample_cfg)
+    assert int(moved_info.best) == int(resampled.best) == int(moved.best)
+
+
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_without_map_updates_the_weights_stay_uniform(mode):
     run, _ = make_run(seed=1, steps=30)
