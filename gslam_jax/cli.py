@@ -12,6 +12,7 @@ from typing import Callable
 import numpy as np
 
 from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still set XLA_FLAGS
+from gslam_jax.errors import InputError
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
 
 __all__ = ["main"]
@@ -392,12 +393,10 @@ def _build_rest(sub) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gslam_jax.run import RunError
-
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ConfigError, RunError, FileNotFoundError) as err:
+    except (InputError, FileNotFoundError) as err:
         print(f"gslam: error: {err}", file=sys.stderr)
         return 2
 

@@ -13,11 +13,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gslam_jax.errors import InputError
+
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
            "Config", "read_toml", "load_config", "parse_config", "apply_overrides", "config_to_toml"]
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A configuration problem; the message names the file, section and key."""
 
 

@@ -25,6 +25,8 @@ import numpy as np
 from jax import Array
 from jax.typing import ArrayLike
 
+from gslam_jax.errors import InputError
+
 __all__ = [
     "Alignment", "OnlineState", "align", "align_particles", "online_init", "online_update",
     "online_solve", "transform_points", "transform_poses", "interpolate_path",
@@ -337,7 +339,7 @@ def utm_to_latlon(easting: ArrayLike, northing: ArrayLike, zone: int,
 # GPS logs
 # --------------------------------------------------------------------------------------------
 
-class GpsLogError(ValueError):
+class GpsLogError(InputError):
     """A GPS log is malformed; the message names the file and line."""
 
 

@@ -13,10 +13,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gslam_jax.errors import InputError
+
 __all__ = ["Run", "RunError", "load_run", "save_run", "validate_run", "integrate_controls"]
 
 
-class RunError(ValueError):
+class RunError(InputError):
     """A Run (or a Run file) is malformed; the message names the file, field and frame."""
 
 

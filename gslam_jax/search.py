@@ -39,6 +39,7 @@ from gslam_jax import filter as gf
 from gslam_jax import slam
 from gslam_jax.bench import physical_memory
 from gslam_jax.config import Config
+from gslam_jax.errors import InputError
 from gslam_jax.run import Run
 
 __all__ = ["PARAM_NAMES", "DESIGNS", "OBJECTIVES", "SearchError", "SearchSpace", "SearchResult",
@@ -53,7 +54,7 @@ PATHS = ("mean", "best")
 PROGRESS_CHUNKS = 8  # chunks of a search whose sets run one after another (progress reports)
 
 
-class SearchError(ValueError):
+class SearchError(InputError):
     """A bad search space, design or objective; the message names the field."""
 
 

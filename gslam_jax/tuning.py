@@ -41,6 +41,7 @@ from jax import Array, lax
 from gslam_jax import filter as gf
 from gslam_jax import resampling, slam
 from gslam_jax.config import Config
+from gslam_jax.errors import InputError
 from gslam_jax.motion import MotionParams, motion_stds
 from gslam_jax.run import Run
 from gslam_jax.search import PARAM_NAMES, params_from_values
@@ -52,7 +53,7 @@ TUNE_OBJECTIVES = ("loglik", "supervised")
 sg = lax.stop_gradient
 
 
-class TuneError(ValueError):
+class TuneError(InputError):
     """A bad tuning request; the message names the field."""
 
 

@@ -1,0 +1,14 @@
+"""The base of every error that reports bad input (a file, field, frame or option).
+
+``gslam`` catches ``InputError`` and prints its message instead of a traceback; each module
+raises its own subclass (``ConfigError``, ``RunError``, ``GpsLogError``, ...), whose message
+names the file, field or frame at fault. Light on purpose: no JAX, no OpenCV.
+"""
+
+from __future__ import annotations
+
+__all__ = ["InputError"]
+
+
+class InputError(ValueError):
+    """Bad input from the user: the message says what and where."""
