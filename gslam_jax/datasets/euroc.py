@@ -6,7 +6,9 @@ two ``sensor.yaml`` files (intrinsics, distortion, T_BS). The robot frame is fix
 frame 0: z up along the mean accelerometer reading (gravity), x forward along the cam0 optical
 axis made horizontal, origin ``height`` metres below the body (ground-truth z at frame 0 when
 ground truth is present, else 0). The IMU supplies the gravity vector for tilt correction and
-gyro yaw increments for the VO fallback.
+gyro yaw increments for the VO fallback; the robot must stand still for ``gravity_window`` seconds
+from the first frame, where "up" (mean accelerometer) and the gyro bias (mean gyro, subtracted
+before integrating yaw) are estimated.
 """
 
 from __future__ import annotations
@@ -19,9 +21,10 @@ import numpy as np
 
 from ..run import Run
 from ..vo.calib import CalibrationError, RectifiedRig
+from ..vo.fallback import GRAVITY
 from ..vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
 from ..vo.geometry import invert, make_transform, pose_to_2d
-from .kitti import read_image
+from .kitti import read_image, read_table
 
 __all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "quat_to_matrix",
            "euroc_frontend", "load_euroc"]
@@ -31,7 +34,8 @@ __all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "quat_t
 class EurocParams:
     """max_frames: process at most this many frames; height: metres from body to ground
     (None: ground-truth z at frame 0, else 0); gravity_window: seconds of IMU after the first
-    frame averaged to find "up"."""
+    frame, with the robot at rest, whose samples with ||a| - g| < ``frontend.tilt_gate`` are
+    averaged to find "up" (accelerometer) and the gyro bias."""
 
     max_frames: int | None = None
     height: float | None = None
@@ -45,6 +49,7 @@ class CameraYaml:
     dist: np.ndarray
     t_bs: np.ndarray
     size: tuple[int, int]
+    source: str = "<sensor.yaml>"  # the file it was read from, for error messages
 
 
 def _numbers(fs: cv2.FileStorage, key: str, count: int, path: Path) -> np.ndarray:
@@ -55,14 +60,25 @@ def _numbers(fs: cv2.FileStorage, key: str, count: int, path: Path) -> np.ndarra
         node = node.getNode("data")
         if node.empty():
             raise CalibrationError(f"{path}: missing field 'T_BS.data'")
-    vals = [node.at(i).real() for i in range(node.size())] if node.isSeq() else []
-    if len(vals) != count:
-        raise CalibrationError(f"{path}: field '{key}' has {len(vals)} numbers, expected {count}")
-    return np.array(vals, dtype=np.float64)
+    items = [node.at(i) for i in range(node.size())] if node.isSeq() else []
+    if len(items) != count:
+        raise CalibrationError(f"{path}: field '{key}' has {len(items)} numbers, expected {count}")
+    for i, item in enumerate(items):
+        if not (item.isReal() or item.isInt()):
+            text = f"{item.string()!r} " if item.isString() else ""
+            raise CalibrationError(f"{path}: field '{key}' entry {i}: {text}is not a number")
+    vals = np.array([item.real() for item in items], dtype=np.float64)
+    if not np.all(np.isfinite(vals)):
+        raise CalibrationError(f"{path}: field '{key}' has a non-finite number: {vals.tolist()}")
+    return vals
 
 
 def read_sensor_yaml(path: Path) -> CameraYaml:
-    """Intrinsics (fu, fv, cu, cv), radial-tangential distortion, T_BS and resolution."""
+    """Intrinsics (fu, fv, cu, cv), radial-tangential distortion, T_BS and resolution.
+
+    CalibrationError naming the file and field for a missing or non-numeric entry, fu/fv or a
+    resolution that is not positive, or a T_BS that is not a rigid transform.
+    """
     if not path.is_file():
         raise CalibrationError(f"{path}: calibration file is missing")
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
@@ -76,17 +92,29 @@ def read_sensor_yaml(path: Path) -> CameraYaml:
     t_bs = _numbers(fs, "T_BS", 16, path).reshape(4, 4)
     w, h = _numbers(fs, "resolution", 2, path)
     fs.release()
+    if not (fu > 0 and fv > 0):
+        raise CalibrationError(f"{path}: field 'intrinsics': fu and fv must be positive, "
+                               f"got {fu}, {fv}")
+    if not (w > 0 and h > 0 and w == int(w) and h == int(h)):
+        raise CalibrationError(f"{path}: field 'resolution': width and height must be positive "
+                               f"integers, got {w}, {h}")
+    if not np.allclose(t_bs[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-9):
+        raise CalibrationError(f"{path}: field 'T_BS': bottom row must be [0, 0, 0, 1], "
+                               f"got {t_bs[3].tolist()}")
+    if not np.allclose(t_bs[:3, :3] @ t_bs[:3, :3].T, np.eye(3), atol=1e-3):
+        raise CalibrationError(f"{path}: field 'T_BS': the rotation part is not orthonormal")
     k = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
-    return CameraYaml(k, dist, t_bs, (int(w), int(h)))
+    return CameraYaml(k, dist, t_bs, (int(w), int(h)), str(path))
 
 
 def euroc_rig(cam0: CameraYaml, cam1: CameraYaml) -> RectifiedRig:
     """Rectified rig from the two cameras' calibration (pose of cam0 in cam1 from the T_BS)."""
+    source = f"{cam0.source} + {cam1.source}"
     if cam0.size != cam1.size:
-        raise CalibrationError(f"cam0 is {cam0.size} but cam1 is {cam1.size}")
+        raise CalibrationError(f"{source}: cam0 is {cam0.size} but cam1 is {cam1.size}")
     t_10 = invert(cam1.t_bs) @ cam0.t_bs
     return RectifiedRig.from_raw(cam0.k, cam0.dist, cam1.k, cam1.dist, t_10[:3, :3], t_10[:3, 3],
-                                 cam0.size)
+                                 cam0.size, source)
 
 
 def quat_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
@@ -98,13 +126,31 @@ def quat_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
 
 
 def _frames(cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
+    """Timestamps (ns, increasing) and image paths of ``data.csv`` (``timestamp,filename``)."""
     csv = cam_dir / "data.csv"
     if not csv.is_file():
         raise FileNotFoundError(f"{csv}: missing frame list")
-    rows = [line.split(",") for line in csv.read_text().splitlines()
-            if line.strip() and not line.startswith("#")]
-    return (np.array([int(r[0]) for r in rows], np.int64),
-            [cam_dir / "data" / r[1].strip() for r in rows])
+    stamps: list[int] = []
+    paths: list[Path] = []
+    for n, line in enumerate(csv.read_text(errors="replace").splitlines(), 1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        fields = [f.strip() for f in line.split(",")]
+        if len(fields) < 2 or not fields[1]:
+            raise ValueError(f"{csv}:{n}: expected 'timestamp,filename', got {line.strip()!r}")
+        try:
+            stamp = int(fields[0])
+        except ValueError:
+            raise ValueError(f"{csv}:{n}: timestamp {fields[0]!r} is not an integer "
+                             "(nanoseconds)") from None
+        if stamps and stamp <= stamps[-1]:
+            raise ValueError(f"{csv}:{n}: timestamp {stamp} is not after {stamps[-1]} "
+                             "(frames must be in time order)")
+        stamps.append(stamp)
+        paths.append(cam_dir / "data" / fields[1])
+    if not stamps:
+        raise ValueError(f"{csv}: no frames listed")
+    return np.array(stamps, np.int64), paths
 
 
 def _robot_from_body(up_b: np.ndarray, fwd_b: np.ndarray, height: float) -> np.ndarray:
@@ -115,39 +161,90 @@ def _robot_from_body(up_b: np.ndarray, fwd_b: np.ndarray, height: float) -> np.n
     return make_transform(np.column_stack([fwd, np.cross(up, fwd), up]), -height * up)
 
 
+def _read_imu(path: Path, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IMU times (ns), gyro (rad/s) and accelerometer (m/s^2) of ``imu0/data.csv``; the log must
+    cover every frame ``ts`` with samples in every frame interval."""
+    table = read_table(path, 7, ",", int_first=True)
+    imu_t, gyro, acc = table.stamps, table.data[:, 1:4], table.data[:, 4:7]
+    back = np.flatnonzero(np.diff(imu_t) <= 0)
+    if back.size:
+        raise ValueError(f"{path}:{table.lines[back[0] + 1]}: timestamp {imu_t[back[0] + 1]} is "
+                         f"not after {imu_t[back[0]]} (samples must be in time order)")
+    if imu_t[0] > ts[0]:
+        raise ValueError(f"{path}: IMU log starts at {imu_t[0]} ns, after frame 0 ({ts[0]} ns)")
+    if imu_t[-1] < ts[-1]:
+        t = int(np.argmax(ts > imu_t[-1]))
+        raise ValueError(f"{path}: IMU log ends at {imu_t[-1]} ns, before frame {t} ({ts[t]} ns)")
+    edges = np.searchsorted(imu_t, ts, side="right")
+    empty = np.flatnonzero(np.diff(edges) == 0)
+    if empty.size:
+        t = int(empty[0]) + 1
+        raise ValueError(f"{path}: no IMU samples between frame {t - 1} ({ts[t - 1]} ns) and "
+                         f"frame {t} ({ts[t]} ns)")
+    return imu_t, gyro, acc
+
+
+def _ground_truth(path: Path, ts: np.ndarray) -> list[np.ndarray]:
+    """Body-to-world 4x4 pose of each frame ``ts`` from the ground-truth csv (time, p, q_wxyz ...);
+    every frame needs a row within 5 ms."""
+    table = read_table(path, 8, ",", at_least=True, int_first=True)
+    g, g_t = table.data, table.stamps
+    back = np.flatnonzero(np.diff(g_t) <= 0)
+    if back.size:
+        raise ValueError(f"{path}:{table.lines[back[0] + 1]}: timestamp {g_t[back[0] + 1]} is "
+                         f"not after {g_t[back[0]]} (rows must be in time order)")
+    idx = np.clip(np.searchsorted(g_t, ts), 0, len(g) - 1)
+    prev = np.maximum(idx - 1, 0)
+    idx = np.where(np.abs(g_t[prev] - ts) < np.abs(g_t[idx] - ts), prev, idx)
+    off = np.abs(g_t[idx] - ts)
+    if off.max() >= 5e6:
+        t = int(np.argmax(off))
+        raise ValueError(f"{path}: no ground-truth row within 5 ms of frame {t} ({ts[t]} ns); "
+                         f"the nearest is {off[t] * 1e-6:.1f} ms away")
+    return [make_transform(quat_to_matrix(r[4:8]), r[1:4]) for r in g[idx]]
+
+
 def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> FrontEndResult:
     """Run the stereo front-end over an EuRoC ASL folder (``root`` holds ``mav0``)."""
     mav = Path(root) / "mav0" if (Path(root) / "mav0").is_dir() else Path(root)
     cam0, cam1 = (read_sensor_yaml(mav / c / "sensor.yaml") for c in ("cam0", "cam1"))
     rig = euroc_rig(cam0, cam1)
+    if params.max_frames is not None and params.max_frames < 1:
+        raise ValueError(f"max_frames must be at least 1, got {params.max_frames}")
     ts0, left = _frames(mav / "cam0")
     ts1, right = _frames(mav / "cam1")
-    n = min(len(ts0), len(ts1))
+    n0, n1 = len(ts0), len(ts1)
     if params.max_frames is not None:
-        n = min(n, params.max_frames)
+        n0, n1 = min(n0, params.max_frames), min(n1, params.max_frames)
+    if n0 != n1:
+        raise ValueError(f"{mav}: cam0/data.csv lists {len(ts0)} frames but cam1/data.csv "
+                         f"{len(ts1)}; the stereo frames must pair up")
+    n = n0
     if not np.array_equal(ts0[:n], ts1[:n]):
         bad = int(np.argmax(ts0[:n] != ts1[:n]))
-        raise ValueError(f"{mav}: cam0 and cam1 timestamps differ at frame {bad}")
+        raise ValueError(f"{mav}: cam0 and cam1 timestamps differ at frame {bad} "
+                         f"({ts0[bad]} vs {ts1[bad]} ns in data.csv)")
     ts = ts0[:n]
     imu_csv = mav / "imu0" / "data.csv"
     if not imu_csv.is_file():
         raise FileNotFoundError(f"{imu_csv}: missing (needed for the gravity direction)")
-    imu = np.loadtxt(imu_csv, delimiter=",", comments="#", ndmin=2)
-    imu_t, gyro, acc = imu[:, 0].astype(np.int64), imu[:, 1:4], imu[:, 4:7]
+    imu_t, gyro, acc = _read_imu(imu_csv, ts)
     first = (imu_t >= ts[0]) & (imu_t <= ts[0] + int(params.gravity_window * 1e9))
     if not first.any():
         raise ValueError(f"{imu_csv}: no IMU samples within {params.gravity_window} s of frame 0")
-    up_b = acc[first].mean(axis=0)
+    # At rest: |a| close to g. Those samples give "up" and the gyro bias.
+    still = first & (np.abs(np.linalg.norm(acc, axis=1) - GRAVITY) < params.frontend.tilt_gate)
+    if not still.any():
+        raise ValueError(f"{imu_csv}: no IMU sample within {params.gravity_window} s of frame 0 "
+                         f"has |a| within {params.frontend.tilt_gate} m/s^2 of g; the robot must "
+                         "stand still there (gravity and gyro bias)")
+    up_b = acc[still].mean(axis=0)
+    gyro = gyro - gyro[still].mean(axis=0)  # remove the gyro bias before integrating yaw
 
     gt_csv = mav / "state_groundtruth_estimate0" / "data.csv"
     gt_body = None
     if gt_csv.is_file():
-        g = np.loadtxt(gt_csv, delimiter=",", comments="#", ndmin=2)
-        idx = np.clip(np.searchsorted(g[:, 0], ts), 0, len(g) - 1)
-        idx = np.where(np.abs(g[np.maximum(idx - 1, 0), 0] - ts) < np.abs(g[idx, 0] - ts),
-                       np.maximum(idx - 1, 0), idx)
-        if np.abs(g[idx, 0] - ts).max() < 5e6:  # every frame has a ground-truth row within 5 ms
-            gt_body = [make_transform(quat_to_matrix(r[4:8]), r[1:4]) for r in g[idx]]
+        gt_body = _ground_truth(gt_csv, ts)
     height = params.height if params.height is not None else (
         gt_body[0][2, 3] if gt_body is not None else 0.0)
     t_body_robot = _robot_from_body(up_b, cam0.t_bs[:3, 2], height)

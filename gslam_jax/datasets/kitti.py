@@ -4,12 +4,15 @@ Images are already rectified (``P0``/``P1`` in calib.txt). The camera (x right, 
 z forward) is mounted ``camera_height`` metres above the ground and assumed level; ground truth
 (camera-0-to-world 3x4 per frame, world = camera 0 at frame 0) is moved into the robot frame
 and projected to (x, y, yaw) like the VO path. Without ``times.txt`` frames are 0.1 s apart.
+Image ``NNNNNN.png`` is frame NNNNNN and takes line NNNNNN (from 0) of times.txt and the poses
+file; frames must be consecutive, a gap is an error naming the missing image.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -19,8 +22,8 @@ from ..vo.calib import CalibrationError, ImageError, RectifiedRig
 from ..vo.frontend import FrontEndParams, FrontEndResult, run_frontend
 from ..vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pose_to_2d
 
-__all__ = ["KittiParams", "read_kitti_calib", "read_kitti_poses", "read_image", "kitti_frontend",
-           "load_kitti"]
+__all__ = ["KittiParams", "Table", "read_table", "read_kitti_calib", "read_kitti_poses",
+           "read_image", "kitti_frontend", "load_kitti"]
 
 
 @dataclass(frozen=True)
@@ -67,11 +70,61 @@ def read_kitti_calib(path: Path, size: tuple[int, int]) -> RectifiedRig:
     return RectifiedRig.from_projections(fields["P0"], fields["P1"], size, str(path))
 
 
+class Table(NamedTuple):
+    """Numbers of a text table: ``data`` [rows, columns] float64, ``lines`` [rows] 1-based line
+    number of each row, ``stamps`` [rows] int64 first column (exact; only when asked)."""
+
+    data: np.ndarray
+    lines: np.ndarray
+    stamps: np.ndarray | None = None
+
+
+def read_table(path: Path, columns: int, delimiter: str | None = None, *, at_least: bool = False,
+               int_first: bool = False) -> Table:
+    """Rows of finite numbers ('#' starts a comment; blank lines are skipped).
+
+    Every row has ``columns`` numbers (``at_least``: that many or more, the same in every row);
+    ``int_first``: the first column is an integer (e.g. nanoseconds), also returned exactly in
+    ``stamps``. ValueError naming the file and line of the first bad row.
+    """
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    stamps: list[int] = []
+    for n, line in enumerate(Path(path).read_text(errors="replace").splitlines(), 1):
+        body = line.split("#", 1)[0].strip()
+        if not body:
+            continue
+        fields = [f.strip() for f in body.split(delimiter)]
+        if rows and len(fields) != len(rows[0]):
+            raise ValueError(f"{path}:{n}: {len(fields)} numbers, but {len(rows[0])} on line "
+                             f"{lines[0]}")
+        if not rows and (len(fields) < columns if at_least else len(fields) != columns):
+            raise ValueError(f"{path}:{n}: expected {columns}{' or more' if at_least else ''} "
+                             f"numbers, got {len(fields)}")
+        row = []
+        for f in fields:
+            try:
+                row.append(float(f))
+            except ValueError:
+                raise ValueError(f"{path}:{n}: {f!r} is not a number") from None
+        if not np.all(np.isfinite(row)):
+            raise ValueError(f"{path}:{n}: non-finite number in {body!r}")
+        if int_first:
+            try:
+                stamps.append(int(fields[0]))
+            except ValueError:
+                raise ValueError(f"{path}:{n}: {fields[0]!r} is not an integer timestamp") from None
+        rows.append(row)
+        lines.append(n)
+    if not rows:
+        raise ValueError(f"{path}: no data rows")
+    return Table(np.array(rows, np.float64), np.array(lines, np.int64),
+                 np.array(stamps, np.int64) if int_first else None)
+
+
 def read_kitti_poses(path: Path) -> np.ndarray:
-    """[T, 4, 4] camera-to-world ground-truth poses."""
-    data = np.loadtxt(path, ndmin=2)
-    if data.shape[1] != 12:
-        raise ValueError(f"{path}: expected 12 numbers per line, got {data.shape[1]}")
+    """[T, 4, 4] camera-to-world ground-truth poses (line i: frame i)."""
+    data = read_table(path, 12).data
     out = np.tile(np.eye(4), (len(data), 1, 1))
     out[:, :3, :] = data.reshape(-1, 3, 4)
     return out
@@ -92,28 +145,82 @@ def _sequence_dir(root: Path, sequence: str | None) -> Path:
     return path
 
 
+def _numbered_images(folder: Path) -> list[tuple[int, Path]]:
+    """(frame number, path) of the ``NNNNNN.png`` images in a folder, by frame number."""
+    out = []
+    for path in folder.glob("*.png"):
+        if not (path.stem.isascii() and path.stem.isdigit()):
+            raise ImageError(f"{path}: file name is not a frame number (expected NNNNNN.png)")
+        out.append((int(path.stem), path))
+    out.sort()
+    for (a, pa), (b, pb) in zip(out, out[1:]):
+        if a == b:
+            raise ImageError(f"{pb}: same frame number as {pa.name}")
+    return out
+
+
+def _check_frames(seq: Path, max_frames: int | None) -> list[Path]:
+    """The left images to process: consecutive frame numbers (image_1 may not hold frames that
+    image_0 lacks). ImageError naming the first missing file."""
+    left_dir = seq / "image_0"
+    found = _numbered_images(left_dir)
+    if not found:
+        raise FileNotFoundError(f"{left_dir}: no .png images")
+    if max_frames is not None and max_frames < 1:
+        raise ValueError(f"max_frames must be at least 1, got {max_frames}")
+    used = found if max_frames is None else found[:max_frames]
+    first, width = used[0][0], len(used[0][1].stem)
+    for i, (k, _) in enumerate(used):
+        if k != first + i:
+            raise ImageError(f"{left_dir / f'{first + i:0{width}d}.png'}: missing "
+                             "(frames must be consecutive)")
+    last = used[-1][0] if len(used) < len(found) else None
+    have = {k for k, _ in used}
+    for k, right in _numbered_images(seq / "image_1"):
+        if k not in have and (last is None or k <= last):
+            raise ImageError(f"{left_dir / right.name}: missing (image_1 has it; frames must be "
+                             "consecutive)")
+    return [p for _, p in used]
+
+
 def kitti_frontend(root: str | Path, params: KittiParams = KittiParams()) -> FrontEndResult:
-    """Run the stereo front-end over a KITTI odometry sequence; returns Run, summary and poses."""
+    """Run the stereo front-end over a KITTI odometry sequence; returns Run, summary and poses.
+
+    Frame numbers come from the image names (``NNNNNN.png``, consecutive); frame k takes line k of
+    times.txt and of the poses file. Missing or out-of-order rows are named errors.
+    """
     root = Path(root)
     seq = _sequence_dir(root, params.sequence)
-    lefts = sorted((seq / "image_0").glob("*.png"))
-    if not lefts:
-        raise FileNotFoundError(f"{seq / 'image_0'}: no .png images")
-    if params.max_frames is not None:
-        lefts = lefts[:params.max_frames]
+    lefts = _check_frames(seq, params.max_frames)
+    frames = np.array([int(p.stem) for p in lefts])
+    n = len(lefts)
+    times_file = seq / "times.txt"
+    if times_file.is_file():
+        table = read_table(times_file, 1)
+        if len(table.data) <= frames[-1]:
+            raise ValueError(f"{times_file}: {len(table.data)} times for frames up to "
+                             f"{lefts[-1].name} (one line per frame from frame 0)")
+        times, lines = table.data[frames, 0], table.lines[frames]
+        back = np.flatnonzero(np.diff(times) <= 0)
+        if back.size:
+            i = int(back[0]) + 1
+            raise ValueError(f"{times_file}:{lines[i]}: time {times[i]} of frame {lefts[i].name} "
+                             f"is not after {times[i - 1]} (times must increase)")
+    else:
+        times = np.arange(n) * params.frame_period
+    pose_file = root / "poses" / f"{seq.name}.txt"
+    cams = None
+    if pose_file.is_file():
+        cams = read_kitti_poses(pose_file)
+        if len(cams) <= frames[-1]:
+            raise ValueError(f"{pose_file}: {len(cams)} poses for frames up to {lefts[-1].name} "
+                             "(one line per frame from frame 0)")
+        cams = cams[frames]
     first = read_image(lefts[0])
     rig = read_kitti_calib(seq / "calib.txt", (first.shape[1], first.shape[0]))
     t_robot_cam = make_transform(CAM_TO_ROBOT_AXES, [0.0, 0.0, params.camera_height])
-    n = len(lefts)
-    times_file = seq / "times.txt"
-    times = (np.loadtxt(times_file, ndmin=1)[:n] if times_file.is_file()
-             else np.arange(n) * params.frame_period)
     gt = None
-    pose_file = root / "poses" / f"{seq.name}.txt"
-    if pose_file.is_file():
-        cams = read_kitti_poses(pose_file)[:n]
-        if len(cams) != n:
-            raise ValueError(f"{pose_file}: {len(cams)} poses for {n} frames")
+    if cams is not None:
         rel = invert(cams[0])  # world = robot frame at frame 0
         gt = np.stack([pose_to_2d(t_robot_cam @ rel @ c @ invert(t_robot_cam)) for c in cams])
 

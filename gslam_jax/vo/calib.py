@@ -13,14 +13,16 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from gslam_jax.errors import InputError
+
 __all__ = ["CalibrationError", "RectifiedRig", "ImageError"]
 
 
-class CalibrationError(ValueError):
+class CalibrationError(InputError):
     """A calibration is missing a field or has an unusable value; the message names both."""
 
 
-class ImageError(ValueError):
+class ImageError(InputError):
     """An image is missing, unreadable or of the wrong size; the message names the file/frame."""
 
 
@@ -65,22 +67,43 @@ class RectifiedRig:
 
     @classmethod
     def from_raw(cls, k0: np.ndarray, d0: np.ndarray, k1: np.ndarray, d1: np.ndarray,
-                 r_10: np.ndarray, t_10: np.ndarray, size: tuple[int, int]) -> "RectifiedRig":
+                 r_10: np.ndarray, t_10: np.ndarray, size: tuple[int, int],
+                 source: str = "<calibration>") -> "RectifiedRig":
         """From raw intrinsics/distortion and the pose of camera 0 in camera 1 (X_1 = R X_0 + t).
 
         Uses ``cv2.stereoRectify`` with alpha=0 (only valid pixels) and builds remap tables.
+        CalibrationError (naming ``source``) for non-finite input, a non-positive focal length or
+        image size, or a rig whose camera 1 is not to the right of camera 0 (baseline <= 0).
         """
+        arrays = {"k0": k0, "d0": d0, "k1": k1, "d1": d1, "R": r_10, "t": t_10}
+        for name, a in arrays.items():
+            if not np.all(np.isfinite(np.asarray(a, float))):
+                raise CalibrationError(f"{source}: {name} has a non-finite entry")
+        for name, k in (("k0", k0), ("k1", k1)):
+            k = np.asarray(k, float)
+            if not (k[0, 0] > 0 and k[1, 1] > 0):
+                raise CalibrationError(f"{source}: {name}: focal lengths must be positive, "
+                                       f"got fx={k[0, 0]}, fy={k[1, 1]}")
+        if not (int(size[0]) > 0 and int(size[1]) > 0):
+            raise CalibrationError(f"{source}: image size must be positive, got {size}")
         size = (int(size[0]), int(size[1]))
         r0, r1, p0, p1, _, _, _ = cv2.stereoRectify(
             np.asarray(k0, float), np.asarray(d0, float), np.asarray(k1, float),
             np.asarray(d1, float), size, np.asarray(r_10, float),
             np.asarray(t_10, float).reshape(3, 1),
             flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
+        fx = p0[0, 0]
+        if not (np.isfinite(fx) and fx > 0):
+            raise CalibrationError(f"{source}: rectified focal length must be finite and "
+                                   f"positive, got {fx}")
+        baseline = float(-p1[0, 3] / fx)
+        if not baseline > 0:
+            raise CalibrationError(f"{source}: baseline must be positive, got {baseline:.4f} m "
+                                   "(cam1 must be to the right of cam0; are they swapped?)")
         maps = (*cv2.initUndistortRectifyMap(k0, d0, r0, p0, size, cv2.CV_32FC1),
                 *cv2.initUndistortRectifyMap(k1, d1, r1, p1, size, cv2.CV_32FC1))
-        fx = p0[0, 0]
         return cls(fx=fx, fy=p0[1, 1], cx=p0[0, 2], cy=p0[1, 2],
-                   baseline=float(-p1[0, 3] / fx), size=size, r_left=r0, maps=maps)
+                   baseline=baseline, size=size, r_left=r0, maps=maps)
 
     def rectify(self, left: np.ndarray, right: np.ndarray,
                 frame: str = "") -> tuple[np.ndarray, np.ndarray]:
