@@ -7,8 +7,10 @@ Every particle carries a pose and a dense variance grid map stored as (k, S) arr
 * ``update`` at frames that carry a local map: for each particle, every local cell's centre is
   rotated and translated into its global map (``observation_cells``); the log-gamma importance
   factors of the observed cells against the map cells under them (eq. 26) and their tempered
-  combination (eq. 30 or 31) are one fused computation over the L x L local cells; the local
-  map is then scatter-added into the map (the conjugate update, eq. 14); the weights are
+  combination (eq. 30 or 31) are one fused computation over the local map's M observed cells
+  (``compact_observation``), in blocks of particles sized for the cache on a CPU
+  (``FilterConfig.update_block``); the local map is then scatter-added into each particle's
+  map (the conjugate update, eq. 14); the weights are
   multiplied (eq. 27) and normalised; the particles are resampled when the ESS (eq. 23) drops
   below ``resample_ratio * J``.
 
@@ -638,6 +640,8 @@ def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Arr
     keys [T], controls [T, 3], obs_index [T] (index into local_obs or -1), local_obs
     [M, L, L, 2] observations (k, S) from ``cells.obs_from_stats`` with M >= 1.
     Returns the final state and per-frame (StepInfo, best pose, weighted-mean pose).
+    ``state`` is donated: the maps are updated in its buffers, so do not use it afterwards
+    (pass ``jax.tree.map(jnp.copy, state)`` to keep it).
     """
 
     def frame(state, xs):

@@ -147,8 +147,12 @@ def build_local_maps(vo_poses: np.ndarray, frames: Iterable[np.ndarray],
     builder = LocalMapBuilder(params)
     obs_index, maps = [], []
     it: Iterator[np.ndarray] = iter(frames)
-    for t, pose in enumerate(np.asarray(vo_poses)):
-        points = next(it)
+    poses = np.asarray(vo_poses)
+    end = object()
+    for t, pose in enumerate(poses):
+        points = next(it, end)
+        if points is end:
+            raise ValueError(f"build_local_maps: {len(poses)} poses but only {t} point frames")
         stats = builder.add(pose, points)
         if t == 0 and stats is None:
             stats = builder.flush()
@@ -157,6 +161,8 @@ def build_local_maps(vo_poses: np.ndarray, frames: Iterable[np.ndarray],
             maps.append(stats)
         else:
             obs_index.append(-1)
+    if next(it, end) is not end:
+        raise ValueError(f"build_local_maps: more point frames than the {len(poses)} poses")
     L = params.size
     local_maps = np.stack(maps) if maps else np.zeros((0, L, L, 3))
     return np.asarray(obs_index, dtype=np.int32), local_maps, builder.dropped_points

@@ -84,3 +84,13 @@ def test_odometry_matches_the_full_simulation() -> None:
     run, _ = simulate_run("maze", 4, LocalMapParams(max_range=4.0), max_frames=60)
     np.testing.assert_array_equal(odo.controls, run.controls)
     np.testing.assert_array_equal(odo.vo_draw.vo_failed, run.vo_failed)
+
+
+def test_a_truncated_course_is_a_prefix_of_the_full_one() -> None:
+    """max_frames cuts the drawn noise, it does not redraw it: a quick run of N frames sees the
+    same VO as the first N frames of the full run with the same seed."""
+    short, full = simulate_odometry("maze", 3, max_frames=200), simulate_odometry("maze", 3)
+    np.testing.assert_array_equal(short.controls, full.controls[:200])
+    np.testing.assert_array_equal(short.vo_draw.vo_failed, full.vo_draw.vo_failed[:200])
+    np.testing.assert_array_equal(short.vo_draw.scale_bias, full.vo_draw.scale_bias[:200])
+    np.testing.assert_array_equal(short.trajectory.poses, full.trajectory.poses[:200])

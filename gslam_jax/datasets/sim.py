@@ -10,7 +10,7 @@ reproducible, and e.g. changing the sensor does not change the world or the VO n
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable, Iterator, NamedTuple
 
 import numpy as np
@@ -110,10 +110,15 @@ def simulate_odometry(course: str, seed: int = 0, *, drive_params: DriveParams |
     noise = vo_noise or VO_PROFILES[course]
     crs = make_course(course, seed)
     traj = drive(crs, drive_params)
-    if max_frames is not None and max_frames < traj.num_frames:
-        traj = Trajectory(traj.timestamps[:max_frames], traj.poses[:max_frames],
-                          traj.s[:max_frames], traj.survey_frames[traj.survey_frames < max_frames])
+    # Noise is drawn for the whole course, then cut: a truncated run is a prefix of the full one.
     controls, draw = apply_vo_noise(true_increments(traj.poses), noise, _stream(seed, 1))
+    if max_frames is not None and max_frames < traj.num_frames:
+        n = max_frames
+        traj = Trajectory(traj.timestamps[:n], traj.poses[:n], traj.s[:n],
+                          traj.survey_frames[traj.survey_frames < n])
+        controls = controls[:n]
+        draw = replace(draw, scale_bias=draw.scale_bias[:n],
+                                   heading_bias=draw.heading_bias[:n], vo_failed=draw.vo_failed[:n])
     return Odometry(crs, traj, controls, draw, noise)
 
 
