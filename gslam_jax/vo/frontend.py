@@ -8,6 +8,7 @@ gravity-aligned robot frame, streamed into local maps. Bad frames either raise (
 
 from __future__ import annotations
 
+import warnings
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
@@ -29,6 +30,10 @@ PairLoader = Callable[[int], tuple[np.ndarray, np.ndarray]]
 ExtraPairs = Callable[[int], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]
 """``extra(t)`` -> [(left, right, t_robot_cam)]: more rectified pairs (same rig) seen at frame t,
 used for dense points only (e.g. the second pair of a two-pair robot)."""
+
+# run_frontend warns when the dense search range misses surfaces nearer than this (metres):
+# SGBM then matches them wrongly as far points (KITTI at 64 disparities: nearest 5.9 m).
+NEAREST_DENSE_DEPTH = 3.0
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,12 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
     if params.on_bad_frame not in ("error", "fallback"):
         raise ValueError(f"on_bad_frame must be 'error' or 'fallback', got {params.on_bad_frame!r}")
     cam = Camera(rig.fx, rig.fy, rig.cx, rig.cy, rig.baseline)
+    nearest = rig.fx * rig.baseline / max(params.stereo.num_disparities, 1)
+    if params.dense and nearest > NEAREST_DENSE_DEPTH:
+        warnings.warn(f"{source}: dense stereo with {params.stereo.num_disparities} disparities "
+                      f"covers depths from {nearest:.1f} m (fx * baseline = "
+                      f"{rig.fx * rig.baseline:.0f} px m); nearer surfaces will be matched as "
+                      "far points: raise stereo.num_disparities", stacklevel=2)
     vo = StereoVO(cam, params.vo)
     matcher = params.stereo.matcher() if params.dense else None
     builder = LocalMapBuilder(params.local_map)
