@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import dataclasses
 import json
+import math
 import sys
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator, NamedTuple
 
 import numpy as np
 
@@ -19,15 +22,26 @@ __all__ = ["main"]
 
 
 class ProgressBar:
-    """A one-line console progress bar (stderr), quiet when stderr is not a terminal."""
+    """A one-line console progress bar on stderr; when stderr is not a terminal (a log file, a
+    pipe) only one final line is written."""
 
-    def __init__(self, label: str, stream=sys.stderr):
-        self.label, self.stream = label, stream
+    def __init__(self, label: str, stream=None):
+        self.label = label
+        self.stream = sys.stderr if stream is None else stream
+        isatty = getattr(self.stream, "isatty", None)
+        self.tty = bool(isatty()) if callable(isatty) else False
         self.start = time.perf_counter()
         self.last = -1.0
+        self.finished = False
 
     def __call__(self, done: int, total: int) -> None:
         now = time.perf_counter()
+        if not self.tty:
+            if done >= total and not self.finished:
+                self.finished = True
+                self.stream.write(f"{self.label}: {done}/{total} in {now - self.start:.1f}s\n")
+                self.stream.flush()
+            return
         if done < total and now - self.last < 0.2:
             return
         self.last = now
@@ -37,6 +51,48 @@ class ProgressBar:
         self.stream.write(f"\r{self.label} [{bar:<30}] {done}/{total} "
                           f"{now - self.start:6.1f}s{end}")
         self.stream.flush()
+
+
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (else a usage error)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _check_source_arguments(args: argparse.Namespace) -> None:
+    """Reject source options that would be silently ignored (ConfigError naming them)."""
+    if args.run_file is not None:
+        extra = [opt for opt, given in (("--source", args.source != "sim"),
+                                        ("--path", args.path is not None),
+                                        ("--sequence", args.sequence is not None),
+                                        ("--max-frames", args.max_frames is not None)) if given]
+        if extra:
+            raise ConfigError(f"{args.run_file}: a Run file is used as it is; {', '.join(extra)} "
+                              "only apply without one (drop them, or re-create the Run with "
+                              "--save-run)")
+        return
+    if args.path is not None and args.source not in ("kitti", "euroc"):
+        raise ConfigError(f"--path is for --source kitti/euroc, not --source {args.source}")
+    if args.sequence is not None and args.source != "kitti":
+        raise ConfigError(f"--sequence is for --source kitti, not --source {args.source}")
+
+
+def _kitti_sequence(root: Path, sequence: str | None) -> str | None:
+    """--sequence, or the only folder under ROOT/sequences; several without --sequence is a
+    ConfigError listing them (kitti_frontend reports a missing folder)."""
+    seqs = root / "sequences"
+    if sequence is not None or not seqs.is_dir():
+        return sequence
+    found = sorted(p.name for p in seqs.iterdir() if p.is_dir())
+    if len(found) > 1:
+        raise ConfigError(f"{seqs}: holds sequences {', '.join(found)}; choose one with "
+                          "--sequence NN")
+    return sequence
 
 
 def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int], None]):
@@ -62,16 +118,20 @@ def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int]
         raise ConfigError(f"--source {args.source} needs --path DATASET_FOLDER")
     if args.source == "kitti":
         from gslam_jax.datasets.kitti import KittiParams, kitti_frontend
-        from gslam_jax.vo.frontend import FrontEndParams
-        fe = kitti_frontend(args.path, KittiParams(frontend=FrontEndParams(
-            local_map=params, on_bad_frame=args.on_bad_frame)))
+        sequence = _kitti_sequence(Path(args.path), args.sequence)
+        fe = kitti_frontend(args.path, KittiParams(  # KITTI's own front-end defaults, with:
+            sequence=sequence, max_frames=args.max_frames,
+            frontend=dataclasses.replace(KittiParams().frontend, local_map=params,
+                                         on_bad_frame=args.on_bad_frame)))
         print(fe.summary.text())
-        return fe.run, f"KITTI {args.path}", None
+        where = f"{args.path} sequence {sequence}" if sequence is not None else str(args.path)
+        return fe.run, f"KITTI {where}", None
     if args.source == "euroc":
         from gslam_jax.datasets.euroc import EurocParams, euroc_frontend
         from gslam_jax.vo.frontend import FrontEndParams
-        fe = euroc_frontend(args.path, EurocParams(frontend=FrontEndParams(
-            local_map=params, on_bad_frame=args.on_bad_frame)))
+        fe = euroc_frontend(args.path, EurocParams(
+            max_frames=args.max_frames,
+            frontend=FrontEndParams(local_map=params, on_bad_frame=args.on_bad_frame)))
         print(fe.summary.text())
         return fe.run, f"EuRoC {args.path}", None
     raise SystemExit(f"unknown source {args.source!r}")
@@ -89,21 +149,139 @@ def _load_config(args: argparse.Namespace):
     return apply_overrides(config, args.set or [])
 
 
+@contextlib.contextmanager
+def _results_dir(out: Path | None, kind: str) -> Iterator[Path]:
+    """Create the results directory before any work (ConfigError naming it when it cannot be);
+    the folders created here are removed again if the command fails before writing into them."""
+    path = Path(out) if out else Path("results") / time.strftime(f"{kind}-%Y%m%d-%H%M%S")
+    name = f"--out {path}" if out else f"results directory {path}"
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{name}: exists and is not a directory")
+    new = [p for p in (path, *path.parents) if not p.exists()]  # deepest first
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ConfigError(f"{name}: cannot create the directory ({err})") from err
+    try:
+        yield path
+    except BaseException:
+        for folder in new:
+            if not folder.is_dir() or any(folder.iterdir()):
+                break
+            folder.rmdir()
+        raise
+
+
+def _json_ready(value):
+    """``value`` with NumPy scalars as Python numbers and NaN/inf as None (valid JSON)."""
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _write_json(path: Path, data: dict) -> None:
+    path.write_text(json.dumps(_json_ready(data), indent=2, allow_nan=False))
+
+
+class _GpsInput(NamedTuple):
+    """The readings of ``--gps``, checked against the run before the filter: name (file or
+    "simulated GPS"), the GpsLog, true positions (simulated only) and the mask of readings
+    inside the run's time span."""
+
+    name: str
+    log: object
+    truth_xy: np.ndarray | None
+    inside: np.ndarray
+
+
+def _read_gps(args: argparse.Namespace):
+    """The --gps log file (GpsLogError naming the file and line), or None for none or 'sim'."""
+    if args.gps is None or str(args.gps) == "sim":
+        return None
+    from gslam_jax import gps
+    return gps.read_gps_log(args.gps)
+
+
+def _check_gps(args: argparse.Namespace, run, log) -> _GpsInput | None:
+    """Simulate (--gps sim) or take the read log, and check that at least 2 readings, and
+    preferably half of them, fall inside the run's time span (GPS times are on the run's clock)."""
+    from gslam_jax import gps
+    from gslam_jax.gps import GpsLogError
+
+    if args.gps is None:
+        return None
+    truth_xy = None
+    if log is None:
+        if run.ground_truth is None:
+            raise ConfigError("--gps sim needs a run with ground truth")
+        from gslam_jax.gps_sim import GpsSimConfig, simulate_gps
+        gt = np.asarray(run.ground_truth, np.float64)
+        known = np.isfinite(gt[:, :2]).all(axis=1)
+        if known.sum() < 2:
+            raise ConfigError("--gps sim needs ground truth at 2 frames or more")
+        sim = simulate_gps(np.random.default_rng(args.seed), gt[known],
+                           np.asarray(run.timestamps)[known], GpsSimConfig())
+        log, truth_xy, name = sim.log, sim.truth_xy, "simulated GPS"
+    else:
+        name = str(args.gps)
+    t = np.asarray(run.timestamps, np.float64)
+    inside = gps.readings_in_span(t, log.time)
+    n, n_in = len(log.time), int(inside.sum())
+    span = f"run [{t[0]:.3f}, {t[-1]:.3f}] s, log [{log.time[0]:.3f}, {log.time[-1]:.3f}] s"
+    if n_in < 2:
+        raise GpsLogError(f"{name}: {n_in} of {n} GPS readings fall inside the run's time span, "
+                          f"need at least 2 ({span}); GPS times must be seconds on the run's "
+                          "clock (Run.timestamps)")
+    if n_in < 0.5 * n:
+        print(f"WARNING: {name}: only {n_in} of {n} GPS readings fall inside the run's time span "
+              f"({span}); the others are not used")
+    return _GpsInput(name, log, truth_xy, inside)
+
+
+def _trajectory_errors(vo_path: np.ndarray, best_path: np.ndarray, gt: np.ndarray) -> dict:
+    """RMS after the rigid fit and final error (anchored at the first scored frame, which needs
+    a finite heading there) of the VO and Gamma-SLAM paths, over the frames whose ground-truth
+    position is finite (``gt_frames_scored``; no figures below 2)."""
+    from gslam_jax import metrics
+
+    gt = np.asarray(gt, np.float64)
+    frames = np.flatnonzero(np.isfinite(gt[:, :2]).all(axis=1))
+    out: dict = {"gt_frames_scored": int(frames.size)}
+    if frames.size < 2:
+        return out
+    every = frames.size == len(gt)  # then exactly the figures over all frames
+    for name, path in (("vo", vo_path), ("slam", best_path)):
+        path = np.asarray(path, np.float64)
+        out[f"{name}_rms_m"] = metrics.rms_after_fit(path, gt, None if every else frames)
+        if np.isfinite(gt[frames[0], 2]):
+            out[f"{name}_final_error_m"] = metrics.final_position_error(
+                path if every else path[frames], gt if every else gt[frames])
+    return out
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from gslam_jax import slam
     from gslam_jax.config import config_to_toml
     from gslam_jax.io import save_map, write_kitti, write_tum
 
+    _check_source_arguments(args)
     config = _load_config(args)
-    run, description, sim_info = _load_source(args, config, ProgressBar("front-end"))
-    if args.save_run:
-        from gslam_jax.run import save_run
-        save_run(args.save_run, run)
-    print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps, "
-          f"{run.distance():.1f} m")
-    result = slam.run_slam(run, config, progress=ProgressBar("gamma-slam"))
-    out = Path(args.out) if args.out else Path("results") / time.strftime("run-%Y%m%d-%H%M%S")
-    out.mkdir(parents=True, exist_ok=True)
+    with _results_dir(args.out, "run") as out:
+        gps_log = _read_gps(args)
+        run, description, sim_info = _load_source(args, config, ProgressBar("front-end"))
+        if args.save_run:
+            from gslam_jax.run import save_run
+            save_run(args.save_run, run)
+        gps_input = _check_gps(args, run, gps_log)
+        print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps, "
+              f"{run.distance():.1f} m")
+        result = slam.run_slam(run, config, progress=ProgressBar("gamma-slam"))
     (out / "config.toml").write_text(config_to_toml(config))
     if sim_info is not None:
         (out / "simulation.json").write_text(json.dumps(sim_info.summary(), indent=2, default=float))
@@ -128,32 +306,36 @@ def cmd_run(args: argparse.Namespace) -> int:
         "compile_seconds": result.compile_seconds,
     }
     if run.ground_truth is not None:
-        from gslam_jax import metrics
-        gt = np.asarray(run.ground_truth)
-        summary["vo_rms_m"] = metrics.rms_after_fit(result.vo_path, gt)
-        summary["slam_rms_m"] = metrics.rms_after_fit(result.best_path, gt)
-        summary["vo_final_error_m"] = metrics.final_position_error(result.vo_path, gt)
-        summary["slam_final_error_m"] = metrics.final_position_error(result.best_path, gt)
-    _write_figures(out, run, result, config.filter.particles)
-    if args.gps is not None:
-        summary["gps"] = _gps_outputs(out, args, run, result)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        summary.update(_trajectory_errors(result.vo_path, result.best_path, run.ground_truth))
+    _write_figures(out, run, result, config.filter.particles, config.filter.resample_ratio)
+    _write_json(out / "summary.json", summary)  # rewritten below with the GPS figures
     print(f"distance: {summary['distance_m']:.1f} m")
-    if "vo_rms_m" in summary:
-        print(f"VO-only RMS: {summary['vo_rms_m']:.3f} m")
-        print(f"Gamma-SLAM RMS: {summary['slam_rms_m']:.3f} m")
+    if run.ground_truth is not None:
+        scored = summary["gt_frames_scored"]
+        over = "" if scored == run.num_frames else \
+            f" (over the {scored} of {run.num_frames} frames with ground truth)"
+        if "vo_rms_m" in summary:
+            print(f"VO-only RMS: {summary['vo_rms_m']:.3f} m{over}")
+            print(f"Gamma-SLAM RMS: {summary['slam_rms_m']:.3f} m{over}")
+        else:
+            print(f"ground truth: only {scored} of {run.num_frames} frames have a finite pose; "
+                  "no RMS")
     print(f"resampling events: {summary['resampling_events']}, filter time "
           f"{result.seconds:.1f} s (+{result.compile_seconds:.1f} s first chunk incl. compile)")
     if result.extent_violations:
         print(f"WARNING: {result.extent_violations} particle updates reached the map edge")
     if result.empty_observations:
         print(f"note: {result.empty_observations} local maps had no informative cell (weights unchanged)")
+    if gps_input is not None:
+        summary["gps"] = _gps_outputs(out, gps_input, run, result)
+        _write_json(out / "summary.json", summary)
     print(f"results: {out}")
     return 0
 
 
-def _write_figures(out: Path, run, result, num_particles: int) -> None:
-    """Map PNGs (VO-only beside Gamma-SLAM, coloured by expected std) and the ESS plot."""
+def _write_figures(out: Path, run, result, num_particles: int, threshold: float = 0.5) -> None:
+    """Map PNGs (VO-only beside Gamma-SLAM, coloured by expected std) and the ESS plot with the
+    resampling threshold (``threshold`` J, filter.resample_ratio)."""
     from gslam_jax import cells, metrics, plots
 
     slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
@@ -164,24 +346,22 @@ def _write_figures(out: Path, run, result, num_particles: int) -> None:
     plots.save_map_comparison_png(out / "maps_vo_vs_slam.png", vo_std, vo_map.origin, slam_std,
                                   result.map_origin, result.resolution, vo_path=result.vo_path,
                                   slam_path=result.best_path)
-    plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled)
+    plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled,
+                       threshold=threshold)
 
 
-def _gps_outputs(out: Path, args: argparse.Namespace, run, result) -> dict:
+def _gps_outputs(out: Path, gps_input: _GpsInput, run, result) -> dict:
     """Align the best path to GPS (paper section 8, appendix) and write georeferenced outputs."""
     from gslam_jax import cells, gps
+    from gslam_jax.gps import GpsLogError
 
-    truth_xy = None
-    if str(args.gps) == "sim":
-        if run.ground_truth is None:
-            raise ConfigError("--gps sim needs a run with ground truth")
-        from gslam_jax.gps_sim import GpsSimConfig, simulate_gps
-        sim = simulate_gps(np.random.default_rng(args.seed), run.ground_truth, run.timestamps,
-                           GpsSimConfig())
-        log, truth_xy = sim.log, sim.truth_xy
-    else:
-        log = gps.read_gps_log(args.gps)
-    al, aligned = gps.align_to_gps(run.timestamps, result.best_path[:, :2], log.time, log.xy, log.epe)
+    log, truth_xy = gps_input.log, gps_input.truth_xy
+    try:
+        al, aligned = gps.align_to_gps(run.timestamps, result.best_path[:, :2], log.time, log.xy,
+                                       log.epe)
+    except ValueError as err:
+        raise GpsLogError(f"{gps_input.name}: {err} (the results without GPS are in "
+                          f"{out})") from err
     path_gps = np.asarray(gps.transform_poses(al, result.best_path), np.float64)
     path_gps[:, :2] += np.asarray(log.origin, np.float64)
     np.savetxt(out / "trajectory_utm.txt", np.column_stack([run.timestamps, path_gps]),
@@ -195,15 +375,26 @@ def _gps_outputs(out: Path, args: argparse.Namespace, run, result) -> dict:
                                 al.R, al.l, log.origin, cmap="inferno")
     np.savez(out / "gps_alignment.npz", R=np.asarray(al.R), l=np.asarray(al.l),
              site_origin=np.asarray(log.origin), zone=log.zone, epsg=log.epsg, map_corners_utm=corners)
-    report = {"readings": int(len(log.time)), "skipped": int(log.n_skipped), "epsg": log.epsg,
-              "map_corners_utm": corners.tolist()}
+    # Residuals of the fit at the readings it used, in metres (float64 host interpolation).
+    t0 = float(run.timestamps[0])
+    t, gt = np.asarray(run.timestamps, np.float64) - t0, np.asarray(log.time, np.float64) - t0
+    aligned = np.asarray(aligned, np.float64)
+    at_gps = np.stack([np.interp(gt, t, aligned[:, k]) for k in range(2)], -1)
+    used = gps_input.inside & np.isfinite(log.xy).all(axis=1)
+    resid = np.linalg.norm(at_gps[used] - log.xy[used], axis=1)
+    n, n_used, cost = int(len(log.time)), int(al.n_used), float(al.cost)
+    report = {"readings": n, "skipped": int(log.n_skipped),
+              "inside_run": int(gps_input.inside.sum()), "used": n_used,
+              "weighted_residual": cost, "residual_rms_m": float(np.sqrt(np.mean(resid ** 2))),
+              "epsg": log.epsg, "map_corners_utm": corners.tolist()}
+    skipped = f", {report['skipped']} skipped by the reader" if report["skipped"] else ""
+    print(f"GPS: {n_used} of {n} readings used ({n - report['inside_run']} outside the run's time "
+          f"span{skipped}); weighted residual {cost:.3g} ({cost / max(n_used, 1):.3g} per "
+          f"reading), residual RMS {report['residual_rms_m']:.2f} m")
     if truth_xy is not None:
-        slam_at_gps, inside = gps.interpolate_path(run.timestamps - run.timestamps[0],
-                                                   np.asarray(gps.transform_points(al, result.best_path[:, :2])),
-                                                   log.time - run.timestamps[0])
-        inside = np.asarray(inside)
-        err_slam = np.linalg.norm(np.asarray(slam_at_gps)[inside] - truth_xy[inside], axis=1)
-        err_gps = np.linalg.norm(log.xy[inside] - truth_xy[inside], axis=1)
+        ok = used & np.isfinite(truth_xy).all(axis=1)
+        err_slam = np.linalg.norm(at_gps[ok] - truth_xy[ok], axis=1)
+        err_gps = np.linalg.norm(log.xy[ok] - truth_xy[ok], axis=1)
         report["raw_gps_rms_m"] = float(np.sqrt(np.mean(err_gps ** 2)))
         report["aligned_slam_rms_m"] = float(np.sqrt(np.mean(err_slam ** 2)))
         print(f"GPS: raw RMS {report['raw_gps_rms_m']:.2f} m, aligned Gamma-SLAM RMS in the GPS "
@@ -212,6 +403,7 @@ def _gps_outputs(out: Path, args: argparse.Namespace, run, result) -> dict:
 
 
 def _config_and_run(args: argparse.Namespace):
+    _check_source_arguments(args)
     config = _load_config(args)
     run, description, _ = _load_source(args, config, ProgressBar("front-end"))
     print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps")
@@ -223,18 +415,17 @@ def cmd_search(args: argparse.Namespace) -> int:
 
     try:
         space, options = load_space(args.space)
-        config, run = _config_and_run(args)
-        result = search(run, config, space,
-                        design=args.design or options.get("design", "halton"),
-                        n=args.n or options.get("n", 64),
-                        objective=args.objective or options.get("objective", "rms"),
-                        path=args.score_path or options.get("path", "mean"),
-                        seed=options.get("seed", 0), batch=args.batch,
-                        progress=ProgressBar("search"))
+        with _results_dir(args.out, "search") as out:
+            config, run = _config_and_run(args)
+            result = search(run, config, space,
+                            design=args.design or options.get("design", "halton"),
+                            n=args.n or options.get("n", 64),
+                            objective=args.objective or options.get("objective", "rms"),
+                            path=args.score_path or options.get("path", "mean"),
+                            seed=options.get("seed", 0), batch=args.batch,
+                            progress=ProgressBar("search"))
     except SearchError as err:
         raise ConfigError(str(err)) from err
-    out = Path(args.out) if args.out else Path("results") / time.strftime("search-%Y%m%d-%H%M%S")
-    out.mkdir(parents=True, exist_ok=True)
     result.to_csv(out / "results.csv")
     result.to_json(out / "results.json")
     print(f"best: {result.best()}")
@@ -246,16 +437,17 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from gslam_jax.tuning import TuneError, tune
 
     try:
-        config, run = _config_and_run(args)
         names = args.params.split(",") if args.params else None
-        result = tune(run, config, objective=args.objective, optimizer=args.optimizer, lr=args.lr,
-                      steps=args.steps, names=names, runs_per_step=args.runs_per_step,
-                      crn=args.crn, progress=ProgressBar("tune"))
+        with _results_dir(args.out, "tune") if args.out else contextlib.nullcontext():
+            config, run = _config_and_run(args)
+            result = tune(run, config, objective=args.objective, optimizer=args.optimizer,
+                          lr=args.lr, steps=args.steps, names=names,
+                          runs_per_step=args.runs_per_step, crn=args.crn,
+                          progress=ProgressBar("tune"))
     except TuneError as err:
         raise ConfigError(str(err)) from err
     print("tuned: " + ", ".join(f"{k} = {v:.5g}" for k, v in result.values.items()))
     if args.out:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
         (Path(args.out) / "tuned.json").write_text(json.dumps({
             "objective": result.objective, "values": result.values,
             "history": np.asarray(result.history).tolist(),
@@ -282,12 +474,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
             raise SystemExit("--exact must be set before JAX is imported")
         # No fused multiply-adds in XLA, so float32 rounding matches NumPy's step for step.
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_max_isa=AVX").strip()
-    from gslam_jax.config import load_config
     from gslam_jax.run import load_run
+    from gslam_jax.table1 import load_table_config
     from gslam_jax.tiled.compare import compare
 
+    # A Table I config works too: its shared settings are used, its [course.*] tables are not.
+    config, per_course = load_table_config(args.config)
+    if per_course:
+        print(f"note: {args.config}: compare uses the shared settings; the [course.<name>.*] "
+              f"tables ({', '.join(per_course)}) are not applied")
     run = load_run(args.run_file) if args.run_file else None
-    result = compare(run, load_config(args.config), particles=args.particles,
+    result = compare(run, config, particles=args.particles,
                      unknown_cells=args.unknown_cells, tile_size=args.tile_size, seed=args.seed,
                      out_dir=args.out)
     return 0 if result.get("agreement", {}).get("ok", True) else 1
@@ -300,10 +497,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run Gamma-SLAM on a Run file, a simulated course or a dataset")
     _add_source_arguments(p)
-    p.add_argument("--gps", help="GPS log (time, lat, lon, epe) to align the result to, or 'sim' "
-                   "for a simulated WAAS-like receiver on a simulated course")
+    p.add_argument("--gps", help="GPS log (time, lat, lon, epe) to align the result to, read and "
+                   "checked before the run; times are seconds on the run's clock (Run.timestamps: "
+                   "EuRoC runs start at 0 at the first image, KITTI runs use times.txt). Readings "
+                   "outside the run's time span are not used: at least 2 must fall inside it, "
+                   "with a warning when fewer than half do. Or 'sim' for a simulated WAAS-like "
+                   "receiver on a run with ground truth")
     p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as .npz")
-    p.add_argument("--out", type=Path, help="results directory (default results/run-<time>)")
+    p.add_argument("--out", type=Path, help="results directory, created before the run "
+                   "(default results/run-<time>)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("search", help="batched parameter search (vmapped/sharded over sets)")
@@ -341,8 +543,11 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--course", default="mars-yard-a", choices=COURSES, metavar="COURSE",
                    help=f"simulated course: {', '.join(COURSES)} (default mars-yard-a)")
     p.add_argument("--path", type=Path, help="dataset folder for --source kitti/euroc")
+    p.add_argument("--sequence", metavar="NN", help="KITTI sequence: the folder under "
+                   "PATH/sequences (e.g. 00); needed when there are several")
     p.add_argument("--seed", type=int, default=0, help="simulation seed")
-    p.add_argument("--max-frames", type=int, help="simulate only the first N frames of the course")
+    p.add_argument("--max-frames", type=_positive_int, metavar="N",
+                   help="use only the first N frames of the source (not with a Run file)")
     p.add_argument("--on-bad-frame", choices=["error", "fallback"], default="error",
                    help="a missing/corrupt image stops the run (error) or is counted and bridged "
                    "by the fallback odometry")
@@ -373,15 +578,18 @@ def _build_rest(sub) -> None:
     p = sub.add_parser("table1", help="the paper's Table I on the five simulated courses")
     p.add_argument("--courses", nargs="+", default=list(COURSES), choices=COURSES, metavar="COURSE")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--particles", type=int, default=200)
-    p.add_argument("--config", type=Path)
+    p.add_argument("--particles", type=_positive_int, metavar="J",
+                   help="particles (default: the config's filter.particles, per course; 200 if "
+                   "the config does not set it)")
+    p.add_argument("--config", type=Path, help="TOML config, may hold [course.<name>.*] tables")
     p.add_argument("--json", type=Path)
     p.add_argument("--quick", action="store_true", help="Mars Yard A, one seed, J <= 100")
     p.set_defaults(func=cmd_table1)
 
     p = sub.add_parser("compare", help="dense JAX filter vs the tiled copy-on-write reference")
     p.add_argument("run_file", nargs="?", type=Path, help="Run file (default: a simulated course)")
-    p.add_argument("--config", type=Path)
+    p.add_argument("--config", type=Path, help="TOML config (a Table I config's [course.*] tables "
+                   "are not applied)")
     p.add_argument("--particles", type=int, default=200)
     p.add_argument("--unknown-cells", choices=["ignore", "sample"])
     p.add_argument("--tile-size", type=float, help="tile side, metres (default 10)")

@@ -7,8 +7,13 @@ names the file, field or frame at fault. Light on purpose: no JAX, no OpenCV.
 
 from __future__ import annotations
 
-__all__ = ["InputError"]
+__all__ = ["InputError", "DatasetError"]
 
 
 class InputError(ValueError):
     """Bad input from the user: the message says what and where."""
+
+
+class DatasetError(InputError):
+    """A dataset's file (frame list, times, poses, IMU or ground-truth log) is unusable; the
+    message names the file and, where known, the line or frame."""

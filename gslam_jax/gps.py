@@ -32,7 +32,7 @@ __all__ = [
     "online_solve", "transform_points", "transform_poses", "interpolate_path",
     "GpsLog", "GpsLogError", "read_gps_log", "write_gps_log", "latlon_to_utm", "utm_to_latlon",
     "utm_zone", "utm_epsg", "transverse_mercator", "WGS84",
-    "align_to_gps", "map_corners", "world_file_params", "write_world_file",
+    "align_to_gps", "readings_in_span", "map_corners", "world_file_params", "write_world_file",
     "write_georeferenced_png",
 ]
 
@@ -481,8 +481,10 @@ def align_to_gps(slam_times: ArrayLike, paths: ArrayLike, gps_time: ArrayLike,
                  gps_xy: ArrayLike, gps_epe: ArrayLike) -> tuple[Alignment, Array]:
     """Align SLAM paths [T,2] or [J,T,2] (times [T], same clock as the GPS) to GPS readings in
     the site frame; paths are interpolated at the GPS times and readings outside the SLAM time
-    span are masked. Returns (Alignment, aligned paths) like ``align_particles``; raises
-    ValueError if fewer than two readings are usable or the path does not move."""
+    span (``readings_in_span``) are masked. Returns (Alignment, aligned paths) like
+    ``align_particles``: ``Alignment.n_used`` counts the readings in the fit and ``cost`` is its
+    weighted residual. Raises ValueError if fewer than two readings are usable or the path does
+    not move."""
     paths = jnp.asarray(paths, jnp.float32)
     single = paths.ndim == 2
     paths = paths[None] if single else paths
@@ -503,6 +505,14 @@ def align_to_gps(slam_times: ArrayLike, paths: ArrayLike, gps_time: ArrayLike,
     if single:
         return jax.tree.map(lambda x: x[0], al), aligned[0]
     return al, aligned
+
+
+def readings_in_span(slam_times: ArrayLike, gps_time: ArrayLike) -> np.ndarray:
+    """Mask [N] of the GPS readings whose times lie in the SLAM time span [t_0, t_{T-1}] (same
+    clock): the readings ``align_to_gps`` can use. NumPy float64, no JAX work."""
+    st = np.asarray(slam_times, np.float64)
+    gt = np.asarray(gps_time, np.float64)
+    return (gt >= st[0]) & (gt <= st[-1])
 
 
 @jax.jit

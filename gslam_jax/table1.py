@@ -72,26 +72,35 @@ def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
             "sim_seconds": sim_s, "filter_seconds": res.seconds + res.compile_seconds}
 
 
-def main(courses: list[str], seeds: list[int], particles: int, config_path: Path | None = None,
-         json_path: Path | None = None, quick: bool = False) -> int:
+def main(courses: list[str], seeds: list[int], particles: int | None = None,
+         config_path: Path | None = None, json_path: Path | None = None,
+         quick: bool = False) -> int:
+    """Run and print Table I; ``particles`` None takes each course's filter.particles from the
+    config (200 where it does not set it); ``quick``: Mars Yard A, one seed, J <= 100."""
     from gslam_jax.bench import environment
 
     shared, per_course = load_table_config(config_path)
     if quick:
-        courses, seeds, particles = ["mars-yard-a"], [0], min(particles, 100)
+        courses, seeds = ["mars-yard-a"], [0]
 
     def course_config(course: str) -> Config:
         c = per_course.get(course, shared)
-        return dataclasses.replace(c, filter=dataclasses.replace(c.filter, particles=particles))
+        j = c.filter.particles if particles is None else particles
+        j = min(j, 100) if quick else j
+        return dataclasses.replace(c, filter=dataclasses.replace(c.filter, particles=j))
 
+    used = sorted({course_config(c).filter.particles for c in courses})
+    particles_text = ", ".join(map(str, used))
     env = environment()
-    print(f"Table I on simulated courses, J = {particles}, seeds {seeds}")
+    print(f"Table I on simulated courses, J = {particles_text}, seeds {seeds}")
     print("  " + ", ".join(f"{k}: {env[k]}" for k in ("date", "processor", "cpus", "jax", "numpy")))
     rows = []
     for course in courses:
         for seed in seeds:
-            r = run_course(course, seed, course_config(course))
-            r["config"] = config_to_toml(course_config(course))
+            config = course_config(course)
+            r = run_course(course, seed, config)
+            r["particles"] = config.filter.particles
+            r["config"] = config_to_toml(config)
             rows.append(r)
             print(f"  {course:<12} seed {seed}: {r['distance_m']:6.1f} m  VO {r['vo_rms_m']:.3f} m  "
                   f"Gamma-SLAM {r['slam_rms_m']:.3f} m  ({r['filter_seconds']:.0f} s)", flush=True)
@@ -106,6 +115,7 @@ def main(courses: list[str], seeds: list[int], particles: int, config_path: Path
               f"{sl.mean():10.3f} {sl.max():11.3f} {np.max(sl / vo):6.2f} | "
               f"{paper[0]:>12} {paper[1]:5.2f} {paper[2]:5.2f}")
     if json_path:
-        Path(json_path).write_text(json.dumps({"environment": env, "particles": particles,
+        Path(json_path).write_text(json.dumps({"environment": env,
+                                               "particles": used[0] if len(used) == 1 else used,
                                                "rows": rows}, indent=2))
     return 0

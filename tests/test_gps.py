@@ -209,3 +209,14 @@ def test_transform_poses_and_align_to_gps_errors():
                          np.ones(10))
     with pytest.raises(ValueError, match="does not move"):
         gps.align_to_gps(times, np.zeros((10, 2)), times, np.zeros((10, 2)), np.ones(10))
+
+
+def test_readings_in_span_marks_what_align_to_gps_uses():
+    times = np.arange(10) * 0.5  # SLAM clock 0 .. 4.5 s
+    gps_time = np.array([-1.0, 0.0, 2.2, 4.5, 4.6, 30.0])
+    assert gps.readings_in_span(times, gps_time).tolist() == [False, True, True, True, False, False]
+    path = np.column_stack([times, np.sin(times)])
+    al, _ = gps.align_to_gps(times, path, gps_time, np.column_stack(
+        [np.interp(gps_time, times, path[:, 0]), np.interp(gps_time, times, path[:, 1])]),
+        np.ones(6))
+    assert int(al.n_used) == 3

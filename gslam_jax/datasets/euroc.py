@@ -19,6 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..errors import DatasetError
 from ..run import Run
 from ..vo.calib import CalibrationError, RectifiedRig
 from ..vo.fallback import GRAVITY
@@ -137,19 +138,19 @@ def _frames(cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
             continue
         fields = [f.strip() for f in line.split(",")]
         if len(fields) < 2 or not fields[1]:
-            raise ValueError(f"{csv}:{n}: expected 'timestamp,filename', got {line.strip()!r}")
+            raise DatasetError(f"{csv}:{n}: expected 'timestamp,filename', got {line.strip()!r}")
         try:
             stamp = int(fields[0])
         except ValueError:
-            raise ValueError(f"{csv}:{n}: timestamp {fields[0]!r} is not an integer "
+            raise DatasetError(f"{csv}:{n}: timestamp {fields[0]!r} is not an integer "
                              "(nanoseconds)") from None
         if stamps and stamp <= stamps[-1]:
-            raise ValueError(f"{csv}:{n}: timestamp {stamp} is not after {stamps[-1]} "
+            raise DatasetError(f"{csv}:{n}: timestamp {stamp} is not after {stamps[-1]} "
                              "(frames must be in time order)")
         stamps.append(stamp)
         paths.append(cam_dir / "data" / fields[1])
     if not stamps:
-        raise ValueError(f"{csv}: no frames listed")
+        raise DatasetError(f"{csv}: no frames listed")
     return np.array(stamps, np.int64), paths
 
 
@@ -168,18 +169,18 @@ def _read_imu(path: Path, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     imu_t, gyro, acc = table.stamps, table.data[:, 1:4], table.data[:, 4:7]
     back = np.flatnonzero(np.diff(imu_t) <= 0)
     if back.size:
-        raise ValueError(f"{path}:{table.lines[back[0] + 1]}: timestamp {imu_t[back[0] + 1]} is "
+        raise DatasetError(f"{path}:{table.lines[back[0] + 1]}: timestamp {imu_t[back[0] + 1]} is "
                          f"not after {imu_t[back[0]]} (samples must be in time order)")
     if imu_t[0] > ts[0]:
-        raise ValueError(f"{path}: IMU log starts at {imu_t[0]} ns, after frame 0 ({ts[0]} ns)")
+        raise DatasetError(f"{path}: IMU log starts at {imu_t[0]} ns, after frame 0 ({ts[0]} ns)")
     if imu_t[-1] < ts[-1]:
         t = int(np.argmax(ts > imu_t[-1]))
-        raise ValueError(f"{path}: IMU log ends at {imu_t[-1]} ns, before frame {t} ({ts[t]} ns)")
+        raise DatasetError(f"{path}: IMU log ends at {imu_t[-1]} ns, before frame {t} ({ts[t]} ns)")
     edges = np.searchsorted(imu_t, ts, side="right")
     empty = np.flatnonzero(np.diff(edges) == 0)
     if empty.size:
         t = int(empty[0]) + 1
-        raise ValueError(f"{path}: no IMU samples between frame {t - 1} ({ts[t - 1]} ns) and "
+        raise DatasetError(f"{path}: no IMU samples between frame {t - 1} ({ts[t - 1]} ns) and "
                          f"frame {t} ({ts[t]} ns)")
     return imu_t, gyro, acc
 
@@ -191,7 +192,7 @@ def _ground_truth(path: Path, ts: np.ndarray) -> list[np.ndarray]:
     g, g_t = table.data, table.stamps
     back = np.flatnonzero(np.diff(g_t) <= 0)
     if back.size:
-        raise ValueError(f"{path}:{table.lines[back[0] + 1]}: timestamp {g_t[back[0] + 1]} is "
+        raise DatasetError(f"{path}:{table.lines[back[0] + 1]}: timestamp {g_t[back[0] + 1]} is "
                          f"not after {g_t[back[0]]} (rows must be in time order)")
     idx = np.clip(np.searchsorted(g_t, ts), 0, len(g) - 1)
     prev = np.maximum(idx - 1, 0)
@@ -199,7 +200,7 @@ def _ground_truth(path: Path, ts: np.ndarray) -> list[np.ndarray]:
     off = np.abs(g_t[idx] - ts)
     if off.max() >= 5e6:
         t = int(np.argmax(off))
-        raise ValueError(f"{path}: no ground-truth row within 5 ms of frame {t} ({ts[t]} ns); "
+        raise DatasetError(f"{path}: no ground-truth row within 5 ms of frame {t} ({ts[t]} ns); "
                          f"the nearest is {off[t] * 1e-6:.1f} ms away")
     return [make_transform(quat_to_matrix(r[4:8]), r[1:4]) for r in g[idx]]
 
@@ -210,19 +211,19 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
     cam0, cam1 = (read_sensor_yaml(mav / c / "sensor.yaml") for c in ("cam0", "cam1"))
     rig = euroc_rig(cam0, cam1)
     if params.max_frames is not None and params.max_frames < 1:
-        raise ValueError(f"max_frames must be at least 1, got {params.max_frames}")
+        raise DatasetError(f"max_frames must be at least 1, got {params.max_frames}")
     ts0, left = _frames(mav / "cam0")
     ts1, right = _frames(mav / "cam1")
     n0, n1 = len(ts0), len(ts1)
     if params.max_frames is not None:
         n0, n1 = min(n0, params.max_frames), min(n1, params.max_frames)
     if n0 != n1:
-        raise ValueError(f"{mav}: cam0/data.csv lists {len(ts0)} frames but cam1/data.csv "
+        raise DatasetError(f"{mav}: cam0/data.csv lists {len(ts0)} frames but cam1/data.csv "
                          f"{len(ts1)}; the stereo frames must pair up")
     n = n0
     if not np.array_equal(ts0[:n], ts1[:n]):
         bad = int(np.argmax(ts0[:n] != ts1[:n]))
-        raise ValueError(f"{mav}: cam0 and cam1 timestamps differ at frame {bad} "
+        raise DatasetError(f"{mav}: cam0 and cam1 timestamps differ at frame {bad} "
                          f"({ts0[bad]} vs {ts1[bad]} ns in data.csv)")
     ts = ts0[:n]
     imu_csv = mav / "imu0" / "data.csv"
@@ -231,11 +232,11 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
     imu_t, gyro, acc = _read_imu(imu_csv, ts)
     first = (imu_t >= ts[0]) & (imu_t <= ts[0] + int(params.gravity_window * 1e9))
     if not first.any():
-        raise ValueError(f"{imu_csv}: no IMU samples within {params.gravity_window} s of frame 0")
+        raise DatasetError(f"{imu_csv}: no IMU samples within {params.gravity_window} s of frame 0")
     # At rest: |a| close to g. Those samples give "up" and the gyro bias.
     still = first & (np.abs(np.linalg.norm(acc, axis=1) - GRAVITY) < params.frontend.tilt_gate)
     if not still.any():
-        raise ValueError(f"{imu_csv}: no IMU sample within {params.gravity_window} s of frame 0 "
+        raise DatasetError(f"{imu_csv}: no IMU sample within {params.gravity_window} s of frame 0 "
                          f"has |a| within {params.frontend.tilt_gate} m/s^2 of g; the robot must "
                          "stand still there (gravity and gyro bias)")
     up_b = acc[still].mean(axis=0)

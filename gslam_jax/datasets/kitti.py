@@ -17,11 +17,12 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from ..errors import DatasetError
 from ..run import Run
 from ..vo.calib import CalibrationError, ImageError, RectifiedRig
 from ..vo.frontend import FrontEndParams, FrontEndResult, run_frontend
-from ..vo.stereo import DenseStereoParams
 from ..vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pose_to_2d
+from ..vo.stereo import DenseStereoParams
 
 __all__ = ["KittiParams", "Table", "read_table", "read_kitti_calib", "read_kitti_poses",
            "read_image", "kitti_frontend", "load_kitti"]
@@ -101,28 +102,28 @@ def read_table(path: Path, columns: int, delimiter: str | None = None, *, at_lea
             continue
         fields = [f.strip() for f in body.split(delimiter)]
         if rows and len(fields) != len(rows[0]):
-            raise ValueError(f"{path}:{n}: {len(fields)} numbers, but {len(rows[0])} on line "
+            raise DatasetError(f"{path}:{n}: {len(fields)} numbers, but {len(rows[0])} on line "
                              f"{lines[0]}")
         if not rows and (len(fields) < columns if at_least else len(fields) != columns):
-            raise ValueError(f"{path}:{n}: expected {columns}{' or more' if at_least else ''} "
+            raise DatasetError(f"{path}:{n}: expected {columns}{' or more' if at_least else ''} "
                              f"numbers, got {len(fields)}")
         row = []
         for f in fields:
             try:
                 row.append(float(f))
             except ValueError:
-                raise ValueError(f"{path}:{n}: {f!r} is not a number") from None
+                raise DatasetError(f"{path}:{n}: {f!r} is not a number") from None
         if not np.all(np.isfinite(row)):
-            raise ValueError(f"{path}:{n}: non-finite number in {body!r}")
+            raise DatasetError(f"{path}:{n}: non-finite number in {body!r}")
         if int_first:
             try:
                 stamps.append(int(fields[0]))
             except ValueError:
-                raise ValueError(f"{path}:{n}: {fields[0]!r} is not an integer timestamp") from None
+                raise DatasetError(f"{path}:{n}: {fields[0]!r} is not an integer timestamp") from None
         rows.append(row)
         lines.append(n)
     if not rows:
-        raise ValueError(f"{path}: no data rows")
+        raise DatasetError(f"{path}: no data rows")
     return Table(np.array(rows, np.float64), np.array(lines, np.int64),
                  np.array(stamps, np.int64) if int_first else None)
 
@@ -142,7 +143,7 @@ def _sequence_dir(root: Path, sequence: str | None) -> Path:
     if sequence is None:
         found = sorted(p.name for p in seqs.iterdir() if p.is_dir())
         if len(found) != 1:
-            raise ValueError(f"{seqs}: holds {found}; pass KittiParams(sequence=...)")
+            raise DatasetError(f"{seqs}: holds {found}; pass KittiParams(sequence=...)")
         sequence = found[0]
     path = seqs / sequence
     if not path.is_dir():
@@ -172,7 +173,7 @@ def _check_frames(seq: Path, max_frames: int | None) -> list[Path]:
     if not found:
         raise FileNotFoundError(f"{left_dir}: no .png images")
     if max_frames is not None and max_frames < 1:
-        raise ValueError(f"max_frames must be at least 1, got {max_frames}")
+        raise DatasetError(f"max_frames must be at least 1, got {max_frames}")
     used = found if max_frames is None else found[:max_frames]
     first, width = used[0][0], len(used[0][1].stem)
     for i, (k, _) in enumerate(used):
@@ -203,13 +204,13 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams()) -> Fro
     if times_file.is_file():
         table = read_table(times_file, 1)
         if len(table.data) <= frames[-1]:
-            raise ValueError(f"{times_file}: {len(table.data)} times for frames up to "
+            raise DatasetError(f"{times_file}: {len(table.data)} times for frames up to "
                              f"{lefts[-1].name} (one line per frame from frame 0)")
         times, lines = table.data[frames, 0], table.lines[frames]
         back = np.flatnonzero(np.diff(times) <= 0)
         if back.size:
             i = int(back[0]) + 1
-            raise ValueError(f"{times_file}:{lines[i]}: time {times[i]} of frame {lefts[i].name} "
+            raise DatasetError(f"{times_file}:{lines[i]}: time {times[i]} of frame {lefts[i].name} "
                              f"is not after {times[i - 1]} (times must increase)")
     else:
         times = np.arange(n) * params.frame_period
@@ -218,7 +219,7 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams()) -> Fro
     if pose_file.is_file():
         cams = read_kitti_poses(pose_file)
         if len(cams) <= frames[-1]:
-            raise ValueError(f"{pose_file}: {len(cams)} poses for frames up to {lefts[-1].name} "
+            raise DatasetError(f"{pose_file}: {len(cams)} poses for frames up to {lefts[-1].name} "
                              "(one line per frame from frame 0)")
         cams = cams[frames]
     first = read_image(lefts[0])

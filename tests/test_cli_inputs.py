@@ -1,0 +1,258 @@
+"""The command line's input checks: GPS logs, source options, partial ground truth, progress."""
+
+import io
+import json
+
+import numpy as np
+import pytest
+from synthetic import make_run
+
+from gslam_jax import gps
+from gslam_jax.cli import ProgressBar, main
+from gslam_jax.run import RunError, save_run
+
+SITE = np.array([394000.0, 3783000.0])  # UTM zone 11N, like the simulated receiver's site
+
+
+def _strict_json(path):
+    """Parse JSON, refusing NaN / Infinity (Python's json accepts them by default)."""
+    def bad(name):
+        raise ValueError(f"{path}: invalid JSON constant {name}")
+    return json.loads(path.read_text(), parse_constant=bad)
+
+
+def _run_file(tmp_path, steps=25, **changes):
+    run, _ = make_run(steps=steps)
+    run = run._replace(**changes)
+    save_run(tmp_path / "r.npz", run)
+    return run, tmp_path / "r.npz"
+
+
+def _gps_log(path, run, times):
+    """A GPS log of the run's true positions at ``times`` (run clock), EPE 1 m."""
+    gt = np.asarray(run.ground_truth)
+    t = np.asarray(run.timestamps)
+    xy = np.stack([np.interp(times, t, gt[:, k]) for k in range(2)], -1) + SITE
+    lat, lon = gps.utm_to_latlon(xy[:, 0], xy[:, 1], 11, True)
+    gps.write_gps_log(path, times, lat, lon, np.ones(len(times)))
+    return path
+
+
+@pytest.fixture
+def no_filter(monkeypatch):
+    """Fail the test if the filter starts: the checks must come first."""
+    def boom(*args, **kwargs):
+        raise AssertionError("the filter ran before the inputs were checked")
+    monkeypatch.setattr("gslam_jax.slam.run_slam", boom)
+
+
+def test_gps_log_is_checked_before_the_filter(tmp_path, capsys, no_filter):
+    run, path = _run_file(tmp_path)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--gps", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
+    assert "missing.csv: cannot read GPS log" in capsys.readouterr().err
+    assert not out.exists()  # created up front, removed again as nothing was written
+    late = _gps_log(tmp_path / "late.csv", run, np.arange(100.0, 120.0))  # not on the run's clock
+    assert main(["run", str(path), "--gps", str(late), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "late.csv: 0 of 20 GPS readings fall inside the run's time span" in err
+    assert "seconds on the run's clock" in err
+    no_truth, _ = make_run(steps=25)
+    save_run(tmp_path / "no_truth.npz", no_truth._replace(ground_truth=None))
+    assert main(["run", str(tmp_path / "no_truth.npz"), "--gps", "sim", "--out", str(out)]) == 2
+    assert "--gps sim needs a run with ground truth" in capsys.readouterr().err
+
+
+def test_out_that_is_a_file_fails_up_front(tmp_path, capsys, no_filter):
+    _, path = _run_file(tmp_path)
+    taken = tmp_path / "taken"
+    taken.write_text("not a directory")
+    assert main(["run", str(path), "--out", str(taken)]) == 2
+    assert f"--out {taken}: exists and is not a directory" in capsys.readouterr().err
+    assert taken.read_text() == "not a directory"
+
+
+def test_gps_report_counts_the_readings_used_and_warns(tmp_path, capsys):
+    run, path = _run_file(tmp_path)
+    # 10 readings during the run (0-4.8 s), 15 after it: fewer than half can be used.
+    times = np.r_[np.arange(10) * 0.5, 10.0 + np.arange(15)]
+    log = _gps_log(tmp_path / "gps.csv", run, times)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--set", "filter.particles=8", "--gps", str(log),
+                 "--out", str(out)]) == 0
+    stdout = capsys.readouterr().out
+    assert "WARNING" in stdout and "only 10 of 25 GPS readings fall inside" in stdout
+    assert "GPS: 10 of 25 readings used (15 outside the run's time span)" in stdout
+    report = _strict_json(out / "summary.json")["gps"]
+    assert (report["readings"], report["inside_run"], report["used"]) == (25, 10, 10)
+    assert 0.0 <= report["weighted_residual"] < 1e3
+    assert 0.0 <= report["residual_rms_m"] < 5.0
+    assert (out / "trajectory_utm.txt").exists()
+
+
+def test_partial_ground_truth_is_scored_over_its_finite_frames(tmp_path, capsys):
+    run, _ = make_run(steps=25)
+    gt = np.array(run.ground_truth, np.float64)
+    gt[5:10] = np.nan
+    _, path = _run_file(tmp_path, ground_truth=gt)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--set", "filter.particles=8", "--out", str(out)]) == 0
+    stdout = capsys.readouterr().out
+    summary = _strict_json(out / "summary.json")
+    assert summary["gt_frames_scored"] == 20
+    for key in ("vo_rms_m", "slam_rms_m", "vo_final_error_m", "slam_final_error_m"):
+        assert np.isfinite(summary[key]) and summary[key] >= 0, key
+    assert "VO-only RMS: nan" not in stdout
+    assert "(over the 20 of 25 frames with ground truth)" in stdout
+
+
+def test_ess_plot_threshold_is_the_resample_ratio(tmp_path, capsys, monkeypatch):
+    from gslam_jax import plots
+
+    _, path = _run_file(tmp_path, steps=10)
+    thresholds = []
+    save_ess_png = plots.save_ess_png
+
+    def spy(*args, **kwargs):
+        thresholds.append(kwargs.get("threshold", "default"))
+        return save_ess_png(*args, **kwargs)
+    monkeypatch.setattr(plots, "save_ess_png", spy)
+    assert main(["run", str(path), "--set", "filter.particles=8",
+                 "--set", "filter.resample_ratio=0.3", "--out", str(tmp_path / "out")]) == 0
+    assert thresholds == [0.3]
+    assert (tmp_path / "out" / "ess.png").exists()
+
+
+def test_progress_bar_is_one_final_line_when_not_a_terminal():
+    stream = io.StringIO()
+    bar = ProgressBar("work", stream=stream)
+    for done in range(11):
+        bar(done, 10)
+    bar(10, 10)
+    text = stream.getvalue()
+    assert "\r" not in text and text.count("\n") == 1 and text.startswith("work: 10/10")
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+    tty = Terminal()
+    ProgressBar("work", stream=tty)(10, 10)
+    assert tty.getvalue().startswith("\rwork [")
+
+
+def test_max_frames_must_be_a_positive_integer(capsys, monkeypatch):
+    def boom(*args, **kwargs):
+        raise AssertionError("the source ran with a bad --max-frames")
+    monkeypatch.setattr("gslam_jax.datasets.sim.simulate_run", boom)
+    for bad in ("0", "-3", "2.5"):
+        with pytest.raises(SystemExit) as exit_:
+            main(["run", "--max-frames", bad])
+        assert exit_.value.code == 2
+        assert "--max-frames: expected a positive integer" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra, name", [(["--max-frames", "5"], "--max-frames"),
+                                         (["--path", "data"], "--path"),
+                                         (["--sequence", "00"], "--sequence"),
+                                         (["--source", "kitti"], "--source")])
+def test_run_file_rejects_source_options(tmp_path, capsys, no_filter, extra, name):
+    _, path = _run_file(tmp_path, steps=10)
+    assert main(["run", str(path), *extra, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: a Run file is used as it is; {name}" in err
+
+
+def test_source_options_for_another_source_are_rejected(tmp_path, capsys):
+    assert main(["run", "--sequence", "00", "--out", str(tmp_path / "out")]) == 2
+    assert "--sequence is for --source kitti, not --source sim" in capsys.readouterr().err
+    assert main(["run", "--source", "euroc", "--path", str(tmp_path), "--sequence", "00",
+                 "--out", str(tmp_path / "out")]) == 2
+    assert "--sequence is for --source kitti, not --source euroc" in capsys.readouterr().err
+
+
+def test_kitti_and_euroc_get_sequence_and_max_frames(tmp_path, capsys, monkeypatch):
+    from gslam_jax.datasets import euroc, kitti
+
+    seen = {}
+
+    def fake(name):
+        def frontend(root, params):
+            seen[name] = params
+            raise RunError(f"{root}: stop here")
+        return frontend
+    monkeypatch.setattr(kitti, "kitti_frontend", fake("kitti"))
+    monkeypatch.setattr(euroc, "euroc_frontend", fake("euroc"))
+    for seq in ("00", "05"):
+        (tmp_path / "sequences" / seq).mkdir(parents=True)
+    out = str(tmp_path / "out")
+    assert main(["run", "--source", "kitti", "--path", str(tmp_path), "--sequence", "05",
+                 "--max-frames", "7", "--out", out]) == 2
+    assert (seen["kitti"].sequence, seen["kitti"].max_frames) == ("05", 7)
+    assert main(["run", "--source", "euroc", "--path", str(tmp_path), "--max-frames", "9",
+                 "--out", out]) == 2
+    assert seen["euroc"].max_frames == 9
+    del seen["kitti"]
+    assert main(["run", "--source", "kitti", "--path", str(tmp_path), "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert "holds sequences 00, 05; choose one with --sequence NN" in err
+    assert "kitti" not in seen
+
+
+def test_table1_particles_default_to_the_config(tmp_path, monkeypatch, capsys):
+    from gslam_jax import table1
+
+    used = []
+
+    def fake_course(course, seed, config, progress=None):
+        used.append((course, config.filter.particles))
+        return {"course": course, "seed": seed, "distance_m": 1.0, "vo_rms_m": 1.0,
+                "slam_rms_m": 0.5, "filter_seconds": 0.0}
+    monkeypatch.setattr(table1, "run_course", fake_course)
+    cfg = tmp_path / "t.toml"
+    cfg.write_text("[filter]\nparticles = 50\n[course.maze.filter]\nparticles = 40\n")
+    base = ["table1", "--courses", "mars-yard-a", "maze", "--seeds", "0"]
+    assert main([*base, "--config", str(cfg), "--json", str(tmp_path / "t.json")]) == 0
+    assert used == [("mars-yard-a", 50), ("maze", 40)]
+    assert json.loads((tmp_path / "t.json").read_text())["particles"] == [40, 50]
+    used.clear()
+    assert main([*base, "--config", str(cfg), "--particles", "30"]) == 0
+    assert used == [("mars-yard-a", 30), ("maze", 30)]
+    used.clear()
+    assert main(base) == 0
+    assert used == [("mars-yard-a", 200), ("maze", 200)]
+
+
+def test_compare_accepts_a_table1_config(tmp_path, monkeypatch, capsys):
+    from gslam_jax.tiled import compare as compare_module
+
+    seen = {}
+
+    def fake_compare(run, config, **kwargs):
+        seen["config"] = config
+        return {}
+    monkeypatch.setattr(compare_module, "compare", fake_compare)
+    cfg = tmp_path / "t.toml"
+    cfg.write_text("[localmap]\ntravel = 1.0\n[course.maze.filter]\nbeta_prev = 0.2\n")
+    assert main(["compare", "--config", str(cfg)]) == 0
+    assert seen["config"].localmap.travel == 1.0 and seen["config"].filter.beta_prev == 0.05
+    assert "[course.<name>.*] tables (maze) are not applied" in capsys.readouterr().out
+
+
+
+def test_trajectory_errors_match_the_metrics_on_full_ground_truth():
+    from gslam_jax import metrics
+    from gslam_jax.cli import _trajectory_errors
+
+    run, _ = make_run(steps=30)
+    gt, vo = np.asarray(run.ground_truth), run.vo_poses()
+    slam = gt + 0.01 * np.random.default_rng(0).standard_normal(gt.shape)
+    got = _trajectory_errors(vo, slam, gt)
+    assert got == {"gt_frames_scored": 30,
+                   "vo_rms_m": metrics.rms_after_fit(vo, gt),
+                   "vo_final_error_m": metrics.final_position_error(vo, gt),
+                   "slam_rms_m": metrics.rms_after_fit(slam, gt),
+                   "slam_final_error_m": metrics.final_position_error(slam, gt)}
+    no_heading = gt.copy()
+    no_heading[:, 2] = np.nan  # positions only: RMS, but no start-anchored final error
+    got = _trajectory_errors(vo, slam, no_heading)
+    assert got["vo_rms_m"] == metrics.rms_after_fit(vo, gt) and "vo_final_error_m" not in got
