@@ -33,12 +33,15 @@ def merge_stats(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.asarray(a, dtype=np.float64) + np.asarray(b, dtype=np.float64)
 
 
-def obs_from_stats(stats: np.ndarray, min_variance: float = 0.0) -> np.ndarray:
+def obs_from_stats(stats: np.ndarray, min_variance: float = 1e-6) -> np.ndarray:
     """(n, sum z, sum z^2)[..., 3] -> observation (k, S)[..., 2], float64 (paper 5.2).
 
     k = n - 1 and S = sum (z - mean)^2 for cells with n >= 2; cells with fewer points carry no
-    information and get (0, 0). S is computed around a per-cell shift (the mean) in float64 and
-    floored at ``k * min_variance`` so that a cell of identical heights still has finite log S.
+    information and get (0, 0). S comes from the one-pass formula sum z^2 - (sum z)^2 / n in
+    float64 (no shift: heights far from 0 lose digits to cancellation), clipped at 0 against
+    rounding, then floored at ``k * min_variance`` so that a cell of identical heights still has
+    finite log S. ``min_variance`` must be positive for that (default 1e-6 m^2, the paper
+    config's ``[map] min_variance``); with 0 such a cell gets S = 0 and NaN log weights.
     """
     stats = np.asarray(stats, dtype=np.float64)
     n, sz, szz = stats[..., 0], stats[..., 1], stats[..., 2]

@@ -1,13 +1,14 @@
 """Configuration: TOML files with the paper's settings as defaults.
 
-Every field has a default; an unknown section or key, or a value of the wrong type, is an error
-that names the file, the section and the key. ``--set section.key=value`` overrides use the same
-checks.
+Every field has a default; an unknown section or key, a value of the wrong type or out of range
+(floats must also be finite), is an error that names the file, the section and the key.
+``--set section.key=value`` overrides use the same checks.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -79,6 +80,15 @@ class Config:
     localmap: LocalMapSection = field(default_factory=LocalMapSection)
 
     def validate(self, source: str = "<config>") -> "Config":
+        """Check every value; a ConfigError names the source, section and key at fault.
+
+        Every float must be finite (TOML accepts ``inf`` and ``nan``), then meet its range.
+        """
+        for name in _SECTION_TYPES:
+            section = getattr(self, name)
+            for key, value in dataclasses.asdict(section).items():
+                if isinstance(value, float) and not math.isfinite(value):
+                    raise ConfigError(f"{source}: [{name}] {key} must be finite, got {value}")
         f, m, lm = self.filter, self.map, self.localmap
         checks = [
             (f.particles >= 1, "filter", "particles", "must be at least 1"),
@@ -90,12 +100,14 @@ class Config:
             (f.unknown_samples >= 1, "filter", "unknown_samples", "must be at least 1"),
             (f.beta_prev > 0, "filter", "beta_prev", "must be positive"),
             (f.beta_new > 0, "filter", "beta_new", "must be positive"),
+            (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             (all(getattr(self.motion, k) >= 0 for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),
              "motion", "alpha_*", "must be non-negative"),
             (m.resolution > 0, "map", "resolution", "must be positive"),
             (m.margin >= 0, "map", "margin", "must be non-negative"),
-            (m.min_variance >= 0, "map", "min_variance", "must be non-negative"),
+            # S = 0 with k > 0 would make log S = -inf and every log weight NaN
+            (m.min_variance > 0, "map", "min_variance", "must be positive (a floor of S / k)"),
             (lm.max_range > 0, "localmap", "max_range", "must be positive"),
             (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
             (lm.travel > 0, "localmap", "travel", "must be positive"),
@@ -113,7 +125,10 @@ _SECTION_TYPES = {"filter": FilterSection, "motion": MotionSection, "map": MapSe
 
 def _coerce(value: Any, expected: type, where: str) -> Any:
     if expected is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:
+            raise ConfigError(f"{where}: {value} is too large for a float") from None
     if expected is int and isinstance(value, bool):
         raise ConfigError(f"{where}: expected int, got bool")
     if not isinstance(value, expected):

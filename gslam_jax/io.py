@@ -27,9 +27,13 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_kitti(path: str | Path, poses: np.ndarray) -> None:
-    """KITTI odometry format: the first three rows of the 4x4 pose matrix per line.
+    """KITTI odometry's file layout: the first three rows of the 4x4 pose matrix per line.
 
-    The planar pose is written in the world frame with z up (rotation about z by theta).
+    Only the layout is KITTI's, not its frame. The planar pose is written in the robot/world
+    frame of this project (x forward, y left, z up; rotation about z by theta, z = 0), not in
+    KITTI's camera frame (x right, y down, z forward) that ``poses/NN.txt`` uses, so KITTI's
+    evaluation tools cannot compare this file with ``poses/NN.txt`` directly. (``gslam``'s own
+    metrics compare against ground truth that the KITTI source has moved into the robot frame.)
     """
     poses = np.asarray(poses, dtype=np.float64)
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])

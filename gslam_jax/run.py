@@ -32,10 +32,13 @@ class Run(NamedTuple):
             or -1 where frame t carries no local map (prediction only).
         local_maps: [M, L, L, 3] per-cell sufficient statistics (n, sum z, sum z^2) of a
             robot-centred grid at frame ``obs_index == m``; cell (i, j) covers robot-frame
-            x in [(i - L/2) res, (i - L/2 + 1) res), y likewise with j.
-        resolution: local-map cell side in metres (must equal the filter's map resolution).
-        timestamps: [T] seconds.
-        ground_truth: [T, 3] true poses (x, y, theta) or None.
+            x in [(i - L/2) res, (i - L/2 + 1) res), y likewise with j. n is a whole number
+            and n sum z^2 >= (sum z)^2.
+        resolution: local-map cell side in metres, a scalar (must equal the filter's map
+            resolution).
+        timestamps: [T] seconds, finite and strictly increasing.
+        ground_truth: [T, 3] true poses (x, y, theta) or None; NaN rows mark frames without
+            ground truth (the metrics skip them).
         vo_failed: [T] bool, frames whose control came from the wheel/IMU fallback.
         initial_pose: [3] pose before frame 0 (ground-truth frame; zeros if unknown).
     """
@@ -87,12 +90,40 @@ def integrate_controls(controls: np.ndarray, start: np.ndarray | None = None) ->
     return out
 
 
+_REAL = "iuf"  # dtype kinds of real numbers (bool, complex, strings and objects are not)
+_REAL_FIELDS = ("controls", "local_maps", "resolution", "timestamps", "ground_truth",
+                "initial_pose")
+# Local-map statistics may hold n sum z^2 - (sum z)^2 below 0 by this much, relative to
+# n |sum z^2| + (sum z)^2, from rounding; more is a negative variance, i.e. corrupt statistics.
+VARIANCE_TOLERANCE = 1e-6
+
+
+def _check_types(fields: dict, fail) -> None:
+    """Field types before any conversion: real numbers, integer indices, bool flags, a scalar
+    resolution (``fail(field, msg)`` raises)."""
+    for name in _REAL_FIELDS:
+        value = fields.get(name)
+        if value is not None and np.asarray(value).dtype.kind not in _REAL:
+            fail(name, f"expected real numbers, got dtype {np.asarray(value).dtype}")
+    if np.asarray(fields["resolution"]).shape != ():
+        fail("resolution", f"expected a scalar, got shape {np.asarray(fields['resolution']).shape}")
+    if fields.get("vo_failed") is not None and np.asarray(fields["vo_failed"]).dtype != bool:
+        fail("vo_failed", f"expected bool, got dtype {np.asarray(fields['vo_failed']).dtype}")
+
+
 def validate_run(run: Run, source: str = "<run>") -> Run:
-    """Check shapes, types and values; raise RunError naming the field and frame."""
+    """Check shapes, types and values; raise RunError naming the field and frame.
+
+    Required: finite controls; finite, strictly increasing timestamps; integer point counts
+    n >= 0 with n sum z^2 >= (sum z)^2 (a variance >= 0, up to rounding); a finite initial
+    pose. ``ground_truth`` may hold NaN rows: frames without ground truth (the metrics skip
+    them).
+    """
 
     def fail(field: str, msg: str) -> None:
         raise RunError(f"{source}: field '{field}': {msg}")
 
+    _check_types(run._asdict(), fail)
     controls = np.asarray(run.controls)
     if controls.ndim != 2 or controls.shape[1] != 3:
         fail("controls", f"expected shape [T, 3], got {controls.shape}")
@@ -118,22 +149,48 @@ def validate_run(run: Run, source: str = "<run>") -> Run:
     if used.size and used.max() >= M:
         frame = int(np.argmax(obs_index >= M))
         fail("obs_index", f"frame {frame} refers to local map {obs_index[frame]} but only {M} exist")
-    if not np.isfinite(maps).all():
-        m = int(np.argmax(~np.isfinite(maps).reshape(M, -1).all(axis=1)))
-        fail("local_maps", f"non-finite statistics in local map {m}")
-    if (maps[..., 0] < 0).any():
-        fail("local_maps", "negative point count n")
-    if not (np.isfinite(run.resolution) and run.resolution > 0):
+
+    def first_map(bad_cells: np.ndarray) -> str:
+        """'local map m (frame t), cell (i, j)' of the first bad cell in [M, L, L]."""
+        m, i, j = (int(v) for v in np.argwhere(bad_cells)[0])
+        frames = np.flatnonzero(obs_index == m)
+        at = f"frame {int(frames[0])}" if frames.size else "used by no frame"
+        return f"local map {m} ({at}), cell ({i}, {j}) ({int(bad_cells.sum())} cells in all)"
+
+    finite = np.isfinite(maps).all(axis=-1)
+    if not finite.all():
+        fail("local_maps", f"non-finite statistics in {first_map(~finite)}")
+    n, sz, szz = (maps[..., c].astype(np.float64) for c in range(3))
+    if (n < 0).any():
+        fail("local_maps", f"negative point count n in {first_map(n < 0)}")
+    if (n != np.round(n)).any():
+        fail("local_maps", f"non-integer point count n in {first_map(n != np.round(n))}")
+    spread = n * szz - sz * sz  # n^2 times the variance of the heights
+    negative = spread < -VARIANCE_TOLERANCE * (n * np.abs(szz) + sz * sz)
+    if negative.any():
+        fail("local_maps", f"negative variance (n sum z^2 < (sum z)^2) in {first_map(negative)}")
+    resolution = float(run.resolution)
+    if not (np.isfinite(resolution) and resolution > 0):
         fail("resolution", f"must be a positive number of metres, got {run.resolution}")
     ts = np.asarray(run.timestamps)
     if ts.shape != (T,):
         fail("timestamps", f"expected shape [{T}], got {ts.shape}")
+    if not np.isfinite(ts).all():
+        fail("timestamps", f"non-finite value (NaN or inf) at frame "
+             f"{int(np.argmax(~np.isfinite(ts)))}")
+    if (np.diff(ts) <= 0).any():
+        t = int(np.argmax(np.diff(ts) <= 0)) + 1
+        fail("timestamps", f"not increasing at frame {t} ({ts[t - 1]!r} s, then {ts[t]!r} s)")
     if run.ground_truth is not None and np.asarray(run.ground_truth).shape != (T, 3):
         fail("ground_truth", f"expected shape [{T}, 3], got {np.asarray(run.ground_truth).shape}")
     if run.vo_failed is not None and np.asarray(run.vo_failed).shape != (T,):
         fail("vo_failed", f"expected shape [{T}], got {np.asarray(run.vo_failed).shape}")
-    if run.initial_pose is not None and np.asarray(run.initial_pose).shape != (3,):
-        fail("initial_pose", f"expected shape [3], got {np.asarray(run.initial_pose).shape}")
+    if run.initial_pose is not None:
+        pose = np.asarray(run.initial_pose)
+        if pose.shape != (3,):
+            fail("initial_pose", f"expected shape [3], got {pose.shape}")
+        if not np.isfinite(pose).all():
+            fail("initial_pose", f"non-finite value (NaN or inf): {pose.tolist()}")
     return run
 
 
@@ -171,6 +228,11 @@ def load_run(path: str | Path) -> Run:
         if unknown:
             raise RunError(f"{path}: unknown field(s) {', '.join(unknown)}")
         fields = {k: data[k] for k in data.files}
+
+    def fail(field: str, msg: str) -> None:
+        raise RunError(f"{path}: field '{field}': {msg}")
+
+    _check_types(fields, fail)  # before the conversions below, which would raise or hide it
     run = Run(
         controls=fields["controls"].astype(np.float64),
         obs_index=fields["obs_index"],

@@ -15,19 +15,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import cells, filter as gf
+from gslam_jax import cells, filter as gf, unknown
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.localmap import LocalMapParams
 from gslam_jax.motion import MotionParams
 from gslam_jax.run import Run
 
 __all__ = ["MapExtent", "map_extent", "localmap_params", "observed_cells", "filter_config",
-           "filter_params", "local_observations",
-           "RunArrays", "run_arrays", "SlamResult", "run_slam", "ExtentWarning"]
+           "filter_params", "local_observations", "particle_map_bytes", "map_memory",
+           "check_map_memory", "RunArrays", "run_arrays", "SlamResult", "run_slam",
+           "ExtentWarning", "WeightError"]
 
 
 class ExtentWarning(UserWarning):
     """Particles observed cells outside the map extent (those cells were skipped)."""
+
+
+class WeightError(RuntimeError):
+    """An update left non-finite particle weights (NaN ESS or log-likelihood); names the frame."""
 
 
 class MapExtent(NamedTuple):
@@ -67,8 +72,49 @@ def observed_cells(run: Run, multiple: int = 128) -> int:
     return min(L * L, multiple * max(1, math.ceil(most / multiple)))
 
 
+def particle_map_bytes(cfg: gf.FilterConfig) -> int:
+    """Bytes of the particles' maps: k and S [J, H, W] float32, plus the known-cell bits
+    [J, H/B, W/B, 2] uint32 in "sample" mode (resampling copies them in place)."""
+    J = cfg.num_particles
+    H, W = cfg.map_shape
+    B = unknown.BLOCK
+    bits = (H // B) * (W // B) * 2 * 4 if cfg.unknown_cells == "sample" else 0
+    return J * (H * W * 2 * 4 + bits)
+
+
+def map_memory() -> tuple[int, str]:
+    """(bytes, what): the memory the maps live in: the accelerator's limit where the device
+    reports one, else the machine's physical memory."""
+    try:
+        limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit")
+    except Exception:  # noqa: BLE001 - CPU backends may not implement memory_stats
+        limit = None
+    if limit:
+        return int(limit), f"{jax.devices()[0].device_kind} memory"
+    from gslam_jax.bench import physical_memory  # lazily: slam does not import the benchmark
+
+    return physical_memory(), "physical memory"
+
+
+def check_map_memory(cfg: gf.FilterConfig, available: int | None = None) -> None:
+    """ConfigError, before anything is allocated, when the particle maps alone would exceed
+    ``available`` bytes (default: ``map_memory()``)."""
+    need = particle_map_bytes(cfg)
+    what = "memory"
+    if available is None:
+        available, what = map_memory()
+    if need > available:
+        H, W = cfg.map_shape
+        raise ConfigError(
+            f"the particle maps need {need / 2**30:.1f} GiB ({cfg.num_particles} particles x "
+            f"{H} x {W} cells of {cfg.resolution:g} m x 2 float32), more than this machine's "
+            f"{available / 2**30:.1f} GiB of {what}; use fewer [filter] particles, a coarser "
+            f"[map] resolution or a smaller [map] margin")
+
+
 def filter_config(config: Config, run: Run) -> gf.FilterConfig:
-    """Static filter settings for this Run (map sized from its VO path)."""
+    """Static filter settings for this Run (map sized from its VO path); a ConfigError when
+    the particle maps would not fit in memory (``check_map_memory``)."""
     if not math.isclose(run.resolution, config.map.resolution, rel_tol=1e-6):
         raise ConfigError(f"run resolution {run.resolution} m differs from [map] resolution "
                          f"{config.map.resolution} m; rebuild the local maps or change the config")
@@ -78,12 +124,14 @@ def filter_config(config: Config, run: Run) -> gf.FilterConfig:
                             resolution=config.map.resolution, local_size=L,
                             unknown_cells=f.unknown_cells)
     extent = map_extent(run.vo_poses(), L, config.map.resolution, config.map.margin, probe.window)
-    return gf.FilterConfig(
+    cfg = gf.FilterConfig(
         num_particles=f.particles, map_shape=extent.shape, map_origin=extent.origin,
         resolution=config.map.resolution, local_size=L, resampler=f.resampler,
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
         unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
         particle_block=f.particle_block).validate()
+    check_map_memory(cfg)
+    return cfg
 
 
 def filter_params(config: Config) -> gf.FilterParams:
@@ -127,6 +175,23 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, gf.FilterConfig]:
     return arrays, filter_config(config, run)
 
 
+def _check_weights(info: gf.StepInfo, start: int, frames: int, obs_index: np.ndarray) -> None:
+    """WeightError at the first of ``frames`` frames from ``start`` whose ESS or log_lik is
+    not finite (NaN weights would otherwise be carried silently: no resampling, NaN poses)."""
+    ess = np.asarray(info.ess)[:frames]
+    log_lik = np.asarray(info.log_lik)[:frames]
+    bad = ~(np.isfinite(ess) & np.isfinite(log_lik))
+    if bad.any():
+        i = int(np.argmax(bad))
+        t = start + i
+        m = int(obs_index[t])
+        where = f" after the update with local map {m}" if m >= 0 else ""
+        raise WeightError(
+            f"frame {t}: non-finite particle weights{where} (ESS {float(ess[i])}, "
+            f"log-likelihood {float(log_lik[i])}); check the local map's statistics and "
+            f"[map] min_variance (must be > 0)")
+
+
 class SlamResult(NamedTuple):
     """Host-side (NumPy) outputs of one Gamma-SLAM run."""
 
@@ -154,6 +219,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
 
     Chunking bounds the per-frame outputs held on device and lets ``progress(done, total)``
     report; the per-frame PRNG keys are fixed up front, so results do not depend on ``chunk``.
+    Raises ConfigError when the particle maps would not fit in memory (before allocating
+    them) and WeightError, naming the first frame, when an update leaves non-finite weights.
     """
     cfg = filter_config(config, run)
     params = filter_params(config)
@@ -181,6 +248,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         out = jax.device_get(out)
         if start == 0:
             compile_s = time.perf_counter() - c0  # first chunk includes compilation
+        _check_weights(out[0], start, min(chunk, T - start), obs_index)
         outputs.append(out)
         if progress is not None:
             progress(min(start + chunk, T), T)

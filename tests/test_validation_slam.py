@@ -1,0 +1,65 @@
+"""run_slam guards: NaN weights stop the run naming the frame; particle maps that cannot fit in
+memory are a ConfigError before anything is allocated; the variance floor defaults positive."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from synthetic import make_run
+
+from gslam_jax import cells, slam
+from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
+
+
+def _small_config(**map_values) -> Config:
+    return Config(filter=FilterSection(particles=8), map=MapSection(**map_values))
+
+
+def test_zero_variance_cells_with_zero_floor_raise_naming_the_frame():
+    """Before: every log weight NaN from the second update on, no resampling, no error."""
+    run, _ = make_run(steps=15)
+    maps = run.local_maps.copy()
+    L = maps.shape[1]
+    maps[:, L // 2 - 2:L // 2 + 2, L // 2 - 2:L // 2 + 2] = [5.0, 0.0, 0.0]  # 5 heights of 0 m
+    run = run._replace(local_maps=maps)
+    config = _small_config(min_variance=0.0)  # built directly: validate() now refuses it
+    updates = np.flatnonzero(run.obs_index >= 0)
+    with pytest.raises(slam.WeightError, match=rf"frame {updates[1]}: non-finite particle weights "
+                                               rf"after the update with local map "
+                                               rf"{run.obs_index[updates[1]]} \(ESS nan"):
+        slam.run_slam(run, config)
+    res = slam.run_slam(run, _small_config())  # the default floor: finite weights throughout
+    assert np.isfinite(res.ess).all() and np.isfinite(res.log_lik).all()
+
+
+def test_obs_from_stats_default_floor_is_positive():
+    k, S = cells.obs_from_stats(np.array([4.0, 0.0, 0.0]))
+    assert k == 3 and S == pytest.approx(3e-6)
+    doc = " ".join(cells.obs_from_stats.__doc__.split())
+    assert "one-pass formula" in doc and "per-cell shift" not in doc
+
+
+def test_maps_larger_than_memory_are_a_config_error_before_allocating(monkeypatch):
+    run, _ = make_run(steps=15)
+    config = dataclasses.replace(Config(), filter=FilterSection(particles=10 ** 7))
+
+    def no_alloc(*args, **kwargs):
+        raise AssertionError("the particle maps were allocated")
+
+    monkeypatch.setattr(slam.gf, "init", no_alloc)
+    with pytest.raises(ConfigError, match=r"the particle maps need [\d.]+ GiB \(10000000 "
+                                          r"particles x \d+ x \d+ cells .* more than this "
+                                          r"machine's .*fewer \[filter\] particles, a coarser "
+                                          r"\[map\] resolution or a smaller \[map\] margin"):
+        slam.run_slam(run, config)
+
+
+def test_map_memory_check_against_a_given_budget():
+    run, _ = make_run(steps=15)
+    cfg = slam.filter_config(_small_config(), run)
+    H, W = cfg.map_shape
+    need = slam.particle_map_bytes(cfg)
+    assert need == 8 * H * W * 2 * 4  # ignore mode: k and S only
+    slam.check_map_memory(cfg, available=need)
+    with pytest.raises(ConfigError, match="the particle maps need"):
+        slam.check_map_memory(cfg, available=need - 1)
