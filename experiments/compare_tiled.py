@@ -22,7 +22,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="directory for compare.json and the figure")
     ap.add_argument("--exact", action="store_true",
-                    help="compile the dense filter without fused multiply-adds (XLA_FLAGS)")
+                    help="compile the dense filter without fused multiply-adds (XLA_FLAGS); "
+                         "its timings are then labelled 'AVX only'")
     args = ap.parse_args(argv)
     if args.exact:  # must be set before JAX starts its backend
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_max_isa=AVX").strip()

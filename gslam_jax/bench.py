@@ -3,9 +3,10 @@
 Times ``filter.update`` (footprint reads, fused log-gamma weights, scatter-add map update,
 normalisation, ESS; resampling disabled so every update does the same work) the way
 ``run_filter`` executes it: ``chain`` updates in one ``lax.scan``, so buffers are reused and the
-maps are updated in place. Also times ``predict`` per frame and one forced resampling (the gather
-of every particle's map). All after compilation, with the machine and library versions printed
-beside the figures.
+maps are updated in place. Also times ``predict`` per frame and one forced resampling per update
+(``filter.gather_particles``: the maps of the particles left without offspring are overwritten by
+their ancestors', over the map rows the updates have written so far; the survivors' maps are not
+copied). All after compilation, with the machine and library versions printed beside the figures.
 """
 
 from __future__ import annotations
@@ -26,19 +27,44 @@ from jax import lax
 
 from gslam_jax import filter as gf
 
-__all__ = ["environment", "physical_memory", "time_update", "main"]
+__all__ = ["environment", "cpu_model", "usable_cpus", "physical_memory", "time_update", "main"]
+
+ENV_VARS = ("XLA_FLAGS", "JAX_PLATFORMS")  # reported when set: they change what is measured
+
+
+def cpu_model(cpuinfo: str | Path = "/proc/cpuinfo") -> str:
+    """The CPU model: the first "model name" of ``cpuinfo`` where present (Linux x86), else
+    ``platform.processor()`` (empty on Linux), else the machine type."""
+    try:
+        for line in Path(cpuinfo).read_text(errors="replace").splitlines():
+            name, sep, value = line.partition(":")
+            if sep and name.strip() == "model name" and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def usable_cpus() -> int | None:
+    """Cores this process may run on (its affinity mask), else ``os.cpu_count()``."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count()
 
 
 def environment() -> dict:
-    """Machine and versions, printed beside every figure this project reports."""
+    """Machine and versions, printed beside every figure this project reports: the CPU model,
+    the cores the machine has (``cpus``) and those this process may use (``usable_cpus``), and
+    ``XLA_FLAGS`` / ``JAX_PLATFORMS`` when set."""
     import cv2
     import optax
 
-    return {
+    env = {
         "date": time.strftime("%Y-%m-%d %H:%M"),
         "machine": platform.machine(),
-        "processor": platform.processor() or platform.uname().machine,
+        "processor": cpu_model(),
         "cpus": os.cpu_count(),
+        "usable_cpus": usable_cpus(),
         "python": platform.python_version(),
         "jax": jax.__version__,
         "jaxlib": jax.lib.__version__ if hasattr(jax.lib, "__version__") else "",
@@ -48,10 +74,13 @@ def environment() -> dict:
         "backend": jax.default_backend(),
         "devices": [str(d) for d in jax.devices()],
     }
+    env.update({k: os.environ[k] for k in ENV_VARS if os.environ.get(k)})
+    return env
 
 
 def _synthetic_state(cfg: gf.FilterConfig, rng: np.random.Generator) -> gf.FilterState:
-    """Particles scattered around the map centre over a half-known map."""
+    """Particles scattered around the map centre (1 m standard deviation, any heading) on
+    empty maps (``filter.init``: every cell unknown); the timed updates fill their footprints."""
     H, W = cfg.map_shape
     state = gf.init(cfg)
     centre = np.array([cfg.map_origin[0] + 0.5 * H * cfg.resolution,
@@ -111,7 +140,8 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     sec, state = _best_seconds(update, _synthetic_state(cfg, rng), repeats)
     predict = _chained(lambda s: s._replace(pose=gf.predict(s.pose, u, eps, params)), chain)
     sec_predict, state = _best_seconds(predict, state, repeats)
-    # One forced resampling per update (every particle's maps gathered), minus the update.
+    # One forced resampling per update (the dead particles' maps copied from their ancestors
+    # over the written rows, ``filter.gather_particles``), minus the update.
     always = cfg._replace(resample_ratio=2.0)
     resample = _chained(lambda s: gf.update(s, obs, noise, params, always)[0], chain)
     sec_resample, state = _best_seconds(resample, state, repeats)

@@ -14,8 +14,8 @@ Objectives, computed inside JAX:
   (the log mean weight increment, ``StepInfo.log_lik``). Note: with tempering (beta != 1) this is
   not a normalised likelihood in the betas; compare it across alphas only.
 
-Common random numbers: every parameter set uses the same PRNG key by default, so differences in
-the objective reflect the parameters, not the draws.
+Common random numbers: every parameter set uses the same PRNG key (the only mode the batched
+search supports), so differences in the objective reflect the parameters, not the draws.
 """
 
 from __future__ import annotations
@@ -261,7 +261,8 @@ def params_from_values(values: Array, names: Sequence[str], base: gf.FilterParam
 def rigid_rms(estimate: Array, reference: Array, mask: Array) -> Array:
     """RMS distance after the least-squares 2-D rigid fit (Kabsch/Umeyama, no scale) of
     ``estimate`` [T, 2|3] onto ``reference`` over frames where ``mask`` [T] is true (paper 7.1;
-    the JAX twin of ``metrics.rigid_fit_2d``)."""
+    the JAX twin of ``metrics.rigid_fit_2d``). A mask with no true frame gives 0: callers
+    (``evaluate``, ``search``) reject it first."""
     w = mask.astype(estimate.dtype)
     w = w / jnp.maximum(jnp.sum(w), 1.0)
     p, q = estimate[:, :2], reference[:, :2]
@@ -338,7 +339,11 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterPar
     ``lax.cond`` (resample or not) into a select over every map, so on CPU the sets of a device
     run one after another in ``lax.map`` (inner=1, the default there); accelerators default to
     vmapping the whole per-device block (``default_inner``).
+
+    Objective "rms" needs a frame with ground truth (``inputs.mask``); a SearchError otherwise.
     """
+    if objective == "rms":
+        _check_mask(inputs.mask)
     devices = list(devices or jax.devices())
     nd = len(devices)
     P = values.shape[0]
@@ -365,6 +370,13 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterPar
         if progress is not None:
             progress(start + n, P)
     return out
+
+
+def _check_mask(mask: Array | np.ndarray) -> None:
+    """Objective "rms" over no frame would score every set 0 m: refuse it."""
+    if not np.any(np.asarray(mask)):
+        raise SearchError("objective 'rms' needs ground truth, but the run's ground_truth has no "
+                          "frame with finite values; use objective 'loglik'")
 
 
 def default_inner(devices: Sequence[jax.Device]) -> int | None:
@@ -416,15 +428,20 @@ def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None
 
 
 class SearchResult(NamedTuple):
-    """Evaluated design, rows sorted best first (NaN rows last, flagged)."""
+    """Evaluated design, rows sorted best first (NaN rows last, flagged).
+
+    total_seconds: wall time of every chunk, compilation included. first_chunk_seconds: the
+    first chunk alone (compilation plus its compute), a part of ``total_seconds``, not to be
+    added to it.
+    """
 
     names: tuple[str, ...]
     values: np.ndarray     # [P, d] parameter values, best first
     objective: np.ndarray  # [P] objective values, best first (NaN last)
     objective_name: str
     maximize: bool
-    seconds: float
-    compile_seconds: float
+    total_seconds: float
+    first_chunk_seconds: float
 
     @property
     def num_nan(self) -> int:
@@ -459,7 +476,8 @@ class SearchResult(NamedTuple):
 
     def to_json(self, path: str | Path) -> None:
         doc = {"objective": self.objective_name, "maximize": self.maximize,
-               "seconds": self.seconds, "compile_seconds": self.compile_seconds,
+               "total_seconds": self.total_seconds,
+               "first_chunk_seconds": self.first_chunk_seconds,
                "num_nan": self.num_nan, "results": self.rows()}
         Path(path).write_text(json.dumps(doc, indent=2))
 
@@ -486,9 +504,11 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     parameters not in ``space``). objective: "rms" (needs ground truth; m, lower is better) or
     "loglik" (higher is better). path: "mean" (weighted-mean pose per frame) or "best" (the
     final best particle's path) for "rms". crn: the same PRNG key for every set (common random
-    numbers); otherwise set i uses fold_in(key, i). batch: sets per chunk (default
-    ``auto_batch``). values: an explicit [P, d] design (overrides design and n). inner: sets
-    vmapped together per device (see ``evaluate``).
+    numbers); only True is supported (False is a SearchError: repeat the search with other
+    keys instead). batch: sets per chunk (default ``auto_batch``). values: an explicit [P, d]
+    design (overrides design and n). inner: sets vmapped together per device (see
+    ``evaluate``). The result's ``total_seconds`` include compilation; ``first_chunk_seconds``
+    are the part spent on the first chunk (compilation and its compute).
     """
     import time
 
@@ -506,6 +526,8 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     if values.ndim != 2 or values.shape[1] != space.dim:
         raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
     inputs, cfg = slam.run_arrays(run, config)
+    if objective == "rms":
+        _check_mask(inputs.mask)
     base = slam.filter_params(config)
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:
@@ -519,20 +541,20 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
         if inner is not None:  # sets run one after another: chunks for progress reports
             batch = min(batch, math.ceil(len(values) / PROGRESS_CHUNKS))
     t0 = time.perf_counter()
-    compile_s = 0.0
+    first_chunk_s = 0.0
     first = [True]
 
     def timed_progress(done: int, total: int) -> None:
-        nonlocal compile_s
+        nonlocal first_chunk_s
         if first[0]:
-            compile_s = time.perf_counter() - t0  # the first chunk includes compilation
+            first_chunk_s = time.perf_counter() - t0  # compilation and the first chunk
             first[0] = False
         if progress is not None:
             progress(done, total)
 
     f = evaluate(values, key, inputs, base, tuple(space.names), cfg, objective, path,
                  batch=batch, devices=devices, progress=timed_progress, inner=inner)
-    seconds = time.perf_counter() - t0
+    total_s = time.perf_counter() - t0
     bad = ~np.isfinite(f)
     if bad.all():
         raise SearchError(f"objective '{objective}' is NaN or infinite for every one of the "
@@ -546,4 +568,5 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
                       f"ranked best", RuntimeWarning)
     maximize = objective == "loglik"
     vals, obj = rank(values, f, maximize)
-    return SearchResult(tuple(space.names), vals, obj, objective, maximize, seconds, compile_s)
+    return SearchResult(tuple(space.names), vals, obj, objective, maximize, total_s,
+                        first_chunk_s)

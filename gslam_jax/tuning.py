@@ -22,7 +22,10 @@ position error under the filtering weights, self-normalised, E_w ||x_t - x_t^tru
 over frames; its gradient by the same weights is the score-function (likelihood-ratio) gradient
 of the filtering expectation.
 
-Parameters are optimised in log space (they stay positive); any optax optimiser by name.
+Parameters are optimised in log space (they stay positive) by an optax optimiser named by its
+constructor (``optax.adam``, ``optax.sgd``, ...) whose update takes the gradient alone; those
+that need more in their update (``optax.lbfgs``: value, grad, value_fn; ``optax.polyak_sgd``:
+value) are rejected before the run.
 """
 
 from __future__ import annotations
@@ -167,6 +170,29 @@ _value_and_grad = jax.jit(jax.value_and_grad(objective_fn),
                           static_argnames=("names", "cfg", "objective"))
 
 
+def _optimizer(name: str, lr: float, kwargs: dict, x: Array
+               ) -> tuple[optax.GradientTransformation, optax.OptState]:
+    """``getattr(optax, name)(lr, **kwargs)`` and its initial state, checked before any filter
+    run: it must be a gradient transformation whose update takes (gradient, state, params)
+    alone (one trial update on a zero gradient, discarded)."""
+    try:
+        opt = getattr(optax, name)(lr, **kwargs)
+    except TypeError as err:
+        raise TuneError(f"optimizer '{name}' cannot be built as optax.{name}(learning_rate, "
+                        f"**optimizer_kwargs): {err}") from err
+    if not isinstance(opt, optax.GradientTransformation):
+        raise TuneError(f"optimizer '{name}' is not an optax optimiser (optax.{name}(...) gave "
+                        f"{type(opt).__name__}, not a GradientTransformation)")
+    state = opt.init(x)
+    try:
+        opt.update(jnp.zeros_like(x), state, x)
+    except TypeError as err:
+        raise TuneError(f"optimizer '{name}' needs extra arguments in its update ({err}); tune "
+                        f"passes the gradient only: use an optimiser whose update needs nothing "
+                        f"more, such as adam or sgd") from err
+    return opt, state
+
+
 class TuneResult(NamedTuple):
     names: tuple[str, ...]
     values: dict[str, float]    # tuned parameters
@@ -187,13 +213,16 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
          start: dict[str, float] | None = None, runs_per_step: int = 4, key: Array | None = None,
          crn: bool = False, optimizer_kwargs: dict | None = None,
          progress: Callable[[int, int], None] | None = None) -> TuneResult:
-    """Tune ``names`` by ``optimizer`` (any optax optimiser, ``getattr(optax, optimizer)``).
+    """Tune ``names`` by ``optimizer`` (``getattr(optax, optimizer)(lr, **optimizer_kwargs)``,
+    an optimiser whose update takes the gradient alone: those needing extra update arguments,
+    e.g. ``lbfgs``, are a TuneError before any filter run).
 
     objective: "loglik" (maximise the log marginal likelihood estimate; alphas only) or
     "supervised" (minimise the expected squared position error against ground truth).
     start: initial values (default: the config's). runs_per_step: independent filter runs
     averaged per gradient. crn: reuse the same keys every step (common random numbers);
-    otherwise step s uses keys derived from fold_in(key, s).
+    otherwise step s uses keys derived from fold_in(key, s). "supervised" needs a frame with
+    finite ground truth (a TuneError otherwise: the loss would be 0 for every parameter value).
     """
     if objective not in TUNE_OBJECTIVES:
         raise TuneError(f"objective '{objective}' unknown; choose one of "
@@ -212,6 +241,9 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     if steps < 1 or runs_per_step < 1:
         raise TuneError("steps and runs_per_step must be at least 1")
     inputs, cfg = make_inputs(run, config)
+    if objective == "supervised" and not np.any(np.asarray(inputs.mask)):
+        raise TuneError("objective 'supervised' needs ground truth, but the run's ground_truth "
+                        "has no frame with finite values; use 'loglik'")
     base = slam.filter_params(config)
     cur = dict(zip(PARAM_NAMES, (config.motion.alpha_d, config.motion.alpha_theta_d,
                                  config.motion.alpha_theta, config.filter.beta_prev,
@@ -221,8 +253,7 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
         if not (math.isfinite(cur[n]) and cur[n] > 0):
             raise TuneError(f"start value of '{n}' must be positive and finite, got {cur[n]}")
     x = jnp.log(jnp.asarray([cur[n] for n in names], jnp.float32))
-    opt = getattr(optax, optimizer)(lr, **(optimizer_kwargs or {}))
-    opt_state = opt.init(x)
+    opt, opt_state = _optimizer(optimizer, lr, optimizer_kwargs or {}, x)
     key = jax.random.key(config.filter.seed) if key is None else key
     history, losses = [np.exp(np.asarray(x, np.float64))], []
     t0 = time.perf_counter()

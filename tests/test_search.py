@@ -146,6 +146,41 @@ def test_search_nan_objective_errors_and_warnings(small_run):
         S.search(small_run._replace(ground_truth=None), CONFIG, space, n=2, objective="rms")
 
 
+def test_rms_needs_a_frame_with_ground_truth(small_run):
+    """Ground truth with no finite frame would score every set 0 m: an error instead."""
+    space = S.parse_space({"alpha_d": [0.01, 0.1]})
+    blind = small_run._replace(ground_truth=np.full_like(small_run.ground_truth, np.nan))
+    with pytest.raises(S.SearchError, match="no frame with finite values"):
+        S.search(blind, CONFIG, space, n=2, objective="rms")
+    import jax
+
+    from gslam_jax import slam
+    inputs, cfg = slam.run_arrays(blind, CONFIG)
+    with pytest.raises(S.SearchError, match="no frame with finite values"):
+        S.evaluate(np.array([[0.05]]), jax.random.key(0), inputs, slam.filter_params(CONFIG),
+                   space.names, cfg, "rms")
+    # One frame with ground truth is enough; loglik needs none.
+    some = blind.ground_truth.copy()
+    some[3] = small_run.ground_truth[3]
+    res = S.search(blind._replace(ground_truth=some), CONFIG, space, n=1, objective="rms")
+    assert np.isfinite(res.objective[0])
+    S.search(blind, CONFIG, space, n=1, objective="loglik")
+
+
+def test_result_times_are_named_for_what_they_hold(small_run, tmp_path):
+    """total_seconds includes compilation; first_chunk_seconds is a part of it."""
+    space = S.parse_space({"alpha_d": [0.01, 0.1]})
+    res = S.search(small_run, CONFIG, space, n=4, objective="loglik", batch=2)
+    assert 0 < res.first_chunk_seconds <= res.total_seconds
+    res.to_json(tmp_path / "r.json")
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["total_seconds"] == res.total_seconds
+    assert doc["first_chunk_seconds"] == res.first_chunk_seconds
+    assert "seconds" not in doc and "compile_seconds" not in doc
+    with pytest.raises(S.SearchError, match="crn=False is not supported"):
+        S.search(small_run, CONFIG, space, n=2, objective="loglik", crn=False)
+
+
 def test_sharded_on_two_cpu_devices(tmp_path):
     """Sharded over a 2-device mesh gives the same objectives as one device (subprocess: the
     device count must be set before JAX is imported)."""

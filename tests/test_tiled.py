@@ -138,5 +138,117 @@ def test_dense_update_timing_replays_the_run():
     np.testing.assert_array_equal(resampled, at_updates)
 
 
+def test_ledger_counts_known_cell_caches():
+    """In "sample" mode a tile also holds its known cells (int64 keys, float32 k and S): the
+    ledger counts them (``cache_bytes``, and in ``live_bytes`` / ``peak_bytes``)."""
+    ledger = Ledger()
+    a = TileMap(4, ledger)
+    k = np.zeros((8, 8), np.float32)
+    k[1, 1] = k[5, 6] = 2.0
+    a.add(0, 0, k, k)                # tiles (0, 0) and (1, 1), one known cell each
+    cells = ledger.live_bytes
+    keys, kk, SS = a.known_cells(1)
+    cache = keys.nbytes + kk.nbytes + SS.nbytes
+    assert cache == 2 * (8 + 4 + 4) and ledger.cache_bytes == cache
+    assert ledger.live_bytes == cells + cache
+    a.known_cells(1)                 # cached: counted once
+    assert ledger.live_bytes == cells + cache
+    b = a.share()
+    b.add(0, 0, k, k)                # private copies for b, without caches; a's tiles keep theirs
+    assert ledger.cache_bytes == cache and ledger.live_bytes == 2 * cells + cache
+    a.add(0, 0, k, k)                # a's tiles written: their caches are dropped
+    assert ledger.cache_bytes == 0 and ledger.live_bytes == 2 * cells
+    a.known_cells(1)
+    a.release()                      # freed tiles free their caches too
+    b.release()
+    assert ledger.live_bytes == 0 and ledger.cache_bytes == 0 and ledger.live_tiles == 0
+    assert ledger.peak_bytes == 2 * cells + cache
+
+
+def _small_setup(mode: str, J: int = 8):
+    import jax
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from synthetic import make_run
+
+    from gslam_jax import filter as gf
+    from gslam_jax.slam import local_observations, map_extent
+
+    run, _ = make_run(seed=1, steps=24)
+    obs = local_observations(run, 1e-4)
+    L = obs.shape[1]
+    probe = gf.FilterConfig(J, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
+    ext = map_extent(run.vo_poses(), L, 0.16, 1.0, probe.window)
+    cfg = gf.FilterConfig(J, ext.shape, ext.origin, 0.16, L, unknown_cells=mode,
+                          unknown_samples=16, resample_ratio=0.9).validate()
+    params = gf.FilterParams(beta_prev=jax.numpy.float32(0.05))  # JAX scalars, as compare's
+    return run, obs, cfg, jax.random.key(2), params
+
+
+def test_tiled_run_is_numpy_only_and_its_ledger_holds_everything():
+    """With its draws made beforehand (``draw_noise``) the reference's loop, which ``compare``
+    times, copies nothing from JAX; the ledger's bytes are those of the live tiles and caches."""
+    import jax
+
+    from gslam_jax.tiled.reference import draw_noise, run_tiled
+
+    run, obs, cfg, key, params = _small_setup("sample")
+    draws = draw_noise(key, run.obs_index, cfg)
+    with jax.transfer_guard("disallow"):
+        out = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, 16 * 0.16,
+                        draws=draws)
+    again = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, 16 * 0.16)
+    np.testing.assert_array_equal(out.log_w, again.log_w)
+    np.testing.assert_array_equal(out.pose, again.pose)
+    np.testing.assert_array_equal(out.memory_bytes, again.memory_bytes)
+    assert out.resampled.any() and len(out.update_seconds) == run.num_local_maps
+    tiles = {id(t): t for m in out.final.maps for t in m.tiles.values()}
+    ledger = out.final.ledger
+    assert ledger.live_tiles == len(tiles)
+    assert ledger.cache_bytes == sum(t.cache_nbytes for t in tiles.values()) > 0
+    assert ledger.live_bytes == sum(t.nbytes + t.cache_nbytes for t in tiles.values())
+    assert out.peak_bytes >= out.memory_bytes.max()
+
+
+def test_compare_times_fairly_and_names_its_figures(monkeypatch, capsys):
+    """The timed tiled run gets its draws made beforehand (no JAX copy inside); the dense
+    memory is named for what it is (fixed state arrays); the update-alone ratio divides the
+    tiled updates that did not resample by the dense update alone; an ISA cap in XLA_FLAGS
+    labels the dense column."""
+    import jax
+
+    from gslam_jax.config import Config, FilterSection, MapSection
+    from gslam_jax.tiled import compare as C
+
+    jax.devices()  # the backend starts here, before XLA_FLAGS changes (XLA reads it at start)
+    assert C.dense_label("") == "dense (JAX)"
+    assert C.dense_label("--xla_cpu_max_isa=AVX --xla_foo=1") == "dense (JAX, AVX only)"
+    real = C.run_tiled
+
+    def timed_tiled(*args, **kwargs):
+        assert kwargs.get("draws") is not None
+        with jax.transfer_guard("disallow"):
+            return real(*args, **kwargs)
+
+    monkeypatch.setattr(C, "run_tiled", timed_tiled)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX")
+    run, *_ = _small_setup("ignore")
+    config = Config(filter=FilterSection(resample_ratio=0.9, unknown_cells="ignore"),
+                    map=MapSection(margin=1.0))
+    res = C.compare(run, config, particles=8)
+    text = capsys.readouterr().out
+    assert "dense (JAX, AVX only)" in text and "XLA_FLAGS: --xla_cpu_max_isa=AVX" in text
+    d, t = res["dense"], res["tiled"]
+    assert "peak_MB" not in d and d["state_MB"] > 0 and t["draw_seconds"] > 0
+    assert d["xla_cpu_max_isa"] == "AVX"
+    n_rs, M = res["tiled_resamplings"], res["updates"]
+    assert 0 < n_rs < M, (n_rs, M)
+    assert res["speed_ratio_update_alone"] == (t["seconds_per_update_without_resampling"]
+                                               / d["update_alone_seconds"])
+    np.testing.assert_allclose(n_rs * t["seconds_per_update_that_resampled"]
+                               + (M - n_rs) * t["seconds_per_update_without_resampling"],
+                               M * t["seconds_per_update"], rtol=1e-9)
+
+
 if __name__ == "__main__":
     print(json.dumps(_equivalence()))

@@ -94,3 +94,24 @@ def test_tune_moves_towards_lower_loss_and_checks_input(short_run):
                   names=["alpha_d"], start={"alpha_d": 0.3}, runs_per_step=1)
     assert res.history.shape == (3, 1) and np.all(np.isfinite(res.losses))
     assert res.values["alpha_d"] > 0 and res.values["alpha_d"] != 0.3
+
+
+def test_tune_rejects_optimisers_needing_more_than_the_gradient(short_run):
+    """lbfgs (value, grad, value_fn) and polyak_sgd (value) are refused before any filter run,
+    naming the optimiser, not a TypeError mid-run."""
+    config = _config(8)
+    for name in ("lbfgs", "polyak_sgd"):
+        with pytest.raises(TU.TuneError, match=f"optimizer '{name}' needs extra arguments"):
+            TU.tune(short_run, config, "supervised", optimizer=name, steps=1,
+                    names=["alpha_d"], runs_per_step=1)
+    with pytest.raises(TU.TuneError, match="optimizer 'apply_updates' cannot be built"):
+        TU.tune(short_run, config, "supervised", optimizer="apply_updates", steps=1)
+    with pytest.raises(TU.TuneError, match="'constant_schedule' is not an optax optimiser"):
+        TU.tune(short_run, config, "supervised", optimizer="constant_schedule", steps=1)
+
+
+def test_supervised_needs_a_frame_with_ground_truth(short_run):
+    """No finite ground-truth frame would make the loss 0 whatever the parameters."""
+    blind = short_run._replace(ground_truth=np.full_like(short_run.ground_truth, np.nan))
+    with pytest.raises(TU.TuneError, match="no frame with finite values"):
+        TU.tune(blind, _config(8), "supervised", steps=1, names=["alpha_d"], runs_per_step=1)

@@ -5,12 +5,19 @@ frame (log weights, poses), on resampling decisions, and on the final maps (k, S
 agreement of the discrete choices (which cell a local cell lands in) needs the dense filter
 compiled without fused multiply-adds: set ``XLA_FLAGS=--xla_cpu_max_isa=AVX`` before JAX starts
 (``experiments/compare_tiled.py --exact``); with FMA a few boundary cells may land differently.
+The dense timings are then those of that AVX-only build, and are labelled so.
+
+Timing: the dense run is timed after compilation; the tiled run after its random numbers were
+drawn (``reference.draw_noise``: jitted, then copied to NumPy), so neither total includes
+compilation or JAX dispatch of the draws; the draws' time is reported on its own.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import re
 import time
 from functools import partial
 from pathlib import Path
@@ -23,10 +30,10 @@ import numpy as np
 from gslam_jax import filter as gf
 from gslam_jax.config import Config
 from gslam_jax.run import Run
-from gslam_jax.tiled.reference import DEFAULT_TILE_SIZE, TiledOutput, run_tiled
+from gslam_jax.tiled.reference import DEFAULT_TILE_SIZE, TiledOutput, draw_noise, run_tiled
 
-__all__ = ["TOLERANCES", "default_tile_size", "DenseOutput", "run_dense", "time_dense_updates",
-           "check_agreement", "compare"]
+__all__ = ["TOLERANCES", "default_tile_size", "dense_label", "DenseOutput", "run_dense",
+           "time_dense_updates", "check_agreement", "compare"]
 
 TOLERANCES = {"log_w": 1e-4, "pose": 1e-5, "k": 1e-6, "S_rel": 1e-5}
 
@@ -36,6 +43,20 @@ def default_tile_size(resolution: float, metres: float = DEFAULT_TILE_SIZE) -> f
     return max(1, round(metres / resolution)) * resolution
 
 
+def _max_isa(xla_flags: str | None = None) -> str | None:
+    """The ISA cap ``--xla_cpu_max_isa=...`` in ``xla_flags`` (default: $XLA_FLAGS), if any."""
+    flags = os.environ.get("XLA_FLAGS", "") if xla_flags is None else xla_flags
+    isa = re.findall(r"--xla_cpu_max_isa=(\S+)", flags)
+    return isa[-1] if isa else None
+
+
+def dense_label(xla_flags: str | None = None) -> str:
+    """Column label of the dense filter: "dense (JAX)", or "dense (JAX, AVX only)" when
+    ``xla_flags`` (default: $XLA_FLAGS) caps the ISA at AVX, as ``--exact`` does."""
+    isa = _max_isa(xla_flags)
+    return f"dense (JAX, {isa} only)" if isa else "dense (JAX)"
+
+
 class DenseOutput(NamedTuple):
     pose: np.ndarray          # [T, J, 3]
     log_w: np.ndarray         # [T, J]
@@ -43,7 +64,8 @@ class DenseOutput(NamedTuple):
     resampled: np.ndarray     # [T]
     kmap: np.ndarray          # [J, H, W]
     smap: np.ndarray
-    state_bytes: int          # bytes of the dense particle state (maps, bitmasks, poses, weights)
+    state_bytes: int          # bytes of the dense particle state (maps, bitmasks, poses, weights):
+    #                           fixed shapes, so the same at every frame (XLA's temporaries aside)
     seconds: float            # whole run after compilation
     update_seconds: float     # one local-map update (median of repeats, jitted, donated state)
     run_update_seconds: np.ndarray = np.zeros(0)  # [M] each update as the run executes it
@@ -65,12 +87,17 @@ def time_dense_updates(key: jax.Array, params: gf.FilterParams, run: Run, obs: n
     frame of ``run_filter``, same draws), jitted with the state donated. A timed call is the
     frame's predict (~0.03 us per particle) and its update.
 
+    The per-frame inputs are sliced into lists of device arrays beforehand, so that no eager
+    JAX indexing lands in a timed call.
+
     Returns [M] seconds and [M] whether each update resampled."""
-    keys = gf.frame_keys(key, run.num_frames)
+    all_keys = gf.frame_keys(key, run.num_frames)
     step = jax.jit(lambda k, s, u, local: gf.step(k, s, u, local, params, cfg), donate_argnums=1)
-    controls = jnp.asarray(run.controls, jnp.float32)
-    local_obs = jnp.asarray(obs)
+    keys = [all_keys[t] for t in range(run.num_frames)]
+    controls = [jnp.asarray(u) for u in np.asarray(run.controls, np.float32)]
+    local_obs = [jnp.asarray(o) for o in np.asarray(obs)]
     start = jnp.asarray(run.start_pose(), jnp.float32)
+    jax.block_until_ready(keys + controls + local_obs)
     jax.block_until_ready(step(keys[0], gf.init(cfg, start), controls[0], local_obs[0]))  # compile
     state = gf.init(cfg, start)
     times, resampled = [], []
@@ -89,7 +116,8 @@ def time_dense_updates(key: jax.Array, params: gf.FilterParams, run: Run, obs: n
 def run_dense(key: jax.Array, params: gf.FilterParams, run: Run, obs: np.ndarray,
               cfg: gf.FilterConfig, repeats: int = 5) -> DenseOutput:
     """The dense filter over the Run (compiled once, then timed), the update alone on its final
-    maps, and every update as the run executes it (``time_dense_updates``)."""
+    maps, and every update as the run executes it (``time_dense_updates``). The state's bytes
+    are those of its fixed-shape arrays, allocated once: the same at every frame."""
     args = (key, params, jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index, jnp.int32),
             jnp.asarray(obs), cfg, jnp.asarray(run.start_pose(), jnp.float32))
     jax.block_until_ready(gf.run_filter(*args))  # compile
@@ -158,12 +186,12 @@ def _plot(path: Path, dense: DenseOutput, tiled: TiledOutput, title: str) -> Non
     import matplotlib.pyplot as plt
 
     fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    a.plot(dense.ess, label="dense (JAX)")
+    a.plot(dense.ess, label=dense_label())
     a.plot(tiled.ess, "--", label="tiled reference")
     a.set_ylabel("effective sample size")
     a.legend()
-    b.plot(tiled.memory_bytes / 2 ** 20, label="tiled: bytes held by tiles")
-    b.axhline(dense.state_bytes / 2 ** 20, color="k", ls=":", label="dense: state arrays")
+    b.plot(tiled.memory_bytes / 2 ** 20, label="tiled: bytes held by tiles (and known caches)")
+    b.axhline(dense.state_bytes / 2 ** 20, color="k", ls=":", label="dense: state arrays (fixed)")
     b.set_ylabel("map memory (MB)")
     b.set_xlabel("frame")
     b.set_yscale("log")
@@ -217,48 +245,71 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
         f"J={cfg.num_particles}, unknown_cells={cfg.unknown_cells}, tile {tile:g} m")
     dense = run_dense(key, params, run, obs, cfg)
     t0 = time.perf_counter()
-    tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile, run.start_pose())
+    draws = draw_noise(key, run.obs_index, cfg)  # compiles and dispatches the draws: not timed
+    draw_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile, run.start_pose(),
+                      draws=draws)
     tiled_s = time.perf_counter() - t0
     agree = check_agreement(dense, tiled, cfg)
+    tiled_upd_rs = np.asarray(tiled.resampled)[np.asarray(run.obs_index) >= 0]  # [M]
     upd_t = float(np.mean(tiled.update_seconds))
+    tiled_rs = _mean(tiled.update_seconds[tiled_upd_rs])
+    tiled_kept = _mean(tiled.update_seconds[~tiled_upd_rs])
     dense_t = float(np.mean(dense.run_update_seconds))
     dense_rs = _mean(dense.run_update_seconds[dense.run_resampled])
     dense_kept = _mean(dense.run_update_seconds[~dense.run_resampled])
     n_resampled = int(np.sum(dense.run_resampled))
+    label = dense_label()
     MB = 2 ** 20
     res = {
         "environment": env, "particles": cfg.num_particles, "unknown_cells": cfg.unknown_cells,
         "map_shape": list(cfg.map_shape), "tile_size_m": tile, "frames": run.num_frames,
         "updates": run.num_local_maps, "agreement": agree,
-        "dense": {"seconds_per_update": dense_t, "update_alone_seconds": dense.update_seconds,
+        "dense": {"label": label, "xla_cpu_max_isa": _max_isa(),
+                  "seconds_per_update": dense_t, "update_alone_seconds": dense.update_seconds,
                   "replay_resamplings": n_resampled,
                   "seconds_per_update_that_resampled": dense_rs,
                   "seconds_per_update_without_resampling": dense_kept,
                   "total_seconds": dense.seconds,
-                  "peak_MB": dense.state_bytes / MB},
-        "tiled": {"seconds_per_update": upd_t, "total_seconds": tiled_s,
+                  # fixed-shape arrays allocated once: the same bytes at every frame
+                  "state_MB": dense.state_bytes / MB},
+        "tiled": {"seconds_per_update": upd_t,
+                  "seconds_per_update_that_resampled": tiled_rs,
+                  "seconds_per_update_without_resampling": tiled_kept,
+                  "total_seconds": tiled_s, "draw_seconds": draw_s,
                   "peak_MB": tiled.peak_bytes / MB, "final_MB": float(tiled.memory_bytes[-1]) / MB,
+                  "final_known_cache_MB": tiled.final.ledger.cache_bytes / MB,
                   "max_tiles": int(tiled.tiles.max()), "max_shared_per_particle": float(tiled.shared_mean.max())},
         "tiled_resamplings": int(np.sum(tiled.resampled)),
         # mean time per local-map update as each run executes it, resampling included
         "speed_ratio_tiled_over_dense": upd_t / dense_t,
-        "speed_ratio_update_alone": upd_t / dense.update_seconds,
+        # tiled updates that did not resample against the dense update alone (no resampling)
+        "speed_ratio_update_alone": tiled_kept / dense.update_seconds,
         "memory_MB_per_frame": (tiled.memory_bytes / MB).tolist(),
         "ess_dense": np.asarray(dense.ess).tolist(), "ess_tiled": tiled.ess.tolist(),
     }
-    say(f"\n{'':28}{'dense (JAX)':>16}{'tiled (NumPy)':>16}")
-    say(f"{'time per local-map update':28}{1e3 * dense_t:>13.2f} ms{1e3 * upd_t:>13.2f} ms"
+    w = max(16, len(label) + 2)
+    say(f"\n{'':30}{label:>{w}}{'tiled (NumPy)':>16}")
+    say(f"{'time per local-map update':30}{1e3 * dense_t:>{w - 3}.2f} ms{1e3 * upd_t:>13.2f} ms"
         f"   (mean over the run's updates, resampling included: {n_resampled} / "
         f"{res['tiled_resamplings']} of {len(dense.run_update_seconds)})")
-    say(f"{'  dense, updates resampling':28}{1e3 * dense_rs:>13.2f} ms"
-        f"   (the others {1e3 * dense_kept:.2f} ms: a resampling copies the dead particles' maps)")
-    say(f"{'  update alone, no resampling':28}{1e3 * dense.update_seconds:>13.2f} ms"
-        f"   (dense: final maps, median of repeats, as gslam bench)")
-    say(f"{'total time':28}{dense.seconds:>14.2f} s{tiled_s:>14.2f} s")
-    say(f"{'peak map memory':28}{dense.state_bytes / MB:>13.1f} MB{tiled.peak_bytes / MB:>13.1f} MB"
-        f"   (paper Fig. 4: 40-160 MB for 200 particles)")
+    say(f"{'  updates that resampled':30}{1e3 * dense_rs:>{w - 3}.2f} ms{1e3 * tiled_rs:>13.2f} ms"
+        f"   (dense: copies the dead particles' maps; tiled: shares their tiles)")
+    say(f"{'  updates without resampling':30}{1e3 * dense_kept:>{w - 3}.2f} ms"
+        f"{1e3 * tiled_kept:>13.2f} ms")
+    say(f"{'  update alone, no resampling':30}{1e3 * dense.update_seconds:>{w - 3}.2f} ms"
+        f"{'':16}   (dense: final maps, median of repeats, as gslam bench)")
+    say(f"{'total time':30}{dense.seconds:>{w - 2}.2f} s{tiled_s:>14.2f} s"
+        f"   (both after compilation; tiled draws made beforehand, {draw_s:.2f} s, not counted)")
+    say(f"{'map memory: fixed / peak':30}{dense.state_bytes / MB:>{w - 3}.1f} MB"
+        f"{tiled.peak_bytes / MB:>13.1f} MB"
+        f"   (dense: fixed state arrays, the same at every frame; tiled: peak held by tiles,"
+        f" known-cell caches included, {tiled.final.ledger.cache_bytes / MB:.1f} MB at the end;"
+        f" paper Fig. 4: 40-160 MB for 200 particles)")
     say(f"speed ratio (tiled / dense time per update): {res['speed_ratio_tiled_over_dense']:.1f}x "
-        f"(tiled / dense update alone: {res['speed_ratio_update_alone']:.1f}x)")
+        f"(tiled updates without resampling / dense update alone: "
+        f"{res['speed_ratio_update_alone']:.1f}x)")
     step = max(1, run.num_frames // 10)
     say("memory over frames (tiled MB / distinct tiles / tiles shared per particle):")
     for t in range(0, run.num_frames, step):

@@ -15,7 +15,9 @@ Shared semantics with the dense filter (they define "the same numbers"):
   block); the c-th observed local cell (k > 0, counted row-major from 0) borrows draw
   c mod unknown_samples, for the weight only.
 * Random numbers come from the dense module's drawing functions, so both filters see the same
-  draws; nothing else of the dense implementation is used.
+  draws; nothing else of the dense implementation is used. ``draw_noise`` makes every frame's
+  draws up front, as NumPy arrays, so that no JAX compilation, dispatch or copy lands in the
+  run's loop (or in its timings).
 """
 
 from __future__ import annotations
@@ -32,8 +34,9 @@ from gslam_jax.filter import FilterConfig, FilterParams, UpdateNoise, frame_keys
 from gslam_jax.tiled import numerics as nm
 from gslam_jax.tiled.tiles import Ledger, TileMap, tile_cells
 
-__all__ = ["DEFAULT_TILE_SIZE", "TiledState", "UpdateInfo", "TiledOutput", "cells_per_metre",
-           "footprint", "init", "predict", "update", "run_tiled", "memory_snapshot"]
+__all__ = ["DEFAULT_TILE_SIZE", "TiledState", "UpdateInfo", "TiledOutput", "Draws",
+           "cells_per_metre", "footprint", "init", "predict", "update", "draw_noise", "run_tiled",
+           "memory_snapshot"]
 
 DEFAULT_TILE_SIZE = 10.0  # metres (paper 6.3)
 F32 = np.float32
@@ -126,7 +129,7 @@ def _particle(tmap: TileMap, pose: np.ndarray, cs: tuple, obs: np.ndarray, u: np
     sum_new = 0.0
     if cfg.unknown_cells == "sample":
         new = has & ~prev
-        keys, kk, SS = tmap.known_cells(cfg.map_shape[1] // BLOCK)
+        keys, kk, SS = tmap.known_cells(cfg.map_shape[1] // BLOCK)  # cached per tile
         if keys.size and new.any():
             total = keys.size
             r = np.clip(np.floor(u * F32(total)).astype(np.int64), 0, total - 1)
@@ -179,10 +182,12 @@ def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: Filte
 
 
 def memory_snapshot(state: TiledState) -> dict:
-    """Bytes held by live tiles, distinct tiles, and tiles shared per particle (mean, max)."""
+    """Bytes held by live tiles (cells and known-cell caches; ``cache_bytes`` the caches alone),
+    distinct tiles, and tiles shared per particle (mean, max)."""
     shared = [sum(t.refs > 1 for t in m.tiles.values()) for m in state.maps]
     held = [len(m.tiles) for m in state.maps]
-    return {"bytes": state.ledger.live_bytes, "tiles": state.ledger.live_tiles,
+    return {"bytes": state.ledger.live_bytes, "cache_bytes": state.ledger.cache_bytes,
+            "tiles": state.ledger.live_tiles,
             "shared_mean": float(np.mean(shared)), "shared_max": int(max(shared)),
             "held_mean": float(np.mean(held))}
 
@@ -195,11 +200,11 @@ class TiledOutput(NamedTuple):
     ess: np.ndarray            # [T] (after the weight update, before resampling)
     resampled: np.ndarray      # [T] bool
     ancestors: np.ndarray      # [T, J]
-    memory_bytes: np.ndarray   # [T] bytes held by tiles after the frame
+    memory_bytes: np.ndarray   # [T] bytes held by tiles after the frame (cells + known caches)
     tiles: np.ndarray          # [T] distinct live tiles
     shared_mean: np.ndarray    # [T] tiles shared per particle (mean)
-    update_seconds: np.ndarray  # [M] wall time of each local-map update
-    peak_bytes: int
+    update_seconds: np.ndarray  # [M] wall time of each local-map update (``update`` alone)
+    peak_bytes: int            # most bytes held by tiles at any time (cells + known caches)
     extent_violations: int
     final: TiledState
 
@@ -216,26 +221,60 @@ def _draw_fns(cfg: FilterConfig) -> tuple[Callable, Callable]:
     return jax.jit(motion), jax.jit(upd)
 
 
+class Draws(NamedTuple):
+    """Every frame's random numbers as NumPy arrays (``draw_noise``)."""
+
+    motion: list[np.ndarray]       # [T] standard normals [J, 2]
+    update: dict[int, UpdateNoise]  # frame -> uniforms, for the frames with a local map
+
+
+def draw_noise(key: jax.Array, obs_index: np.ndarray, cfg: FilterConfig) -> Draws:
+    """The dense filter's per-frame random numbers (``frame_keys``; each frame key split into
+    motion and update keys), drawn frame by frame by jitted functions (compiled on the first
+    call) and copied to NumPy: what ``run_tiled`` consumes, made before it runs."""
+    obs_index = np.asarray(obs_index)
+    keys = frame_keys(key, len(obs_index))
+    draw_motion, draw_update = _draw_fns(cfg)
+    motion, update_ = [], {}
+    for t in range(len(obs_index)):
+        k = keys[t]
+        motion.append(np.asarray(draw_motion(k)))
+        if obs_index[t] >= 0:
+            update_[t] = jax.tree.map(np.asarray, draw_update(k))
+    return Draws(motion, update_)
+
+
+def _host_params(params: FilterParams) -> FilterParams:
+    """``params`` as Python floats (one device-to-host copy), so the run reads no JAX array."""
+    return jax.tree.map(float, jax.device_get(params))
+
+
 def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_index: np.ndarray,
               local_obs: np.ndarray, cfg: FilterConfig, tile_size: float = DEFAULT_TILE_SIZE,
               start_pose: np.ndarray | None = None,
-              progress: Callable[[int, int], None] | None = None) -> TiledOutput:
-    """The whole run, frame by frame, with the dense filter's per-frame random numbers
-    (``frame_keys``; each frame key split into motion and update keys)."""
+              progress: Callable[[int, int], None] | None = None,
+              draws: Draws | None = None) -> TiledOutput:
+    """The whole run, frame by frame, with the dense filter's per-frame random numbers:
+    ``draws`` (``draw_noise(key, obs_index, cfg)``, made here first when not given; pass them
+    to time the run alone). With ``draws`` given, the loop is NumPy only: ``key`` is unused."""
     state = init(cfg, tile_size, start_pose)
-    controls = np.asarray(controls, F32)
     obs_index = np.asarray(obs_index)
+    if draws is None:
+        draws = draw_noise(key, obs_index, cfg)
+    params = _host_params(params)
+    controls = np.asarray(controls, F32)
+    local_obs = np.asarray(local_obs, F32)
     T, J = controls.shape[0], cfg.num_particles
-    keys = frame_keys(key, T)
-    draw_motion, draw_update = _draw_fns(cfg)
+    if len(draws.motion) != T:
+        raise ValueError(f"draws for {len(draws.motion)} frames, the run has {T}")
     out = {n: [] for n in ("pose", "log_w", "ess", "resampled", "ancestors", "mem", "tiles", "shared")}
     upd_s, violations = [], 0
     snap = memory_snapshot(state)
     for t in range(T):
-        predict(state, controls[t], np.asarray(draw_motion(keys[t])), params)
+        predict(state, controls[t], draws.motion[t], params)
         ess, resampled, anc = nm.ess(state.log_w), False, np.arange(J)
         if obs_index[t] >= 0:
-            noise = jax.tree.map(np.asarray, draw_update(keys[t]))
+            noise = draws.update[t]
             t0 = time.perf_counter()
             info = update(state, local_obs[obs_index[t]], noise, params, cfg)
             upd_s.append(time.perf_counter() - t0)

@@ -4,7 +4,8 @@ The global map is cut into square tiles of ``side`` cells. A particle's map is a
 coordinate to a reference-counted ``Tile``; a tile is allocated when a cell in it is first
 written, so unvisited space costs nothing. Resampling copies only the dict (each tile's count
 goes up); the first write to a tile held by more than one map makes a private copy. A
-``Ledger`` keeps the bytes held by live tiles.
+``Ledger`` keeps the bytes held by live tiles: their cells (k, S) and, in "sample" mode, their
+known-cell caches (``Tile.known``), the latter also on their own (``Ledger.cache_bytes``).
 """
 
 from __future__ import annotations
@@ -36,13 +37,18 @@ def tile_cells(tile_size: float, resolution: float) -> int:
 
 @dataclass
 class Ledger:
-    """Bytes and count of live tiles, shared by all maps of one filter."""
+    """Bytes and count of live tiles, shared by all maps of one filter.
+
+    ``live_bytes`` (and its maximum ``peak_bytes``) is everything the tiles hold: cells (k, S)
+    and known-cell caches; ``cache_bytes`` is the caches' part of it.
+    """
 
     live_bytes: int = 0
     live_tiles: int = 0
     peak_bytes: int = 0
     allocations: int = 0
     copies: int = 0
+    cache_bytes: int = 0
 
     def add(self, nbytes: int, copy: bool) -> None:
         self.live_bytes += nbytes
@@ -55,9 +61,21 @@ class Ledger:
         self.live_bytes -= nbytes
         self.live_tiles -= 1
 
+    def cache(self, nbytes: int) -> None:
+        """A tile's known-cell cache was built."""
+        self.live_bytes += nbytes
+        self.cache_bytes += nbytes
+        self.peak_bytes = max(self.peak_bytes, self.live_bytes)
+
+    def uncache(self, nbytes: int) -> None:
+        """A tile's known-cell cache was dropped."""
+        self.live_bytes -= nbytes
+        self.cache_bytes -= nbytes
+
 
 class Tile:
-    """k and S of ``side`` x ``side`` cells, with a count of the maps that hold it."""
+    """k and S of ``side`` x ``side`` cells, with a count of the maps that hold it and, once
+    ``known`` was asked, a cache of its known cells (counted in the ledger passed to ``known``)."""
 
     __slots__ = ("k", "S", "refs", "_known")
 
@@ -68,10 +86,17 @@ class Tile:
 
     @property
     def nbytes(self) -> int:
+        """Bytes of the cells (k, S); the known-cell cache is ``cache_nbytes``."""
         return self.k.nbytes + self.S.nbytes
 
-    def known(self, i0: int, j0: int, blocks_w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Known cells (k > 0) as (order keys, k, S), sorted by key; cached until written.
+    @property
+    def cache_nbytes(self) -> int:
+        return sum(a.nbytes for a in self._known) if self._known is not None else 0
+
+    def known(self, i0: int, j0: int, blocks_w: int, ledger: Ledger | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Known cells (k > 0) as (order keys, k, S), sorted by key; cached until written
+        (``drop_known``), the cache's bytes counted in ``ledger``.
 
         The key orders cells by 8 x 8 block, blocks row-major over a map ``blocks_w`` blocks
         wide, and row-major inside a block; (i0, j0) is the tile's first global cell.
@@ -82,7 +107,16 @@ class Tile:
             keys = ((gi // 8) * blocks_w + gj // 8) * 64 + (gi % 8) * 8 + gj % 8
             order = np.argsort(keys, kind="stable")
             self._known = (keys[order].astype(np.int64), self.k[ii, jj][order], self.S[ii, jj][order])
+            if ledger is not None:
+                ledger.cache(self.cache_nbytes)
         return self._known
+
+    def drop_known(self, ledger: Ledger | None = None) -> None:
+        """Forget the known-cell cache (the cells are about to change, or the tile is freed)."""
+        if self._known is not None:
+            if ledger is not None:
+                ledger.uncache(self.cache_nbytes)
+            self._known = None
 
 
 @dataclass
@@ -104,6 +138,7 @@ class TileMap:
         for t in self.tiles.values():
             t.refs -= 1
             if t.refs == 0:
+                t.drop_known(self.ledger)
                 self.ledger.free(t.nbytes)
         self.tiles = {}
 
@@ -138,7 +173,7 @@ class TileMap:
             t = Tile(t.k.copy(), t.S.copy())
             self.ledger.add(t.nbytes, copy=True)
         else:
-            t._known = None
+            t.drop_known(self.ledger)
             return t
         self.tiles[coord] = t
         return t
@@ -157,9 +192,11 @@ class TileMap:
 
     def known_cells(self, blocks_w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All known cells of the map in the sampler's order (8 x 8 blocks row-major, then
-        row-major inside a block): (keys, k, S)."""
+        row-major inside a block): (keys, k, S). Each tile's part is cached in the tile (and
+        counted in the ledger) until the tile is written."""
         T = self.side
-        parts = [t.known(ti * T, tj * T, blocks_w) for (ti, tj), t in self.tiles.items()]
+        parts = [t.known(ti * T, tj * T, blocks_w, self.ledger)
+                 for (ti, tj), t in self.tiles.items()]
         if not parts:
             e = np.zeros(0)
             return e.astype(np.int64), e.astype(F32), e.astype(F32)

@@ -1,0 +1,38 @@
+"""The machine line printed beside every figure: CPU model, usable cores, JAX settings."""
+
+import os
+import platform
+from pathlib import Path
+
+import jax
+
+from gslam_jax import bench
+
+
+def test_cpu_model_from_cpuinfo(tmp_path):
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nvendor_id\t: GenuineIntel\nmodel name\t: Test CPU @ 3.00GHz\n"
+                    "\nprocessor\t: 1\nmodel name\t: Test CPU @ 3.00GHz\n")
+    assert bench.cpu_model(info) == "Test CPU @ 3.00GHz"
+    assert bench.cpu_model(tmp_path / "absent") == (platform.processor() or platform.machine())
+    (tmp_path / "arm").write_text("processor\t: 0\nBogoMIPS\t: 50.00\n")
+    assert bench.cpu_model(tmp_path / "arm") == (platform.processor() or platform.machine())
+
+
+def test_environment_names_the_cpu_cores_and_jax_settings(monkeypatch):
+    jax.devices()  # the backend starts before the variables change (XLA reads them at start)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX")
+    monkeypatch.delenv("JAX_PLATFORMS", raising=False)
+    env = bench.environment()
+    assert env["XLA_FLAGS"] == "--xla_cpu_max_isa=AVX" and "JAX_PLATFORMS" not in env
+    assert env["processor"]
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists() and "model name" in cpuinfo.read_text(errors="replace"):
+        assert env["processor"] == bench.cpu_model(cpuinfo) != ""
+    if hasattr(os, "sched_getaffinity"):
+        assert env["usable_cpus"] == len(os.sched_getaffinity(0))
+    assert env["cpus"] == os.cpu_count()
+    monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    env = bench.environment()
+    assert env["JAX_PLATFORMS"] == "cpu" and "XLA_FLAGS" not in env
