@@ -14,7 +14,8 @@ if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--courses", nargs="+", default=list(PAPER_TABLE1))
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--particles", type=int, default=200)
+    p.add_argument("--particles", type=int, default=None,
+                   help="J (default: the config's filter.particles, 200 without a config)")
     p.add_argument("--config", type=Path)
     p.add_argument("--json", type=Path)
     p.add_argument("--quick", action="store_true")
