@@ -244,29 +244,8 @@ def _check_gps(args: argparse.Namespace, run, log) -> _GpsInput | None:
     return _GpsInput(name, log, truth_xy, inside)
 
 
-def _trajectory_errors(vo_path: np.ndarray, best_path: np.ndarray, gt: np.ndarray) -> dict:
-    """RMS after the rigid fit and final error (anchored at the first scored frame, which needs
-    a finite heading there) of the VO and Gamma-SLAM paths, over the frames whose ground-truth
-    position is finite (``gt_frames_scored``; no figures below 2)."""
-    from gslam_jax import metrics
-
-    gt = np.asarray(gt, np.float64)
-    frames = np.flatnonzero(np.isfinite(gt[:, :2]).all(axis=1))
-    out: dict = {"gt_frames_scored": int(frames.size)}
-    if frames.size < 2:
-        return out
-    every = frames.size == len(gt)  # then exactly the figures over all frames
-    for name, path in (("vo", vo_path), ("slam", best_path)):
-        path = np.asarray(path, np.float64)
-        out[f"{name}_rms_m"] = metrics.rms_after_fit(path, gt, None if every else frames)
-        if np.isfinite(gt[frames[0], 2]):
-            out[f"{name}_final_error_m"] = metrics.final_position_error(
-                path if every else path[frames], gt if every else gt[frames])
-    return out
-
-
 def cmd_run(args: argparse.Namespace) -> int:
-    from gslam_jax import slam
+    from gslam_jax import metrics, slam
     from gslam_jax.config import config_to_toml
     from gslam_jax.io import save_map, write_kitti, write_tum
 
@@ -306,7 +285,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         "compile_seconds": result.compile_seconds,
     }
     if run.ground_truth is not None:
-        summary.update(_trajectory_errors(result.vo_path, result.best_path, run.ground_truth))
+        summary.update(metrics.errors_over_known_frames(
+            {"vo": result.vo_path, "slam": result.best_path}, run.ground_truth))
     _write_figures(out, run, result, config.filter.particles, config.filter.resample_ratio)
     _write_json(out / "summary.json", summary)  # rewritten below with the GPS figures
     print(f"distance: {summary['distance_m']:.1f} m")

@@ -15,8 +15,8 @@ from . import cells
 from .run import Run
 
 __all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
-           "drift_per_distance", "path_length", "trajectory_metrics", "ess_summary", "GridMap",
-           "pose_map", "vo_only_map"]
+           "drift_per_distance", "path_length", "trajectory_metrics", "errors_over_known_frames",
+           "ess_summary", "GridMap", "pose_map", "vo_only_map"]
 
 
 class RigidFit(NamedTuple):
@@ -141,6 +141,27 @@ def trajectory_metrics(estimate: np.ndarray, reference: np.ndarray,
     }
     if frames is not None and len(frames) >= 2:
         out["rms_survey_m"] = rms_after_fit(estimate, reference, frames)
+    return out
+
+
+def errors_over_known_frames(paths: dict[str, np.ndarray], reference: np.ndarray) -> dict:
+    """``{name}_rms_m`` (after the rigid fit) and ``{name}_final_error_m`` (anchored at the first
+    scored frame, which needs a finite heading there) of each path, over the frames whose
+    reference position is finite (NaN rows: frames without ground truth), and
+    ``gt_frames_scored``. No figures with fewer than 2 such frames; with every frame known, the
+    figures are exactly ``rms_after_fit`` and ``final_position_error`` over all frames."""
+    reference = np.asarray(reference, np.float64)
+    frames = np.flatnonzero(np.isfinite(reference[:, :2]).all(axis=1))
+    out: dict = {"gt_frames_scored": int(frames.size)}
+    if frames.size < 2:
+        return out
+    every = frames.size == len(reference)
+    for name, path in paths.items():
+        path = np.asarray(path, np.float64)
+        out[f"{name}_rms_m"] = rms_after_fit(path, reference, None if every else frames)
+        if np.isfinite(reference[frames[0], 2]):
+            out[f"{name}_final_error_m"] = final_position_error(
+                path if every else path[frames], reference if every else reference[frames])
     return out
 
 

@@ -241,12 +241,12 @@ def test_compare_accepts_a_table1_config(tmp_path, monkeypatch, capsys):
 
 def test_trajectory_errors_match_the_metrics_on_full_ground_truth():
     from gslam_jax import metrics
-    from gslam_jax.cli import _trajectory_errors
+    from gslam_jax.metrics import errors_over_known_frames
 
     run, _ = make_run(steps=30)
     gt, vo = np.asarray(run.ground_truth), run.vo_poses()
     slam = gt + 0.01 * np.random.default_rng(0).standard_normal(gt.shape)
-    got = _trajectory_errors(vo, slam, gt)
+    got = errors_over_known_frames({"vo": vo, "slam": slam}, gt)
     assert got == {"gt_frames_scored": 30,
                    "vo_rms_m": metrics.rms_after_fit(vo, gt),
                    "vo_final_error_m": metrics.final_position_error(vo, gt),
@@ -254,5 +254,5 @@ def test_trajectory_errors_match_the_metrics_on_full_ground_truth():
                    "slam_final_error_m": metrics.final_position_error(slam, gt)}
     no_heading = gt.copy()
     no_heading[:, 2] = np.nan  # positions only: RMS, but no start-anchored final error
-    got = _trajectory_errors(vo, slam, no_heading)
+    got = errors_over_known_frames({"vo": vo, "slam": slam}, no_heading)
     assert got["vo_rms_m"] == metrics.rms_after_fit(vo, gt) and "vo_final_error_m" not in got
