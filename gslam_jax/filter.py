@@ -71,7 +71,10 @@ class FilterConfig(NamedTuple):
         them (eq. 14) while they are still in cache. Auto: on a CPU, blocks of about
         ``CPU_BLOCK_CELLS`` footprint cells (25 particles of a 64 x 64 local map: 34-36 us per
         particle against 57-60 for one pass over J = 200, A/B in one process); on
-        accelerators, one pass over all particles (the device wants them all at once).
+        accelerators, one pass over all particles (the device wants them all at once). Auto
+        reads the default backend when the update is traced; JAX may reuse that trace on
+        another backend in the same process, so set ``particle_block`` there (speed only: every
+        block size gives the same results).
         """
         J = self.num_particles
         if self.particle_block:
