@@ -73,8 +73,8 @@ class FilterConfig(NamedTuple):
         particle against 57-60 for one pass over J = 200, A/B in one process); on
         accelerators, one pass over all particles (the device wants them all at once). Auto
         reads the default backend when the update is traced; JAX may reuse that trace on
-        another backend in the same process, so set ``particle_block`` there (speed only: every
-        block size gives the same results).
+        another backend in the same process, so set ``particle_block`` there (the block size
+        changes the speed; the results agree to float rounding).
         """
         J = self.num_particles
         if self.particle_block:
