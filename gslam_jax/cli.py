@@ -10,7 +10,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Iterator, NamedTuple
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -189,61 +189,6 @@ def _write_json(path: Path, data: dict) -> None:
     path.write_text(json.dumps(_json_ready(data), indent=2, allow_nan=False))
 
 
-class _GpsInput(NamedTuple):
-    """The readings of ``--gps``, checked against the run before the filter: name (file or
-    "simulated GPS"), the GpsLog, true positions (simulated only) and the mask of readings
-    inside the run's time span."""
-
-    name: str
-    log: object
-    truth_xy: np.ndarray | None
-    inside: np.ndarray
-
-
-def _read_gps(args: argparse.Namespace):
-    """The --gps log file (GpsLogError naming the file and line), or None for none or 'sim'."""
-    if args.gps is None or str(args.gps) == "sim":
-        return None
-    from gslam_jax import gps
-    return gps.read_gps_log(args.gps)
-
-
-def _check_gps(args: argparse.Namespace, run, log) -> _GpsInput | None:
-    """Simulate (--gps sim) or take the read log, and check that at least 2 readings, and
-    preferably half of them, fall inside the run's time span (GPS times are on the run's clock)."""
-    from gslam_jax import gps
-    from gslam_jax.gps import GpsLogError
-
-    if args.gps is None:
-        return None
-    truth_xy = None
-    if log is None:
-        if run.ground_truth is None:
-            raise ConfigError("--gps sim needs a run with ground truth")
-        from gslam_jax.gps_sim import GpsSimConfig, simulate_gps
-        gt = np.asarray(run.ground_truth, np.float64)
-        known = np.isfinite(gt[:, :2]).all(axis=1)
-        if known.sum() < 2:
-            raise ConfigError("--gps sim needs ground truth at 2 frames or more")
-        sim = simulate_gps(np.random.default_rng(args.seed), gt[known],
-                           np.asarray(run.timestamps)[known], GpsSimConfig())
-        log, truth_xy, name = sim.log, sim.truth_xy, "simulated GPS"
-    else:
-        name = str(args.gps)
-    t = np.asarray(run.timestamps, np.float64)
-    inside = gps.readings_in_span(t, log.time)
-    n, n_in = len(log.time), int(inside.sum())
-    span = f"run [{t[0]:.3f}, {t[-1]:.3f}] s, log [{log.time[0]:.3f}, {log.time[-1]:.3f}] s"
-    if n_in < 2:
-        raise GpsLogError(f"{name}: {n_in} of {n} GPS readings fall inside the run's time span, "
-                          f"need at least 2 ({span}); GPS times must be seconds on the run's "
-                          "clock (Run.timestamps)")
-    if n_in < 0.5 * n:
-        print(f"WARNING: {name}: only {n_in} of {n} GPS readings fall inside the run's time span "
-              f"({span}); the others are not used")
-    return _GpsInput(name, log, truth_xy, inside)
-
-
 def cmd_run(args: argparse.Namespace) -> int:
     from gslam_jax import metrics, slam
     from gslam_jax.config import config_to_toml
@@ -252,12 +197,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     _check_source_arguments(args)
     config = _load_config(args)
     with _results_dir(args.out, "run") as out:
-        gps_log = _read_gps(args)
+        gps_log = None  # a GPS file is read before the front-end: its errors come first
+        if args.gps is not None and str(args.gps) != "sim":
+            from gslam_jax import gps
+            gps_log = gps.read_gps_log(args.gps)
         run, description, sim_info = _load_source(args, config, ProgressBar("front-end"))
         if args.save_run:
             from gslam_jax.run import save_run
             save_run(args.save_run, run)
-        gps_input = _check_gps(args, run, gps_log)
+        gps_input = None
+        if args.gps is not None:
+            from gslam_jax import georeference
+            gps_input = georeference.gps_input(args.gps, run, args.seed, log=gps_log)
         print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps, "
               f"{run.distance():.1f} m")
         result = slam.run_slam(run, config, progress=ProgressBar("gamma-slam"))
@@ -307,7 +258,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if result.empty_observations:
         print(f"note: {result.empty_observations} local maps had no informative cell (weights unchanged)")
     if gps_input is not None:
-        summary["gps"] = _gps_outputs(out, gps_input, run, result)
+        summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result)
         _write_json(out / "summary.json", summary)
     print(f"results: {out}")
     return 0
@@ -328,58 +279,6 @@ def _write_figures(out: Path, run, result, num_particles: int, threshold: float 
                                   slam_path=result.best_path)
     plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled,
                        threshold=threshold)
-
-
-def _gps_outputs(out: Path, gps_input: _GpsInput, run, result) -> dict:
-    """Align the best path to GPS (paper section 8, appendix) and write georeferenced outputs."""
-    from gslam_jax import cells, gps
-    from gslam_jax.gps import GpsLogError
-
-    log, truth_xy = gps_input.log, gps_input.truth_xy
-    try:
-        al, aligned = gps.align_to_gps(run.timestamps, result.best_path[:, :2], log.time, log.xy,
-                                       log.epe)
-    except ValueError as err:
-        raise GpsLogError(f"{gps_input.name}: {err} (the results without GPS are in "
-                          f"{out})") from err
-    path_gps = np.asarray(gps.transform_poses(al, result.best_path), np.float64)
-    path_gps[:, :2] += np.asarray(log.origin, np.float64)
-    np.savetxt(out / "trajectory_utm.txt", np.column_stack([run.timestamps, path_gps]),
-               fmt="%.4f", header=f"time easting northing heading (UTM zone {log.zone}"
-               f"{'N' if log.north else 'S'}, EPSG:{log.epsg})")
-    shape = result.kmap.shape
-    corners = np.asarray(gps.transform_points(al, gps.map_corners(result.map_origin, result.resolution,
-                                                                  shape)), np.float64) + log.origin
-    std = np.asarray(cells.expected_std(result.kmap, result.smap))
-    gps.write_georeferenced_png(out / "map_utm.png", std, result.map_origin, result.resolution,
-                                al.R, al.l, log.origin, cmap="inferno")
-    np.savez(out / "gps_alignment.npz", R=np.asarray(al.R), l=np.asarray(al.l),
-             site_origin=np.asarray(log.origin), zone=log.zone, epsg=log.epsg, map_corners_utm=corners)
-    # Residuals of the fit at the readings it used, in metres (float64 host interpolation).
-    t0 = float(run.timestamps[0])
-    t, gt = np.asarray(run.timestamps, np.float64) - t0, np.asarray(log.time, np.float64) - t0
-    aligned = np.asarray(aligned, np.float64)
-    at_gps = np.stack([np.interp(gt, t, aligned[:, k]) for k in range(2)], -1)
-    used = gps_input.inside & np.isfinite(log.xy).all(axis=1)
-    resid = np.linalg.norm(at_gps[used] - log.xy[used], axis=1)
-    n, n_used, cost = int(len(log.time)), int(al.n_used), float(al.cost)
-    report = {"readings": n, "skipped": int(log.n_skipped),
-              "inside_run": int(gps_input.inside.sum()), "used": n_used,
-              "weighted_residual": cost, "residual_rms_m": float(np.sqrt(np.mean(resid ** 2))),
-              "epsg": log.epsg, "map_corners_utm": corners.tolist()}
-    skipped = f", {report['skipped']} skipped by the reader" if report["skipped"] else ""
-    print(f"GPS: {n_used} of {n} readings used ({n - report['inside_run']} outside the run's time "
-          f"span{skipped}); weighted residual {cost:.3g} ({cost / max(n_used, 1):.3g} per "
-          f"reading), residual RMS {report['residual_rms_m']:.2f} m")
-    if truth_xy is not None:
-        ok = used & np.isfinite(truth_xy).all(axis=1)
-        err_slam = np.linalg.norm(at_gps[ok] - truth_xy[ok], axis=1)
-        err_gps = np.linalg.norm(log.xy[ok] - truth_xy[ok], axis=1)
-        report["raw_gps_rms_m"] = float(np.sqrt(np.mean(err_gps ** 2)))
-        report["aligned_slam_rms_m"] = float(np.sqrt(np.mean(err_slam ** 2)))
-        print(f"GPS: raw RMS {report['raw_gps_rms_m']:.2f} m, aligned Gamma-SLAM RMS in the GPS "
-              f"frame {report['aligned_slam_rms_m']:.2f} m")
-    return report
 
 
 def _config_and_run(args: argparse.Namespace):

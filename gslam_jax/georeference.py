@@ -1,0 +1,121 @@
+"""A finished run placed on the Earth: its GPS readings checked, aligned, written in UTM.
+
+``gslam run --gps`` reads the log (or simulates one) and checks it against the run *before*
+the filter runs (``gps_input``), then fits the best path to it and writes the georeferenced
+outputs (``write_gps_outputs``; paper section 8 and appendix). The fit itself, the UTM
+conversion and the log format live in ``gps``; this module is the workflow around them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from gslam_jax import cells, gps
+from gslam_jax.config import ConfigError
+from gslam_jax.gps import GpsLog, GpsLogError
+
+__all__ = ["GpsInput", "gps_input", "write_gps_outputs"]
+
+
+class GpsInput(NamedTuple):
+    """The readings of ``--gps``, checked against the run before the filter: name (file or
+    "simulated GPS"), the log, true positions (simulated only) and the mask of readings inside
+    the run's time span."""
+
+    name: str
+    log: GpsLog
+    truth_xy: np.ndarray | None
+    inside: np.ndarray
+
+
+def gps_input(source: str | Path, run, seed: int = 0, log: GpsLog | None = None) -> GpsInput:
+    """The GPS readings for ``run``: ``log`` (read from file ``source``) or, when ``source`` is
+    "sim", a simulated WAAS-like receiver on the run's ground truth (``seed``).
+
+    GPS times are seconds on the run's clock (``Run.timestamps``). Fewer than 2 readings
+    inside the run's time span is a GpsLogError; fewer than half prints a warning.
+    """
+    truth_xy = None
+    if log is None:
+        if str(source) != "sim":
+            log = gps.read_gps_log(source)
+            name = str(source)
+        else:
+            if run.ground_truth is None:
+                raise ConfigError("--gps sim needs a run with ground truth")
+            from gslam_jax.gps_sim import GpsSimConfig, simulate_gps
+            gt = np.asarray(run.ground_truth, np.float64)
+            known = np.isfinite(gt[:, :2]).all(axis=1)
+            if known.sum() < 2:
+                raise ConfigError("--gps sim needs ground truth at 2 frames or more")
+            sim = simulate_gps(np.random.default_rng(seed), gt[known],
+                               np.asarray(run.timestamps)[known], GpsSimConfig())
+            log, truth_xy, name = sim.log, sim.truth_xy, "simulated GPS"
+    else:
+        name = str(source)
+    t = np.asarray(run.timestamps, np.float64)
+    inside = gps.readings_in_span(t, log.time)
+    n, n_in = len(log.time), int(inside.sum())
+    span = f"run [{t[0]:.3f}, {t[-1]:.3f}] s, log [{log.time[0]:.3f}, {log.time[-1]:.3f}] s"
+    if n_in < 2:
+        raise GpsLogError(f"{name}: {n_in} of {n} GPS readings fall inside the run's time span, "
+                          f"need at least 2 ({span}); GPS times must be seconds on the run's "
+                          "clock (Run.timestamps)")
+    if n_in < 0.5 * n:
+        print(f"WARNING: {name}: only {n_in} of {n} GPS readings fall inside the run's time span "
+              f"({span}); the others are not used")
+    return GpsInput(name, log, truth_xy, inside)
+
+
+def write_gps_outputs(out: Path, readings: GpsInput, run, result) -> dict:
+    """Align the best path of ``result`` to the readings (weighted Procrustes, paper appendix)
+    and write ``trajectory_utm.txt``, ``map_utm.png`` (+ world file) and ``gps_alignment.npz``
+    to ``out``; returns the summary's "gps" figures (readings used, residuals, map corners)."""
+    log, truth_xy = readings.log, readings.truth_xy
+    try:
+        al, aligned = gps.align_to_gps(run.timestamps, result.best_path[:, :2], log.time, log.xy,
+                                       log.epe)
+    except ValueError as err:
+        raise GpsLogError(f"{readings.name}: {err} (the results without GPS are in "
+                          f"{out})") from err
+    path_gps = np.asarray(gps.transform_poses(al, result.best_path), np.float64)
+    path_gps[:, :2] += np.asarray(log.origin, np.float64)
+    np.savetxt(out / "trajectory_utm.txt", np.column_stack([run.timestamps, path_gps]),
+               fmt="%.4f", header=f"time easting northing heading (UTM zone {log.zone}"
+               f"{'N' if log.north else 'S'}, EPSG:{log.epsg})")
+    shape = result.kmap.shape
+    corners = np.asarray(gps.transform_points(al, gps.map_corners(result.map_origin, result.resolution,
+                                                                  shape)), np.float64) + log.origin
+    std = np.asarray(cells.expected_std(result.kmap, result.smap))
+    gps.write_georeferenced_png(out / "map_utm.png", std, result.map_origin, result.resolution,
+                                al.R, al.l, log.origin, cmap="inferno")
+    np.savez(out / "gps_alignment.npz", R=np.asarray(al.R), l=np.asarray(al.l),
+             site_origin=np.asarray(log.origin), zone=log.zone, epsg=log.epsg, map_corners_utm=corners)
+    # Residuals of the fit at the readings it used, in metres (float64 host interpolation).
+    t0 = float(run.timestamps[0])
+    t, gt = np.asarray(run.timestamps, np.float64) - t0, np.asarray(log.time, np.float64) - t0
+    aligned = np.asarray(aligned, np.float64)
+    at_gps = np.stack([np.interp(gt, t, aligned[:, k]) for k in range(2)], -1)
+    used = readings.inside & np.isfinite(log.xy).all(axis=1)
+    resid = np.linalg.norm(at_gps[used] - log.xy[used], axis=1)
+    n, n_used, cost = int(len(log.time)), int(al.n_used), float(al.cost)
+    report = {"readings": n, "skipped": int(log.n_skipped),
+              "inside_run": int(readings.inside.sum()), "used": n_used,
+              "weighted_residual": cost, "residual_rms_m": float(np.sqrt(np.mean(resid ** 2))),
+              "epsg": log.epsg, "map_corners_utm": corners.tolist()}
+    skipped = f", {report['skipped']} skipped by the reader" if report["skipped"] else ""
+    print(f"GPS: {n_used} of {n} readings used ({n - report['inside_run']} outside the run's time "
+          f"span{skipped}); weighted residual {cost:.3g} ({cost / max(n_used, 1):.3g} per "
+          f"reading), residual RMS {report['residual_rms_m']:.2f} m")
+    if truth_xy is not None:
+        ok = used & np.isfinite(truth_xy).all(axis=1)
+        err_slam = np.linalg.norm(at_gps[ok] - truth_xy[ok], axis=1)
+        err_gps = np.linalg.norm(log.xy[ok] - truth_xy[ok], axis=1)
+        report["raw_gps_rms_m"] = float(np.sqrt(np.mean(err_gps ** 2)))
+        report["aligned_slam_rms_m"] = float(np.sqrt(np.mean(err_slam ** 2)))
+        print(f"GPS: raw RMS {report['raw_gps_rms_m']:.2f} m, aligned Gamma-SLAM RMS in the GPS "
+              f"frame {report['aligned_slam_rms_m']:.2f} m")
+    return report
