@@ -314,7 +314,9 @@ def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borr
         log_v = cells.log_v_obs(k_obs, S_obs) if log_v is None else log_v
         kb = jnp.where(can_borrow & (k_borrow > 0), k_borrow, 0.0)[None, :]
         new_g = grid(has & ~prev) & (kb > 0)
-        lam_g = cells.log_predictive_integer(grid(ko), grid(So), jnp.where(new_g, kb, 1.0),
+        # padding: a cell with k = S = 1 (log v = 0), finite, never used (sliced off below)
+        lam_g = cells.log_predictive_integer(grid(ko, fill=1), grid(So, fill=1),
+                                             jnp.where(new_g, kb, 1.0),
                                              jnp.where(new_g, S_borrow[None, :], 1.0),
                                              log_v=grid(log_v))
         new = new_g.reshape(-1)[:M]
@@ -393,11 +395,11 @@ def _add_to_cells(maps: Array, rows: Array, cells_: Array, values: Array) -> Arr
     return maps.at[idx].add(vals, mode="promise_in_bounds")
 
 
-def _by_draw(x: Array, draws: int) -> Array:
-    """[M] per-cell values -> [ceil(M / draws), draws], zero-padded: cell c sits in column
-    c mod draws, the column of the draw it borrows."""
+def _by_draw(x: Array, draws: int, fill: float = 0) -> Array:
+    """[M] per-cell values -> [ceil(M / draws), draws], padded with ``fill``: cell c sits in
+    column c mod draws, the column of the draw it borrows."""
     rows = -(-x.shape[0] // draws)
-    return jnp.pad(x, (0, rows * draws - x.shape[0])).reshape(rows, draws)
+    return jnp.pad(x, (0, rows * draws - x.shape[0]), constant_values=fill).reshape(rows, draws)
 
 
 def _log_lambda(f: _Footprint, log_v: Array, params: FilterParams, cfg: FilterConfig) -> Array:
@@ -577,8 +579,8 @@ def update(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fil
         do_resample, resample_branch, keep_branch, (state.pose, kmap, smap, bits, log_w))
     best = best_slot(log_w, anc)
     new_state = FilterState(pose, new_log_w, kmap, smap, bits, rows, best)
-    info = StepInfo(pose=pose, ancestors=anc, best=best, log_w=new_log_w, ess=ess, resampled=do_resample,
-                    updated=jnp.bool_(True), log_lik=log_lik,
+    info = StepInfo(pose=pose, ancestors=anc, best=best, log_w=new_log_w, ess=ess,
+                    resampled=do_resample, updated=jnp.bool_(True), log_lik=log_lik,
                     extent_violations=jnp.sum(w.off_map).astype(jnp.int32),
                     empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped)
     return new_state, info
