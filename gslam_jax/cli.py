@@ -82,19 +82,6 @@ def _check_source_arguments(args: argparse.Namespace) -> None:
         raise ConfigError(f"--sequence is for --source kitti, not --source {args.source}")
 
 
-def _kitti_sequence(root: Path, sequence: str | None) -> str | None:
-    """--sequence, or the only folder under ROOT/sequences; several without --sequence is a
-    ConfigError listing them (kitti_frontend reports a missing folder)."""
-    seqs = root / "sequences"
-    if sequence is not None or not seqs.is_dir():
-        return sequence
-    found = sorted(p.name for p in seqs.iterdir() if p.is_dir())
-    if len(found) > 1:
-        raise ConfigError(f"{seqs}: holds sequences {', '.join(found)}; choose one with "
-                          "--sequence NN")
-    return sequence
-
-
 def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int], None]):
     """Return (Run, description) for the chosen source."""
     from gslam_jax.run import load_run
@@ -117,15 +104,14 @@ def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int]
     if args.source in ("kitti", "euroc") and args.path is None:
         raise ConfigError(f"--source {args.source} needs --path DATASET_FOLDER")
     if args.source == "kitti":
-        from gslam_jax.datasets.kitti import KittiParams, kitti_frontend
-        sequence = _kitti_sequence(Path(args.path), args.sequence)
+        from gslam_jax.datasets.kitti import KittiParams, find_sequence, kitti_frontend
+        sequence = find_sequence(Path(args.path), args.sequence).name
         fe = kitti_frontend(args.path, KittiParams(  # KITTI's own front-end defaults, with:
             sequence=sequence, max_frames=args.max_frames,
             frontend=dataclasses.replace(KittiParams().frontend, local_map=params,
                                          on_bad_frame=args.on_bad_frame)))
         print(fe.summary.text())
-        where = f"{args.path} sequence {sequence}" if sequence is not None else str(args.path)
-        return fe.run, f"KITTI {where}", None
+        return fe.run, f"KITTI {args.path} sequence {sequence}", None
     if args.source == "euroc":
         from gslam_jax.datasets.euroc import EurocParams, euroc_frontend
         from gslam_jax.vo.frontend import FrontEndParams
@@ -403,7 +389,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("tune", help="gradient tuning of the noise parameters with optax")
     _add_source_arguments(p)
     p.add_argument("--objective", choices=["loglik", "supervised"], default="loglik")
-    p.add_argument("--optimizer", default="adam", help="any optax optimiser by name")
+    p.add_argument("--optimizer", default="adam", help="an optax optimiser by name whose "
+                   "update needs only the gradient (adam, sgd, ...; lbfgs is refused)")
     p.add_argument("--lr", type=float, default=0.05)
     p.add_argument("--steps", type=int, default=100)
     p.add_argument("--params", help="comma-separated names (default: the objective's)")

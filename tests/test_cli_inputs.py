@@ -194,7 +194,7 @@ def test_kitti_and_euroc_get_sequence_and_max_frames(tmp_path, capsys, monkeypat
     del seen["kitti"]
     assert main(["run", "--source", "kitti", "--path", str(tmp_path), "--out", out]) == 2
     err = capsys.readouterr().err
-    assert "holds sequences 00, 05; choose one with --sequence NN" in err
+    assert "holds sequences 00, 05; choose one (--sequence NN" in err
     assert "kitti" not in seen
 
 

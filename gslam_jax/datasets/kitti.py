@@ -24,8 +24,8 @@ from ..vo.frontend import FrontEndParams, FrontEndResult, run_frontend
 from ..vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pose_to_2d
 from ..vo.stereo import DenseStereoParams
 
-__all__ = ["KittiParams", "Table", "read_table", "read_kitti_calib", "read_kitti_poses",
-           "read_image", "kitti_frontend", "load_kitti"]
+__all__ = ["KittiParams", "Table", "read_table", "find_sequence", "read_kitti_calib",
+           "read_kitti_poses", "read_image", "kitti_frontend", "load_kitti"]
 
 
 @dataclass(frozen=True)
@@ -136,14 +136,21 @@ def read_kitti_poses(path: Path) -> np.ndarray:
     return out
 
 
-def _sequence_dir(root: Path, sequence: str | None) -> Path:
+def find_sequence(root: Path, sequence: str | None) -> Path:
+    """The folder ``root/sequences/<sequence>``; with ``sequence`` None, the only folder there
+    (none or several: a DatasetError listing them, asking for ``--sequence NN`` /
+    ``KittiParams(sequence=...)``)."""
+    root = Path(root)
     seqs = root / "sequences"
     if not seqs.is_dir():
         raise FileNotFoundError(f"{root}: no 'sequences' folder (expected the KITTI odometry layout)")
     if sequence is None:
         found = sorted(p.name for p in seqs.iterdir() if p.is_dir())
-        if len(found) != 1:
-            raise DatasetError(f"{seqs}: holds {found}; pass KittiParams(sequence=...)")
+        if not found:
+            raise DatasetError(f"{seqs}: no sequence folders")
+        if len(found) > 1:
+            raise DatasetError(f"{seqs}: holds sequences {', '.join(found)}; choose one "
+                               "(--sequence NN, or KittiParams(sequence=...))")
         sequence = found[0]
     path = seqs / sequence
     if not path.is_dir():
@@ -196,7 +203,7 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams()) -> Fro
     times.txt and of the poses file. Missing or out-of-order rows are named errors.
     """
     root = Path(root)
-    seq = _sequence_dir(root, params.sequence)
+    seq = find_sequence(root, params.sequence)
     lefts = _check_frames(seq, params.max_frames)
     frames = np.array([int(p.stem) for p in lefts])
     n = len(lefts)
