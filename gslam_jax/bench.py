@@ -91,12 +91,25 @@ def _synthetic_state(cfg: gf.FilterConfig, rng: np.random.Generator) -> gf.Filte
     return state._replace(pose=jnp.asarray(pose))
 
 
+CGROUP_LIMITS = ("/sys/fs/cgroup/memory.max",                    # cgroup v2
+                 "/sys/fs/cgroup/memory/memory.limit_in_bytes")  # cgroup v1
+
+
 def physical_memory() -> int:
-    """Bytes of physical memory (sysconf), or a large number where unknown."""
+    """Bytes of memory this process may use: physical memory (sysconf), lowered to a container's
+    cgroup limit where one is set; a large number where unknown."""
     try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
-        return 1 << 62
+        total = 1 << 62
+    for path in CGROUP_LIMITS:
+        try:
+            text = open(path).read().strip()
+        except OSError:
+            continue
+        if text.isdigit():  # "max" (v2) means no limit; v1 writes a huge number instead
+            total = min(total, int(text))
+    return total
 
 
 def _chained(fn, chain: int):

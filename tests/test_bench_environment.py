@@ -36,3 +36,16 @@ def test_environment_names_the_cpu_cores_and_jax_settings(monkeypatch):
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
     env = bench.environment()
     assert env["JAX_PLATFORMS"] == "cpu" and "XLA_FLAGS" not in env
+
+
+def test_physical_memory_respects_a_container_limit(tmp_path, monkeypatch):
+    from gslam_jax import bench
+
+    limit, unlimited = tmp_path / "memory.max", tmp_path / "unlimited"
+    limit.write_text("1073741824\n")
+    unlimited.write_text("max\n")
+    monkeypatch.setattr(bench, "CGROUP_LIMITS", (str(unlimited), str(tmp_path / "absent")))
+    free = bench.physical_memory()
+    assert free > 1 << 30  # no limit set: the machine's memory (this test needs more than 1 GiB)
+    monkeypatch.setattr(bench, "CGROUP_LIMITS", (str(unlimited), str(limit)))
+    assert bench.physical_memory() == 1 << 30
