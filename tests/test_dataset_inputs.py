@@ -1,8 +1,11 @@
 """Dataset adapters reject inconsistent input by name: frame numbering, times/poses/IMU/ground-truth
-files that do not line up with the frames, unparsable rows, bad calibration; gyro bias removal."""
+files that do not line up with the frames, unparsable rows, bad calibration; gyro bias removal.
+Partial EuRoC logs that real downloads have (ground truth starting late, an IMU log ending a few ms
+early, one extra trailing frame in one camera) load, with NaN ground-truth rows and warnings."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import cv2
@@ -203,7 +206,9 @@ def _edit_csv(path: Path, edit) -> None:
 
 
 def test_euroc_valid_folder(mav: Path, captured: dict):
-    euroc_frontend(mav.parent)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a complete folder loads without warnings
+        euroc_frontend(mav.parent)
     assert captured["n"] == N_EUROC
     np.testing.assert_allclose(captured["times"], np.arange(N_EUROC) * 0.05)
     assert captured["rig"].baseline == pytest.approx(0.11)
@@ -222,7 +227,9 @@ def test_euroc_gyro_bias_is_removed_from_the_yaw(mav: Path, captured: dict):
 def test_euroc_real_static_sample_yaw_is_small(captured: dict):
     if not (EUROC / "mav0").is_dir():
         pytest.skip(f"real EuRoC frames not found at {EUROC} (see shared/data/README.md)")
-    euroc_frontend(EUROC)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # complete logs, a still gyro: no warnings
+        euroc_frontend(EUROC)
     total = float(np.sum(captured["aids"].imu_yaw))
     print(f"\nEuRoC 20 static frames: summed IMU yaw {total:.5f} rad (raw gyro gave about -0.029)")
     assert abs(total) < 0.005
@@ -239,18 +246,117 @@ def test_euroc_ground_truth_off_the_frames_is_named(mav: Path, captured: dict):
         euroc_frontend(mav.parent)
 
 
+def test_euroc_ground_truth_gap_is_named(mav: Path, captured: dict):
+    _edit_csv(mav / "state_groundtruth_estimate0" / "data.csv",
+              lambda lines: lines[:4] + lines[5:])  # no row for frame 3, inside the log's span
+    with pytest.raises(ValueError, match=r"state_groundtruth_estimate0/data.csv: no ground-truth "
+                                         r"row within 5 ms of frame 3 .* 50.0 ms away \(a gap"):
+        euroc_frontend(mav.parent)
+
+
+def test_euroc_ground_truth_starting_late_and_ending_early(mav: Path, captured: dict):
+    # Rows for frames 2-4 only (frame 2 at z = 0.7 m), as in EuRoC downloads whose ground truth
+    # starts after cam0 and ends before the last image; frame 1 is 50 ms before the first row.
+    def edit(lines):
+        t = lines[3].split(",", 1)[0]
+        return [lines[0], f"{t},1.0,2.0,0.7,1.0,0.0,0.0,0.0", *lines[4:6]]
+    _edit_csv(mav / "state_groundtruth_estimate0" / "data.csv", edit)
+    with pytest.warns(UserWarning, match=r"state_groundtruth_estimate0/data.csv: the ground truth "
+                                         r"covers frames 2 to 4 of 6 only; the others get NaN"):
+        euroc_frontend(mav.parent)
+    gt = captured["ground_truth"]
+    assert gt.shape == (N_EUROC, 3)
+    assert np.isnan(gt[[0, 1, 5]]).all()
+    # Height (body to ground) from frame 2: robot origin 0.7 m below the body, i.e. body y + 0.7.
+    np.testing.assert_allclose(gt[2:5], np.tile([1.0, 2.7, 0.0], (3, 1)), atol=1e-9)
+    np.testing.assert_allclose(captured["initial_pose"], [1.0, 2.7, 0.0], atol=1e-9)
+    # A row 3 ms after a frame still counts for it (within 5 ms).
+    _edit_csv(mav / "state_groundtruth_estimate0" / "data.csv",
+              lambda lines: [lines[0], f"{T0 + FRAME_NS + 3_000_000},1,2,0.7,1,0,0,0", *lines[1:]])
+    with pytest.warns(UserWarning, match=r"covers frames 1 to 4 of 6 only"):
+        euroc_frontend(mav.parent)
+
+
+def test_euroc_ground_truth_covering_no_frame(mav: Path, captured: dict):
+    _write_csv(mav / "state_groundtruth_estimate0" / "data.csv", "#time(ns),px,py,pz,qw,qx,qy,qz",
+               [(T0 + 10**9 + k * FRAME_NS, 1.0, 2.0, 0.9, 1.0, 0.0, 0.0, 0.0) for k in range(4)])
+    with pytest.warns(UserWarning, match=r"state_groundtruth_estimate0/data.csv: the ground truth "
+                                         r"covers none of the 6 frames .*no ground truth"):
+        euroc_frontend(mav.parent)
+    assert captured["ground_truth"] is None and captured["initial_pose"] is None
+    assert captured["n"] == N_EUROC
+
+
+def _rewrite_imu(mav: Path, gyro) -> None:
+    """Replace the gyro columns of imu0/data.csv by ``gyro(t_ns)`` (the accelerometer stays)."""
+    imu_t = np.arange(T0, T0 + (N_EUROC - 1) * FRAME_NS + 1, IMU_NS)
+    _write_csv(mav / "imu0" / "data.csv", "#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z",
+               [(t, *gyro(t), 0.0, -9.81, 0.0) for t in imu_t])
+
+
+@pytest.mark.parametrize("drop", [5, 10])  # the log ends 25 ms / 50 ms (one frame) early
+def test_euroc_imu_log_ending_within_a_frame_period_is_used(mav: Path, captured: dict, drop: int):
+    # Still for the gravity window (0.1 s = frame 2), then turning at w rad/s about "up" (-y).
+    w = 0.2
+    _rewrite_imu(mav, lambda t: GYRO_BIAS + (t > T0 + 2 * FRAME_NS) * np.array([0.0, -w, 0.0]))
+    _edit_csv(mav / "imu0" / "data.csv", lambda lines: lines[:-drop])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        euroc_frontend(mav.parent)
+    assert captured["n"] == N_EUROC
+    aids = captured["aids"]
+    np.testing.assert_allclose(aids.accel, np.tile([0.0, 0.0, 9.81], (N_EUROC, 1)), atol=1e-9)
+    covered = (FRAME_NS - drop * IMU_NS) * 1e-9  # of the last frame interval
+    np.testing.assert_allclose(aids.imu_yaw, [0.0, 0.0, 0.0, w * 0.05, w * 0.05, w * covered],
+                               atol=1e-12)
+
+
 def test_euroc_imu_log_ending_early_is_named(mav: Path, captured: dict):
-    _edit_csv(mav / "imu0" / "data.csv", lambda lines: lines[:-5])
-    with pytest.raises(ValueError, match=r"imu0/data.csv: IMU log ends at \d+ ns, before frame 5"):
+    _edit_csv(mav / "imu0" / "data.csv", lambda lines: lines[:-11])  # 55 ms before frame 5
+    with pytest.raises(ValueError, match=r"imu0/data.csv: IMU log ends at \d+ ns, before frame 5 "
+                                         r"\(\d+ ns\) by 55.0 ms, more than one frame period "
+                                         r"\(50.0 ms\)"):
         euroc_frontend(mav.parent)
     euroc_frontend(mav.parent, EurocParams(max_frames=5))  # the frames in use are covered
     assert captured["n"] == 5
 
 
-def test_euroc_imu_log_starting_late_is_named(mav: Path, captured: dict):
-    _edit_csv(mav / "imu0" / "data.csv", lambda lines: lines[:1] + lines[2:])
-    with pytest.raises(ValueError, match=r"imu0/data.csv: IMU log starts at \d+ ns, after frame 0"):
+@pytest.mark.parametrize("drop", [5, 10])  # the log starts 25 ms / 50 ms (one frame) late
+def test_euroc_imu_log_starting_within_a_frame_period_is_used(mav: Path, captured: dict,
+                                                              drop: int):
+    _edit_csv(mav / "imu0" / "data.csv", lambda lines: lines[:1] + lines[1 + drop:])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         euroc_frontend(mav.parent)
+    assert captured["n"] == N_EUROC
+    np.testing.assert_allclose(captured["aids"].accel, np.tile([0.0, 0.0, 9.81], (N_EUROC, 1)),
+                               atol=1e-9)
+    np.testing.assert_allclose(captured["aids"].imu_yaw, 0.0, atol=1e-12)
+
+
+def test_euroc_imu_log_starting_late_is_named(mav: Path, captured: dict):
+    _edit_csv(mav / "imu0" / "data.csv", lambda lines: lines[:1] + lines[12:])  # 55 ms late
+    with pytest.raises(ValueError, match=r"imu0/data.csv: IMU log starts at \d+ ns, after frame 0 "
+                                         r"\(\d+ ns\) by 55.0 ms, more than one frame period"):
+        euroc_frontend(mav.parent)
+
+
+@pytest.mark.parametrize("gyro", [
+    lambda t: GYRO_BIAS + [0.0, -0.2, 0.0],  # a steady 0.2 rad/s turn about "up" from the start
+    lambda t: GYRO_BIAS + [0.05 * (-1) ** ((t - T0) // IMU_NS), 0.0, 0.0],  # shaking
+], ids=["steady-turn", "shaking"])
+def test_euroc_gyro_not_still_keeps_the_raw_gyro(mav: Path, captured: dict, gyro):
+    _rewrite_imu(mav, gyro)
+    with pytest.warns(UserWarning, match=r"imu0/data.csv: the gyro is not still within 0.1 s of "
+                                         r"frame 0 .*no gyro bias removed"):
+        euroc_frontend(mav.parent)
+    # The raw rate about "up" (body -y) is integrated: nothing subtracted as a bias.
+    imu_t = np.arange(T0, T0 + (N_EUROC - 1) * FRAME_NS + 1, IMU_NS)
+    w_up = np.array([-gyro(t)[1] for t in imu_t])
+    expected = [0.0] + [w_up[10 * k + 1:10 * k + 11].sum() * IMU_NS * 1e-9
+                        for k in range(N_EUROC - 1)]
+    np.testing.assert_allclose(captured["aids"].imu_yaw, expected, atol=1e-12)
+    assert abs(captured["aids"].imu_yaw[1]) > 5e-4  # 0.22 or 0.02 rad/s over 50 ms
 
 
 def test_euroc_imu_gap_is_named(mav: Path, captured: dict):
@@ -261,11 +367,24 @@ def test_euroc_imu_gap_is_named(mav: Path, captured: dict):
         euroc_frontend(mav.parent)
 
 
-def test_euroc_frame_counts_must_agree(mav: Path, captured: dict):
-    _edit_csv(mav / "cam1" / "data.csv", lambda lines: lines[:-1])
-    with pytest.raises(ValueError, match=r"cam0/data.csv lists 6 frames but cam1/data.csv 5"):
+@pytest.mark.parametrize("cam, edit, n0, n1", [
+    ("cam1", lambda lines: lines + [f"{T0 + N_EUROC * FRAME_NS},extra.png"], 6, 7),
+    ("cam0", lambda lines: lines + [f"{T0 + N_EUROC * FRAME_NS},extra.png"], 7, 6),
+    ("cam1", lambda lines: lines[:-1], 6, 5),
+])
+def test_euroc_trailing_frames_of_one_camera_are_dropped(mav: Path, captured: dict, cam: str,
+                                                         edit, n0: int, n1: int):
+    _edit_csv(mav / cam / "data.csv", edit)
+    n = min(n0, n1)
+    with pytest.warns(UserWarning, match=rf"cam0/data.csv lists {n0} frames but cam1/data.csv "
+                                         rf"{n1}; using the first {n} stereo pairs \(1 trailing "
+                                         rf"frame\(s\) of cam{int(n1 > n0)} dropped\)"):
         euroc_frontend(mav.parent)
-    euroc_frontend(mav.parent, EurocParams(max_frames=4))  # only the frames in use must pair
+    assert captured["n"] == n
+    np.testing.assert_allclose(captured["times"], np.arange(n) * 0.05)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no frame in use is dropped
+        euroc_frontend(mav.parent, EurocParams(max_frames=4))
     assert captured["n"] == 4
 
 

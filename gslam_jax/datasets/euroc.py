@@ -4,15 +4,24 @@
 The raw images are distorted (radial-tangential) and unrectified; rectification comes from the
 two ``sensor.yaml`` files (intrinsics, distortion, T_BS). The robot frame is fixed to the body at
 frame 0: z up along the mean accelerometer reading (gravity), x forward along the cam0 optical
-axis made horizontal, origin ``height`` metres below the body (ground-truth z at frame 0 when
-ground truth is present, else 0). The IMU supplies the gravity vector for tilt correction and
-gyro yaw increments for the VO fallback; the robot must stand still for ``gravity_window`` seconds
-from the first frame, where "up" (mean accelerometer) and the gyro bias (mean gyro, subtracted
-before integrating yaw) are estimated.
+axis made horizontal, origin ``height`` metres below the body (ground-truth z at the first frame
+with ground truth when there is any, else 0). The IMU supplies the gravity vector for tilt
+correction and gyro yaw increments for the VO fallback; the robot must stand still for
+``gravity_window`` seconds from the first frame, where "up" (mean accelerometer) and the gyro bias
+(mean gyro, subtracted before integrating yaw) are estimated. The bias is only removed when the
+gyro is still there too (see :class:`EurocParams`); otherwise a warning names ``imu0/data.csv``
+and the raw gyro is integrated.
+
+Partial logs, as in the original EuRoC downloads: frames before the first or after the last
+ground-truth row (by more than 5 ms) get NaN ground-truth rows (a warning says how many; none
+covered: no ground truth); the IMU log may start or end up to one frame period (the median frame
+interval) after the first / before the last frame; when cam0 and cam1 list different numbers of
+frames the first min(n0, n1) pairs are used (a warning names both counts).
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,13 +43,21 @@ __all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "quat_t
 @dataclass(frozen=True)
 class EurocParams:
     """max_frames: process at most this many frames; height: metres from body to ground
-    (None: ground-truth z at frame 0, else 0); gravity_window: seconds of IMU after the first
-    frame, with the robot at rest, whose samples with ||a| - g| < ``frontend.tilt_gate`` are
-    averaged to find "up" (accelerometer) and the gyro bias."""
+    (None: ground-truth z at the first frame with ground truth, else 0); gravity_window: seconds
+    of IMU after the first frame, with the robot at rest, whose samples with ||a| - g| <
+    ``frontend.tilt_gate`` are averaged to find "up" (accelerometer) and the gyro bias.
+
+    The gyro mean over those samples is only subtracted as the bias when the gyro is still there:
+    the norm of its per-axis standard deviation below ``gyro_still`` (rad/s) and the norm of the
+    mean itself below ``max_gyro_bias`` (rad/s; the EuRoC ADIS16448 bias is about 0.08). A steady
+    rotation at the start passes the accelerometer test but not these; then no bias is removed
+    and a warning names ``imu0/data.csv``."""
 
     max_frames: int | None = None
     height: float | None = None
     gravity_window: float = 0.1
+    gyro_still: float = 0.02
+    max_gyro_bias: float = 0.12
     frontend: FrontEndParams = field(default_factory=FrontEndParams)
 
 
@@ -162,22 +179,32 @@ def _robot_from_body(up_b: np.ndarray, fwd_b: np.ndarray, height: float) -> np.n
     return make_transform(np.column_stack([fwd, np.cross(up, fwd), up]), -height * up)
 
 
-def _read_imu(path: Path, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """IMU times (ns), gyro (rad/s) and accelerometer (m/s^2) of ``imu0/data.csv``; the log must
-    cover every frame ``ts`` with samples in every frame interval."""
+def _read_imu(path: Path, ts: np.ndarray,
+              period: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IMU times (ns), gyro (rad/s) and accelerometer (m/s^2) of ``imu0/data.csv``.
+
+    The log may start up to ``period`` ns (one frame period) after the first frame ``ts`` and end
+    up to ``period`` ns before the last one; inside its span every frame interval needs samples.
+    """
     table = read_table(path, 7, ",", int_first=True)
     imu_t, gyro, acc = table.stamps, table.data[:, 1:4], table.data[:, 4:7]
     back = np.flatnonzero(np.diff(imu_t) <= 0)
     if back.size:
         raise DatasetError(f"{path}:{table.lines[back[0] + 1]}: timestamp {imu_t[back[0] + 1]} is "
                          f"not after {imu_t[back[0]]} (samples must be in time order)")
-    if imu_t[0] > ts[0]:
-        raise DatasetError(f"{path}: IMU log starts at {imu_t[0]} ns, after frame 0 ({ts[0]} ns)")
-    if imu_t[-1] < ts[-1]:
-        t = int(np.argmax(ts > imu_t[-1]))
-        raise DatasetError(f"{path}: IMU log ends at {imu_t[-1]} ns, before frame {t} ({ts[t]} ns)")
+    if imu_t[0] > ts[0] + period:
+        raise DatasetError(f"{path}: IMU log starts at {imu_t[0]} ns, after frame 0 ({ts[0]} ns) "
+                         f"by {(imu_t[0] - ts[0]) * 1e-6:.1f} ms, more than one frame period "
+                         f"({period * 1e-6:.1f} ms)")
+    if imu_t[-1] < ts[-1] - period:
+        t = int(np.argmax(ts > imu_t[-1] + period))
+        raise DatasetError(f"{path}: IMU log ends at {imu_t[-1]} ns, before frame {t} ({ts[t]} ns) "
+                         f"by {(ts[t] - imu_t[-1]) * 1e-6:.1f} ms, more than one frame period "
+                         f"({period * 1e-6:.1f} ms)")
     edges = np.searchsorted(imu_t, ts, side="right")
-    empty = np.flatnonzero(np.diff(edges) == 0)
+    # Empty frame intervals inside the log's span are gaps; those before its start or after its
+    # end (within the tolerance above) are not.
+    empty = np.flatnonzero((np.diff(edges) == 0) & (ts[1:] >= imu_t[0]) & (ts[:-1] < imu_t[-1]))
     if empty.size:
         t = int(empty[0]) + 1
         raise DatasetError(f"{path}: no IMU samples between frame {t - 1} ({ts[t - 1]} ns) and "
@@ -185,9 +212,14 @@ def _read_imu(path: Path, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     return imu_t, gyro, acc
 
 
-def _ground_truth(path: Path, ts: np.ndarray) -> list[np.ndarray]:
-    """Body-to-world 4x4 pose of each frame ``ts`` from the ground-truth csv (time, p, q_wxyz ...);
-    every frame needs a row within 5 ms."""
+GT_TOLERANCE_NS = 5_000_000  # a frame takes the ground-truth row nearest in time, within 5 ms
+
+
+def _ground_truth(path: Path, ts: np.ndarray) -> np.ndarray:
+    """Body-to-world 4x4 pose [T, 4, 4] of each frame ``ts`` from the ground-truth csv (time, p,
+    q_wxyz ...): the row nearest in time, which must be within 5 ms. Frames outside the log's
+    span (before its first row or after its last by 5 ms or more) get NaN poses; a frame inside
+    the span without a row within 5 ms (a gap in the log) is an error naming the file and frame."""
     table = read_table(path, 8, ",", at_least=True, int_first=True)
     g, g_t = table.data, table.stamps
     back = np.flatnonzero(np.diff(g_t) <= 0)
@@ -198,15 +230,27 @@ def _ground_truth(path: Path, ts: np.ndarray) -> list[np.ndarray]:
     prev = np.maximum(idx - 1, 0)
     idx = np.where(np.abs(g_t[prev] - ts) < np.abs(g_t[idx] - ts), prev, idx)
     off = np.abs(g_t[idx] - ts)
-    if off.max() >= 5e6:
-        t = int(np.argmax(off))
+    inside = (ts > g_t[0] - GT_TOLERANCE_NS) & (ts < g_t[-1] + GT_TOLERANCE_NS)
+    gap = inside & (off >= GT_TOLERANCE_NS)
+    if gap.any():
+        t = int(np.argmax(gap))
         raise DatasetError(f"{path}: no ground-truth row within 5 ms of frame {t} ({ts[t]} ns); "
-                         f"the nearest is {off[t] * 1e-6:.1f} ms away")
-    return [make_transform(quat_to_matrix(r[4:8]), r[1:4]) for r in g[idx]]
+                         f"the nearest is {off[t] * 1e-6:.1f} ms away (a gap in the log, which "
+                         f"spans {g_t[0]} to {g_t[-1]} ns)")
+    poses = np.full((len(ts), 4, 4), np.nan)
+    for t in np.flatnonzero(inside):
+        r = g[idx[t]]
+        poses[t] = make_transform(quat_to_matrix(r[4:8]), r[1:4])
+    return poses
 
 
 def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> FrontEndResult:
-    """Run the stereo front-end over an EuRoC ASL folder (``root`` holds ``mav0``)."""
+    """Run the stereo front-end over an EuRoC ASL folder (``root`` holds ``mav0``).
+
+    Warns (``warnings.warn``) when trailing frames of one camera are dropped, when ground truth
+    covers only some frames (NaN rows for the others) or none (the run has no ground truth), and
+    when the gyro is not still in the gravity window (no bias removed); see the module docstring.
+    """
     mav = Path(root) / "mav0" if (Path(root) / "mav0").is_dir() else Path(root)
     cam0, cam1 = (read_sensor_yaml(mav / c / "sensor.yaml") for c in ("cam0", "cam1"))
     rig = euroc_rig(cam0, cam1)
@@ -215,12 +259,13 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
     ts0, left = _frames(mav / "cam0")
     ts1, right = _frames(mav / "cam1")
     n0, n1 = len(ts0), len(ts1)
-    if params.max_frames is not None:
-        n0, n1 = min(n0, params.max_frames), min(n1, params.max_frames)
-    if n0 != n1:
-        raise DatasetError(f"{mav}: cam0/data.csv lists {len(ts0)} frames but cam1/data.csv "
-                         f"{len(ts1)}; the stereo frames must pair up")
-    n = n0
+    wanted = max(n0, n1) if params.max_frames is None else min(max(n0, n1), params.max_frames)
+    n = min(n0, n1, wanted)
+    if n < wanted:
+        longer = "cam0" if n0 > n1 else "cam1"
+        warnings.warn(f"{mav}: cam0/data.csv lists {n0} frames but cam1/data.csv {n1}; using the "
+                      f"first {n} stereo pairs ({wanted - n} trailing frame(s) of {longer} "
+                      "dropped)", stacklevel=2)
     if not np.array_equal(ts0[:n], ts1[:n]):
         bad = int(np.argmax(ts0[:n] != ts1[:n]))
         raise DatasetError(f"{mav}: cam0 and cam1 timestamps differ at frame {bad} "
@@ -229,7 +274,8 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
     imu_csv = mav / "imu0" / "data.csv"
     if not imu_csv.is_file():
         raise FileNotFoundError(f"{imu_csv}: missing (needed for the gravity direction)")
-    imu_t, gyro, acc = _read_imu(imu_csv, ts)
+    period = int(np.median(np.diff(ts0))) if len(ts0) > 1 else 0  # the frame period, ns
+    imu_t, gyro, acc = _read_imu(imu_csv, ts, period)
     first = (imu_t >= ts[0]) & (imu_t <= ts[0] + int(params.gravity_window * 1e9))
     if not first.any():
         raise DatasetError(f"{imu_csv}: no IMU samples within {params.gravity_window} s of frame 0")
@@ -240,18 +286,42 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
                          f"has |a| within {params.frontend.tilt_gate} m/s^2 of g; the robot must "
                          "stand still there (gravity and gyro bias)")
     up_b = acc[still].mean(axis=0)
-    gyro = gyro - gyro[still].mean(axis=0)  # remove the gyro bias before integrating yaw
+    # The gyro must be still too (a steady rotation passes the |a| test): then its mean is the
+    # bias, removed before integrating yaw.
+    bias = gyro[still].mean(axis=0)
+    spread = float(np.linalg.norm(gyro[still].std(axis=0)))
+    if spread < params.gyro_still and np.linalg.norm(bias) < params.max_gyro_bias:
+        gyro = gyro - bias
+    else:
+        warnings.warn(f"{imu_csv}: the gyro is not still within {params.gravity_window} s of "
+                      f"frame 0 (mean {np.linalg.norm(bias):.3f} rad/s, limit "
+                      f"{params.max_gyro_bias}; spread {spread:.3f} rad/s, limit "
+                      f"{params.gyro_still}): no gyro bias removed", stacklevel=2)
 
     gt_csv = mav / "state_groundtruth_estimate0" / "data.csv"
-    gt_body = None
+    gt_body, first_gt = None, 0
     if gt_csv.is_file():
         gt_body = _ground_truth(gt_csv, ts)
+        covered = np.flatnonzero(np.isfinite(gt_body[:, 0, 0]))
+        if not covered.size:
+            warnings.warn(f"{gt_csv}: the ground truth covers none of the {n} frames "
+                          f"({ts[0]} to {ts[-1]} ns); the run has no ground truth", stacklevel=2)
+            gt_body = None
+        else:
+            first_gt = int(covered[0])
+            if covered.size < n:
+                warnings.warn(f"{gt_csv}: the ground truth covers frames {first_gt} to "
+                              f"{int(covered[-1])} of {n} only; the others get NaN ground-truth "
+                              f"rows (height and initial pose from frame {first_gt})",
+                              stacklevel=2)
     height = params.height if params.height is not None else (
-        gt_body[0][2, 3] if gt_body is not None else 0.0)
+        gt_body[first_gt][2, 3] if gt_body is not None else 0.0)
     t_body_robot = _robot_from_body(up_b, cam0.t_bs[:3, 2], height)
     t_raw_rect = make_transform(rig.r_left.T, np.zeros(3))
     t_robot_cam = invert(t_body_robot) @ cam0.t_bs @ t_raw_rect
-    gt = None if gt_body is None else np.stack([pose_to_2d(b @ t_body_robot) for b in gt_body])
+    gt = None if gt_body is None else np.stack([
+        pose_to_2d(b @ t_body_robot) if np.isfinite(b).all() else np.full(3, np.nan)
+        for b in gt_body])
 
     # Per frame: mean specific force and yaw increment (gyro about "up") since the last frame.
     r_rb = t_body_robot[:3, :3].T
@@ -259,11 +329,14 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
     edges = np.searchsorted(imu_t, ts, side="right")
     for t in range(n):
         lo = edges[t - 1] if t else max(edges[0] - 1, 0)
-        sel = slice(lo, max(edges[t], lo + 1))
+        near = min(lo, len(imu_t) - 1)  # after the log's end: its last sample
+        sel = slice(near, max(edges[t], near + 1))
         accel[t] = r_rb @ acc[sel].mean(axis=0)
         if t:
-            dt = np.diff(imu_t[lo - 1:edges[t]]) * 1e-9 if lo > 0 else np.zeros(0)
-            w_up = (gyro[lo:edges[t]] @ t_body_robot[:3, 2])[:len(dt)]
+            # Each sample's rate over the time since the previous sample; what the log covers.
+            start = max(lo - 1, 0)
+            dt = np.diff(imu_t[start:edges[t]]) * 1e-9
+            w_up = gyro[start + 1:edges[t]] @ t_body_robot[:3, 2]
             yaw[t] = float(np.sum(w_up * dt))
 
     def load(t: int) -> tuple[np.ndarray, np.ndarray]:
@@ -271,7 +344,7 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
 
     return run_frontend(load, n, rig, t_robot_cam, (ts - ts[0]) * 1e-9, params.frontend,
                         aids=SensorAids(imu_yaw=yaw, accel=accel), ground_truth=gt,
-                        initial_pose=None if gt is None else gt[0], source=str(mav))
+                        initial_pose=None if gt is None else gt[first_gt], source=str(mav))
 
 
 def load_euroc(root: str | Path, params: EurocParams = EurocParams()) -> Run:
