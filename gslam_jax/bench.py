@@ -17,7 +17,6 @@ import math
 import os
 import platform
 import time
-from functools import partial
 from pathlib import Path
 
 import jax

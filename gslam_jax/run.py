@@ -15,7 +15,8 @@ import numpy as np
 
 from gslam_jax.errors import InputError
 
-__all__ = ["Run", "RunError", "load_run", "save_run", "validate_run", "integrate_controls"]
+__all__ = ["Run", "RunError", "load_run", "save_run", "validate_run", "integrate_controls",
+           "describe_cells"]
 
 
 class RunError(InputError):
@@ -33,13 +34,15 @@ class Run(NamedTuple):
         local_maps: [M, L, L, 3] per-cell sufficient statistics (n, sum z, sum z^2) of a
             robot-centred grid at frame ``obs_index == m``; cell (i, j) covers robot-frame
             x in [(i - L/2) res, (i - L/2 + 1) res), y likewise with j. n is a whole number
-            and n sum z^2 >= (sum z)^2.
+            and n sum z^2 >= (sum z)^2 (up to the rounding of the dtype a file stores them
+            in: float32 statistics may round by about n eps32 relative).
         resolution: local-map cell side in metres, a scalar (must equal the filter's map
-            resolution).
+            resolution; a file may store it as a size-1 array).
         timestamps: [T] seconds, finite and strictly increasing.
         ground_truth: [T, 3] true poses (x, y, theta) or None; NaN rows mark frames without
             ground truth (the metrics skip them).
-        vo_failed: [T] bool, frames whose control came from the wheel/IMU fallback.
+        vo_failed: [T] bool, frames whose control came from the wheel/IMU fallback (a file
+            may store it as integers 0/1).
         initial_pose: [3] pose before frame 0 (ground-truth frame; zeros if unknown).
     """
 
@@ -93,9 +96,58 @@ def integrate_controls(controls: np.ndarray, start: np.ndarray | None = None) ->
 _REAL = "iuf"  # dtype kinds of real numbers (bool, complex, strings and objects are not)
 _REAL_FIELDS = ("controls", "local_maps", "resolution", "timestamps", "ground_truth",
                 "initial_pose")
-# Local-map statistics may hold n sum z^2 - (sum z)^2 below 0 by this much, relative to
-# n |sum z^2| + (sum z)^2, from rounding; more is a negative variance, i.e. corrupt statistics.
+# Local-map statistics may hold n sum z^2 - (sum z)^2 below 0 from rounding by up to
+# max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * eps) relative to n |sum z^2| + (sum z)^2,
+# eps that of the dtype the statistics were stored in (float32 sums of n heights round by up to
+# about n eps relative each); more is a negative variance, i.e. corrupt statistics.
 VARIANCE_TOLERANCE = 1e-6
+VARIANCE_ROUNDING = 8.0
+
+
+def variance_tolerance(maps: np.ndarray, stored: np.dtype) -> np.ndarray:
+    """[M, L, L] relative tolerance of n sum z^2 - (sum z)^2 < 0 for the statistics ``maps``
+    [M, L, L, 3] stored as ``stored``: max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING n eps).
+
+    eps is the stored dtype's; integers (no rounding of their own) count as float64, and wider
+    floats whose every value is a float32 count as float32 (statistics accumulated in float32
+    and widened, e.g. a float32 Run file loaded and saved again)."""
+    stored = np.dtype(stored)
+    if stored.kind != "f":
+        stored = np.dtype(np.float64)
+    elif stored.itemsize > 4:
+        with np.errstate(over="ignore", invalid="ignore"):
+            if np.array_equal(maps.astype(np.float32), maps):
+                stored = np.dtype(np.float32)
+    n = np.asarray(maps[..., 0], np.float64)
+    return np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * np.finfo(stored).eps)
+
+
+def describe_cells(bad_cells: np.ndarray, obs_index: np.ndarray) -> str:
+    """'local map m (frame t), cell (i, j) (c cells in all)' of the first true cell of
+    ``bad_cells`` [M, L, L]; frame t is the first frame that uses local map m."""
+    m, i, j = (int(v) for v in np.argwhere(bad_cells)[0])
+    frames = np.flatnonzero(np.asarray(obs_index) == m)
+    at = f"frame {int(frames[0])}" if frames.size else "used by no frame"
+    return f"local map {m} ({at}), cell ({i}, {j}) ({int(np.sum(bad_cells))} cells in all)"
+
+
+def _normalise_stored(fields: dict, fail) -> dict:
+    """Older Run files' encodings, converted: ``vo_failed`` as integers 0/1 (to bool) and
+    ``resolution`` as a size-1 array (to a scalar). Other integers in ``vo_failed`` fail naming
+    the first bad frame; everything else is left to ``_check_types``."""
+    fields = dict(fields)
+    flags = fields.get("vo_failed")
+    if flags is not None and flags.dtype.kind in "iu" and flags.ndim == 1:
+        bad = (flags != 0) & (flags != 1)
+        if bad.any():
+            t = int(np.argmax(bad))
+            fail("vo_failed", f"expected bool or integers 0/1, got {flags[t]} at frame {t} "
+                 f"({int(bad.sum())} frames in all)")
+        fields["vo_failed"] = flags.astype(bool)
+    res = fields["resolution"]
+    if res.shape != () and res.size == 1:
+        fields["resolution"] = res.reshape(())
+    return fields
 
 
 def _check_types(fields: dict, fail) -> None:
@@ -111,13 +163,14 @@ def _check_types(fields: dict, fail) -> None:
         fail("vo_failed", f"expected bool, got dtype {np.asarray(fields['vo_failed']).dtype}")
 
 
-def validate_run(run: Run, source: str = "<run>") -> Run:
+def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None = None) -> Run:
     """Check shapes, types and values; raise RunError naming the field and frame.
 
     Required: finite controls; finite, strictly increasing timestamps; integer point counts
-    n >= 0 with n sum z^2 >= (sum z)^2 (a variance >= 0, up to rounding); a finite initial
-    pose. ``ground_truth`` may hold NaN rows: frames without ground truth (the metrics skip
-    them).
+    n >= 0 with n sum z^2 >= (sum z)^2 (a variance >= 0, up to the rounding of the dtype the
+    statistics were accumulated in: ``stats_dtype``, default ``local_maps``' own); a finite
+    initial pose. ``ground_truth`` may hold NaN rows: frames without ground truth (the metrics
+    skip them).
     """
 
     def fail(field: str, msg: str) -> None:
@@ -151,11 +204,7 @@ def validate_run(run: Run, source: str = "<run>") -> Run:
         fail("obs_index", f"frame {frame} refers to local map {obs_index[frame]} but only {M} exist")
 
     def first_map(bad_cells: np.ndarray) -> str:
-        """'local map m (frame t), cell (i, j)' of the first bad cell in [M, L, L]."""
-        m, i, j = (int(v) for v in np.argwhere(bad_cells)[0])
-        frames = np.flatnonzero(obs_index == m)
-        at = f"frame {int(frames[0])}" if frames.size else "used by no frame"
-        return f"local map {m} ({at}), cell ({i}, {j}) ({int(bad_cells.sum())} cells in all)"
+        return describe_cells(bad_cells, obs_index)
 
     finite = np.isfinite(maps).all(axis=-1)
     if not finite.all():
@@ -166,7 +215,8 @@ def validate_run(run: Run, source: str = "<run>") -> Run:
     if (n != np.round(n)).any():
         fail("local_maps", f"non-integer point count n in {first_map(n != np.round(n))}")
     spread = n * szz - sz * sz  # n^2 times the variance of the heights
-    negative = spread < -VARIANCE_TOLERANCE * (n * np.abs(szz) + sz * sz)
+    tol = variance_tolerance(maps, maps.dtype if stats_dtype is None else stats_dtype)
+    negative = spread < -tol * (n * np.abs(szz) + sz * sz)
     if negative.any():
         fail("local_maps", f"negative variance (n sum z^2 < (sum z)^2) in {first_map(negative)}")
     resolution = float(run.resolution)
@@ -232,7 +282,9 @@ def load_run(path: str | Path) -> Run:
     def fail(field: str, msg: str) -> None:
         raise RunError(f"{path}: field '{field}': {msg}")
 
+    fields = _normalise_stored(fields, fail)
     _check_types(fields, fail)  # before the conversions below, which would raise or hide it
+    stats_dtype = fields["local_maps"].dtype  # the rounding of the statistics is that dtype's
     run = Run(
         controls=fields["controls"].astype(np.float64),
         obs_index=fields["obs_index"],
@@ -243,4 +295,4 @@ def load_run(path: str | Path) -> Run:
         vo_failed=fields.get("vo_failed"),
         initial_pose=fields.get("initial_pose"),
     )
-    return validate_run(run, str(path))
+    return validate_run(run, str(path), stats_dtype=stats_dtype)

@@ -340,10 +340,11 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterPar
     run one after another in ``lax.map`` (inner=1, the default there); accelerators default to
     vmapping the whole per-device block (``default_inner``).
 
-    Objective "rms" needs a frame with ground truth (``inputs.mask``); a SearchError otherwise.
+    Objective "rms" needs a frame with a ground-truth position (``inputs.mask``; headings are
+    not used); a SearchError otherwise (``slam.require_ground_truth``).
     """
     if objective == "rms":
-        _check_mask(inputs.mask)
+        slam.require_ground_truth(inputs.mask, "rms", SearchError)
     devices = list(devices or jax.devices())
     nd = len(devices)
     P = values.shape[0]
@@ -370,13 +371,6 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterPar
         if progress is not None:
             progress(start + n, P)
     return out
-
-
-def _check_mask(mask: Array | np.ndarray) -> None:
-    """Objective "rms" over no frame would score every set 0 m: refuse it."""
-    if not np.any(np.asarray(mask)):
-        raise SearchError("objective 'rms' needs ground truth, but the run's ground_truth has no "
-                          "frame with finite values; use objective 'loglik'")
 
 
 def default_inner(devices: Sequence[jax.Device]) -> int | None:
@@ -527,7 +521,7 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
         raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
     inputs, cfg = slam.run_arrays(run, config)
     if objective == "rms":
-        _check_mask(inputs.mask)
+        slam.require_ground_truth(inputs.mask, "rms", SearchError)
     base = slam.filter_params(config)
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:

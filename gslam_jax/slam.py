@@ -17,22 +17,24 @@ import numpy as np
 
 from gslam_jax import cells, filter as gf, unknown
 from gslam_jax.config import Config, ConfigError
+from gslam_jax.errors import InputError
 from gslam_jax.localmap import LocalMapParams
 from gslam_jax.motion import MotionParams
-from gslam_jax.run import Run
+from gslam_jax.run import Run, RunError, describe_cells
 
 __all__ = ["MapExtent", "map_extent", "localmap_params", "observed_cells", "filter_config",
            "filter_params", "local_observations", "particle_map_bytes", "map_memory",
-           "check_map_memory", "RunArrays", "run_arrays", "SlamResult", "run_slam",
-           "ExtentWarning", "WeightError"]
+           "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
+           "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError"]
 
 
 class ExtentWarning(UserWarning):
     """Particles observed cells outside the map extent (those cells were skipped)."""
 
 
-class WeightError(RuntimeError):
-    """An update left non-finite particle weights (NaN ESS or log-likelihood); names the frame."""
+class WeightError(InputError):
+    """The filter cannot weigh the data: an update left non-finite particle weights (ESS or
+    log-likelihood not finite); names the frame and the local map."""
 
 
 class MapExtent(NamedTuple):
@@ -144,10 +146,23 @@ def filter_params(config: Config) -> gf.FilterParams:
 
 
 def local_observations(run: Run, min_variance: float) -> np.ndarray:
-    """[max(M, 1), L, L, 2] float32 observations (k, S); float64 on the host, then cast."""
+    """[max(M, 1), L, L, 2] float32 observations (k, S); float64 on the host, then cast.
+
+    A RunError, naming the local map and a frame that uses it, when a value is not finite in
+    float32 (statistics finite in float64 may overflow float32's range, about 3.4e38)."""
     if run.num_local_maps == 0:
         return np.zeros((1, 8, 8, 2), np.float32)
-    return cells.obs_from_stats(run.local_maps, min_variance).astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        obs = cells.obs_from_stats(run.local_maps, min_variance).astype(np.float32)
+    bad = ~np.isfinite(obs).all(axis=-1)
+    if bad.any():
+        m, i, j = (int(v) for v in np.argwhere(bad)[0])
+        raise RunError(
+            f"field 'local_maps': {describe_cells(bad, run.obs_index)}: the statistics "
+            f"{run.local_maps[m, i, j].tolist()} (n, sum z, sum z^2) give an observation "
+            f"(k, S) = {obs[m, i, j].tolist()} beyond float32, which the filter computes in; "
+            f"check that local map's statistics")
+    return obs
 
 
 class RunArrays(NamedTuple):
@@ -157,8 +172,26 @@ class RunArrays(NamedTuple):
     obs_index: jax.Array   # [T]
     local_obs: jax.Array   # [M, L, L, 2]
     reference: jax.Array   # [T, 3] ground truth (zeros where unknown)
-    mask: jax.Array        # [T] frames with ground truth
+    mask: jax.Array        # [T] frames with a ground-truth position (``ground_truth_mask``)
     start: jax.Array       # [3]
+
+
+def ground_truth_mask(run: Run) -> np.ndarray:
+    """[T] bool: frames whose ground-truth position (x, y) is finite, as
+    ``metrics.errors_over_known_frames`` scores them. The RMS objective of the search and the
+    supervised loss of the tuner use positions only: a NaN heading drops no frame."""
+    if run.ground_truth is None:
+        return np.zeros(run.num_frames, bool)
+    return np.isfinite(np.asarray(run.ground_truth, np.float64)[:, :2]).all(axis=1)
+
+
+def require_ground_truth(mask: jax.Array | np.ndarray, objective: str,
+                         error: type[InputError]) -> None:
+    """``error`` when ``mask`` (``RunArrays.mask``) marks no frame: an objective over no frame
+    with ground truth would be 0 for every parameter value."""
+    if not np.any(np.asarray(mask)):
+        raise error(f"objective '{objective}' needs ground truth, but the run's ground_truth "
+                    f"has no frame with a finite position (x, y); use objective 'loglik'")
 
 
 def run_arrays(run: Run, config: Config) -> tuple[RunArrays, gf.FilterConfig]:
@@ -170,7 +203,7 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, gf.FilterConfig]:
         obs_index=jnp.asarray(run.obs_index, jnp.int32),
         local_obs=jnp.asarray(local_observations(run, config.map.min_variance)),
         reference=jnp.asarray(np.nan_to_num(gt), jnp.float32),
-        mask=jnp.asarray(np.isfinite(gt).all(1)),
+        mask=jnp.asarray(ground_truth_mask(run)),
         start=jnp.asarray(run.start_pose(), jnp.float32))
     return arrays, filter_config(config, run)
 
@@ -185,11 +218,14 @@ def _check_weights(info: gf.StepInfo, start: int, frames: int, obs_index: np.nda
         i = int(np.argmax(bad))
         t = start + i
         m = int(obs_index[t])
-        where = f" after the update with local map {m}" if m >= 0 else ""
+        what = (f"the filter cannot weigh local map {m}: the update with it left non-finite "
+                f"particle weights" if m >= 0 else
+                "non-finite particle weights at a frame without a local map")
+        check = (f"check local map {m}'s statistics (n, sum z, sum z^2 per cell)" if m >= 0
+                 else "check the run's controls and the local maps before this frame")
         raise WeightError(
-            f"frame {t}: non-finite particle weights{where} (ESS {float(ess[i])}, "
-            f"log-likelihood {float(log_lik[i])}); check the local map's statistics and "
-            f"[map] min_variance (must be > 0)")
+            f"frame {t}: {what} (ESS {float(ess[i])}, evidence (log-likelihood) "
+            f"{float(log_lik[i])}, not finite); {check}")
 
 
 class SlamResult(NamedTuple):
@@ -220,7 +256,9 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     Chunking bounds the per-frame outputs held on device and lets ``progress(done, total)``
     report; the per-frame PRNG keys are fixed up front, so results do not depend on ``chunk``.
     Raises ConfigError when the particle maps would not fit in memory (before allocating
-    them) and WeightError, naming the first frame, when an update leaves non-finite weights.
+    them), RunError when a local map's observation is not finite in float32
+    (``local_observations``) and WeightError, naming the first frame and its local map, when
+    an update leaves non-finite weights.
     """
     cfg = filter_config(config, run)
     params = filter_params(config)

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import time
-from functools import partial
 from typing import Callable, NamedTuple, Sequence
 
 import jax
@@ -177,19 +176,27 @@ def _optimizer(name: str, lr: float, kwargs: dict, x: Array
     alone (one trial update on a zero gradient, discarded)."""
     try:
         opt = getattr(optax, name)(lr, **kwargs)
-    except TypeError as err:
+    except (TypeError, ValueError) as err:  # ValueError: optax rejecting an argument's value
         raise TuneError(f"optimizer '{name}' cannot be built as optax.{name}(learning_rate, "
-                        f"**optimizer_kwargs): {err}") from err
+                        f"**optimizer_kwargs): {type(err).__name__}: {err}") from err
     if not isinstance(opt, optax.GradientTransformation):
         raise TuneError(f"optimizer '{name}' is not an optax optimiser (optax.{name}(...) gave "
                         f"{type(opt).__name__}, not a GradientTransformation)")
-    state = opt.init(x)
+    try:
+        state = opt.init(x)
+    except (TypeError, ValueError) as err:  # e.g. a mask that does not fit the parameters
+        raise TuneError(f"optimizer '{name}' cannot be initialised on the {x.shape[0]} tuned "
+                        f"parameter(s) with optimizer_kwargs {kwargs}: "
+                        f"{type(err).__name__}: {err}") from err
     try:
         opt.update(jnp.zeros_like(x), state, x)
     except TypeError as err:
         raise TuneError(f"optimizer '{name}' needs extra arguments in its update ({err}); tune "
                         f"passes the gradient only: use an optimiser whose update needs nothing "
                         f"more, such as adam or sgd") from err
+    except ValueError as err:
+        raise TuneError(f"optimizer '{name}' fails on a trial update with optimizer_kwargs "
+                        f"{kwargs}: ValueError: {err}") from err
     return opt, state
 
 
@@ -221,8 +228,9 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     "supervised" (minimise the expected squared position error against ground truth).
     start: initial values (default: the config's). runs_per_step: independent filter runs
     averaged per gradient. crn: reuse the same keys every step (common random numbers);
-    otherwise step s uses keys derived from fold_in(key, s). "supervised" needs a frame with
-    finite ground truth (a TuneError otherwise: the loss would be 0 for every parameter value).
+    otherwise step s uses keys derived from fold_in(key, s). "supervised" needs a frame with a
+    finite ground-truth position (x, y; headings are not used), a TuneError otherwise (the loss
+    would be 0 for every parameter value).
     """
     if objective not in TUNE_OBJECTIVES:
         raise TuneError(f"objective '{objective}' unknown; choose one of "
@@ -241,9 +249,8 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     if steps < 1 or runs_per_step < 1:
         raise TuneError("steps and runs_per_step must be at least 1")
     inputs, cfg = make_inputs(run, config)
-    if objective == "supervised" and not np.any(np.asarray(inputs.mask)):
-        raise TuneError("objective 'supervised' needs ground truth, but the run's ground_truth "
-                        "has no frame with finite values; use 'loglik'")
+    if objective == "supervised":
+        slam.require_ground_truth(inputs.mask, objective, TuneError)
     base = slam.filter_params(config)
     cur = dict(zip(PARAM_NAMES, (config.motion.alpha_d, config.motion.alpha_theta_d,
                                  config.motion.alpha_theta, config.filter.beta_prev,

@@ -150,13 +150,13 @@ def test_rms_needs_a_frame_with_ground_truth(small_run):
     """Ground truth with no finite frame would score every set 0 m: an error instead."""
     space = S.parse_space({"alpha_d": [0.01, 0.1]})
     blind = small_run._replace(ground_truth=np.full_like(small_run.ground_truth, np.nan))
-    with pytest.raises(S.SearchError, match="no frame with finite values"):
+    with pytest.raises(S.SearchError, match=r"no frame with a finite position \(x, y\)"):
         S.search(blind, CONFIG, space, n=2, objective="rms")
     import jax
 
     from gslam_jax import slam
     inputs, cfg = slam.run_arrays(blind, CONFIG)
-    with pytest.raises(S.SearchError, match="no frame with finite values"):
+    with pytest.raises(S.SearchError, match=r"no frame with a finite position \(x, y\)"):
         S.evaluate(np.array([[0.05]]), jax.random.key(0), inputs, slam.filter_params(CONFIG),
                    space.names, cfg, "rms")
     # One frame with ground truth is enough; loglik needs none.
@@ -165,6 +165,28 @@ def test_rms_needs_a_frame_with_ground_truth(small_run):
     res = S.search(blind._replace(ground_truth=some), CONFIG, space, n=1, objective="rms")
     assert np.isfinite(res.objective[0])
     S.search(blind, CONFIG, space, n=1, objective="loglik")
+
+
+def test_rms_scores_position_only_ground_truth(small_run):
+    """Ground truth with NaN headings (positions only): the RMS uses x, y alone, as
+    metrics.errors_over_known_frames does. Before, every frame was dropped and the search
+    refused ("no frame with finite values")."""
+    from gslam_jax import slam
+    space = S.parse_space({"alpha_d": [0.01, 0.1]})
+    gt = small_run.ground_truth.copy()
+    gt[:, 2] = np.nan
+    gt[5, 0] = np.nan  # a frame without a position is still skipped
+    partial = small_run._replace(ground_truth=gt)
+    full = small_run.ground_truth.copy()
+    full[5] = np.nan
+    values = np.array([[0.03], [0.07]])
+    got = S.search(partial, CONFIG, space, values=values, objective="rms")
+    want = S.search(small_run._replace(ground_truth=full), CONFIG, space, values=values,
+                    objective="rms")
+    np.testing.assert_array_equal(got.objective, want.objective)  # headings play no part
+    assert np.all(np.isfinite(got.objective))
+    np.testing.assert_array_equal(slam.ground_truth_mask(partial),
+                                  np.arange(small_run.num_frames) != 5)
 
 
 def test_result_times_are_named_for_what_they_hold(small_run, tmp_path):

@@ -110,8 +110,35 @@ def test_tune_rejects_optimisers_needing_more_than_the_gradient(short_run):
         TU.tune(short_run, config, "supervised", optimizer="constant_schedule", steps=1)
 
 
+@pytest.mark.parametrize("name, kwargs, match", [
+    ("lbfgs", {"memory_size": 0}, r"optimizer 'lbfgs' cannot be built as optax\.lbfgs\("
+                                  r"learning_rate, \*\*optimizer_kwargs\): ValueError: "
+                                  r"memory_size must be >= 1"),
+    ("adamw", {"mask": {"a": True}}, r"optimizer 'adamw' cannot be initialised on the 1 tuned "
+                                     r"parameter\(s\) with optimizer_kwargs \{'mask': \{'a': True\}\}: "
+                                     r"ValueError"),
+])
+def test_tune_reports_optimiser_value_errors(short_run, name, kwargs, match):
+    """A ValueError from the optimiser's arguments was a traceback, not a TuneError."""
+    with pytest.raises(TU.TuneError, match=match):
+        TU.tune(short_run, _config(8), "supervised", optimizer=name, steps=1,
+                names=["alpha_d"], runs_per_step=1, optimizer_kwargs=kwargs)
+
+
 def test_supervised_needs_a_frame_with_ground_truth(short_run):
     """No finite ground-truth frame would make the loss 0 whatever the parameters."""
     blind = short_run._replace(ground_truth=np.full_like(short_run.ground_truth, np.nan))
-    with pytest.raises(TU.TuneError, match="no frame with finite values"):
+    with pytest.raises(TU.TuneError, match=r"no frame with a finite position \(x, y\)"):
         TU.tune(blind, _config(8), "supervised", steps=1, names=["alpha_d"], runs_per_step=1)
+
+
+def test_supervised_uses_positions_only(short_run):
+    """Ground truth with NaN headings: the loss is the squared position error, the same as with
+    the headings known. Before, every frame was dropped and tune refused."""
+    gt = short_run.ground_truth.copy()
+    gt[:, 2] = np.nan
+    kwargs = dict(steps=1, names=["alpha_d"], runs_per_step=1, key=jax.random.key(3))
+    got = TU.tune(short_run._replace(ground_truth=gt), _config(8), "supervised", **kwargs)
+    want = TU.tune(short_run, _config(8), "supervised", **kwargs)
+    np.testing.assert_array_equal(got.losses, want.losses)
+    np.testing.assert_array_equal(got.history, want.history)

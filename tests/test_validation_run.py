@@ -80,10 +80,86 @@ def test_non_boolean_vo_failed(tmp_path, run):
         load_run(_save(tmp_path, run, vo_failed=flags))
 
 
-@pytest.mark.parametrize("value", [np.array([0.16, 0.16]), np.array([0.16])])
+@pytest.mark.parametrize("value", [np.array([0.16, 0.16]), np.zeros((0,))])
 def test_non_scalar_resolution(tmp_path, run, value):
     with pytest.raises(RunError, match=r"bad\.npz: field 'resolution': expected a scalar"):
         load_run(_save(tmp_path, run, resolution=value))
+
+
+def _float32_accumulated(maps: np.ndarray, cells: int, seed: int = 0) -> np.ndarray:
+    """``maps`` as float32, its first ``cells`` cells replaced by the statistics of 50-2000
+    heights of 1.5 m +- 0.3 mm summed one by one in float32 (a float32 local-map builder)."""
+    rng = np.random.default_rng(seed)
+    out = maps.astype(np.float32)
+    flat = out.reshape(-1, 3)
+    for c in range(cells):
+        z = (1.5 + rng.normal(0, 3e-4, rng.integers(50, 2000))).astype(np.float32)
+        flat[c] = [z.size, np.cumsum(z, dtype=np.float32)[-1],
+                   np.cumsum(z * z, dtype=np.float32)[-1]]
+    return out
+
+
+def test_float32_accumulated_statistics_load(tmp_path, run):
+    """Before: a relative tolerance of 1e-6 whatever the dtype rejected about 3% of such cells
+    (float32 rounding makes n sum z^2 - (sum z)^2 slightly negative when the spread is tiny)."""
+    maps = _float32_accumulated(run.local_maps, 2000)
+    n, sz, szz = (maps[..., c].astype(np.float64) for c in range(3))
+    assert (n * szz - sz * sz < -1e-6 * (n * szz + sz * sz)).sum() > 10  # what was rejected
+    back = load_run(_save(tmp_path, run, local_maps=maps))
+    np.testing.assert_array_equal(back.local_maps, maps)
+    assert back.local_maps.dtype == np.float64
+    save_run(tmp_path / "again.npz", back)  # widened to float64, still float32 statistics
+    np.testing.assert_array_equal(load_run(tmp_path / "again.npz").local_maps, maps)
+
+
+def test_clearly_negative_variance_in_float32_statistics_fails(tmp_path, run):
+    t, m = _first_map_frame(run)
+    maps = _float32_accumulated(run.local_maps, 2000)
+    # variance -0.25 m^2: n sum z^2 = 4.5e6 < (sum z)^2 = 5.0625e6, 6% of the scale (the
+    # float32 tolerance there is 8 n eps = 0.14%)
+    maps[m, 40, 41] = [1500.0, 2250.0, 3000.0]
+    with pytest.raises(RunError, match=rf"bad\.npz: field 'local_maps': negative variance .* "
+                                       rf"local map {m} \(frame {t}\), cell \(40, 41\) "
+                                       rf"\(1 cells in all\)"):
+        load_run(_save(tmp_path, run, local_maps=maps))
+    maps[m, 40, 41] = [4.0, 2.0, 0.5]
+    with pytest.raises(RunError, match=r"negative variance"):
+        load_run(_save(tmp_path, run, local_maps=maps))
+
+
+def test_float64_statistics_keep_their_tolerance(tmp_path, run):
+    """A deficit of 5e-6 relative is beyond float64 rounding (but within float32's at n = 7)."""
+    t, m = _first_map_frame(run)
+    maps = run.local_maps.copy()
+    maps[m, 2, 3] = [7, 0.7, 0.07 * (1 - 1e-5)]
+    with pytest.raises(RunError, match=rf"negative variance .* local map {m} \(frame {t}\), "
+                                       rf"cell \(2, 3\)"):
+        load_run(_save(tmp_path, run, local_maps=maps))
+
+
+@pytest.mark.parametrize("dtype", [np.int64, np.uint8, np.int32])
+def test_integer_vo_failed_flags_load_as_bool(tmp_path, run, dtype):
+    """Files that store the flags as integers 0/1 loaded before the dtype check."""
+    flags = np.zeros(run.num_frames, dtype)
+    flags[[2, 7]] = 1
+    back = load_run(_save(tmp_path, run, vo_failed=flags))
+    assert back.vo_failed.dtype == bool
+    np.testing.assert_array_equal(back.vo_failed, flags.astype(bool))
+
+
+def test_other_integer_vo_failed_flags_name_the_frame(tmp_path, run):
+    flags = np.zeros(run.num_frames, np.int64)
+    flags[[5, 9]] = [2, -1]
+    with pytest.raises(RunError, match=r"bad\.npz: field 'vo_failed': expected bool or integers "
+                                       r"0/1, got 2 at frame 5 \(2 frames in all\)"):
+        load_run(_save(tmp_path, run, vo_failed=flags))
+
+
+def test_size_one_resolution_array_loads_as_a_scalar(tmp_path, run):
+    back = load_run(_save(tmp_path, run, resolution=np.array([run.resolution])))
+    assert isinstance(back.resolution, float) and back.resolution == run.resolution
+    back = load_run(_save(tmp_path, run, resolution=np.array([[run.resolution]], np.float32)))
+    assert back.resolution == pytest.approx(run.resolution)
 
 
 def test_string_fields(tmp_path, run):

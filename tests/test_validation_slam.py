@@ -9,6 +9,8 @@ from synthetic import make_run
 
 from gslam_jax import cells, slam
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
+from gslam_jax.errors import InputError
+from gslam_jax.run import RunError
 
 
 def _small_config(**map_values) -> Config:
@@ -24,10 +26,14 @@ def test_zero_variance_cells_with_zero_floor_raise_naming_the_frame():
     run = run._replace(local_maps=maps)
     config = _small_config(min_variance=0.0)  # built directly: validate() now refuses it
     updates = np.flatnonzero(run.obs_index >= 0)
-    with pytest.raises(slam.WeightError, match=rf"frame {updates[1]}: non-finite particle weights "
-                                               rf"after the update with local map "
-                                               rf"{run.obs_index[updates[1]]} \(ESS nan"):
+    m = run.obs_index[updates[1]]
+    with pytest.raises(slam.WeightError, match=rf"frame {updates[1]}: the filter cannot weigh "
+                                               rf"local map {m}: the update with it left "
+                                               rf"non-finite particle weights \(ESS nan, evidence "
+                                               rf"\(log-likelihood\) nan, not finite\); check "
+                                               rf"local map {m}'s statistics") as err:
         slam.run_slam(run, config)
+    assert "min_variance" not in str(err.value)  # config validation already requires it > 0
     res = slam.run_slam(run, _small_config())  # the default floor: finite weights throughout
     assert np.isfinite(res.ess).all() and np.isfinite(res.log_lik).all()
 
@@ -63,3 +69,25 @@ def test_map_memory_check_against_a_given_budget():
     slam.check_map_memory(cfg, available=need)
     with pytest.raises(ConfigError, match="the particle maps need"):
         slam.check_map_memory(cfg, available=need - 1)
+
+
+def test_weight_error_is_an_input_error():
+    """The CLI prints InputErrors without a traceback; WeightError reports unweighable data."""
+    assert issubclass(slam.WeightError, InputError)
+
+
+def test_observations_beyond_float32_are_a_run_error_naming_the_local_map():
+    """Statistics finite in float64 whose (k, S) overflow float32: before, inf observations
+    reached the filter (non-finite weights or silently wrong maps)."""
+    run, _ = make_run(steps=15)
+    updates = np.flatnonzero(run.obs_index >= 0)
+    t, m = int(updates[1]), int(run.obs_index[updates[1]])
+    maps = run.local_maps.copy()
+    maps[m, 4, 5] = [3.0, 3e19, 3.01e39]  # S = 2.71e39: finite in float64, inf in float32
+    run = run._replace(local_maps=maps)
+    match = (rf"field 'local_maps': local map {m} \(frame {t}\), cell \(4, 5\) \(1 cells in "
+             rf"all\): .* beyond float32.*check that local map's statistics")
+    with pytest.raises(RunError, match=match):
+        slam.local_observations(run, 1e-6)
+    with pytest.raises(RunError, match=match):
+        slam.run_slam(run, _small_config())
