@@ -20,7 +20,6 @@ import time
 from pathlib import Path
 
 import cv2
-import numpy as np
 
 from gslam_jax import metrics, slam
 from gslam_jax.bench import environment
