@@ -187,4 +187,4 @@ def test_nan_ground_truth_rows_mean_frames_without_ground_truth(tmp_path, run):
     save_run(tmp_path / "gt.npz", run._replace(ground_truth=gt))
     back = load_run(tmp_path / "gt.npz")
     np.testing.assert_array_equal(back.ground_truth, gt)
-    assert isinstance(back, Run) and "NaN rows" in validate_run.__doc__
+    assert isinstance(back, Run)

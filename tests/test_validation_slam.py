@@ -41,8 +41,6 @@ def test_zero_variance_cells_with_zero_floor_raise_naming_the_frame():
 def test_obs_from_stats_default_floor_is_positive():
     k, S = cells.obs_from_stats(np.array([4.0, 0.0, 0.0]))
     assert k == 3 and S == pytest.approx(3e-6)
-    doc = " ".join(cells.obs_from_stats.__doc__.split())
-    assert "one-pass formula" in doc and "per-cell shift" not in doc
 
 
 def test_maps_larger_than_memory_are_a_config_error_before_allocating(monkeypatch):
