@@ -64,6 +64,17 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _seed(text: str) -> int:
+    """argparse type: a seed 0 <= seed < 2^32 (else a usage error)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
+    if not 0 <= value < 2 ** 32:
+        raise argparse.ArgumentTypeError(f"a seed must be in [0, 2^32), got {value}")
+    return value
+
+
 def _check_source_arguments(args: argparse.Namespace) -> None:
     """Reject source options that would be silently ignored (ConfigError naming them)."""
     if args.run_file is not None:
@@ -284,7 +295,7 @@ def cmd_search(args: argparse.Namespace) -> int:
             config, run = _config_and_run(args)
             result = search(run, config, space,
                             design=args.design or options.get("design", "halton"),
-                            n=args.n or options.get("n", 64),
+                            n=args.n if args.n is not None else options.get("n", 64),
                             objective=args.objective or options.get("objective", "rms"),
                             path=args.score_path or options.get("path", "mean"),
                             seed=options.get("seed", 0), batch=args.batch,
@@ -378,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--space", type=Path, required=True, help="TOML search space (see "
                    "configs/search_example.toml)")
     p.add_argument("--design", choices=["grid", "random", "halton", "sobol"])
-    p.add_argument("--n", type=int, help="number of parameter sets")
+    p.add_argument("--n", type=_positive_int, help="number of parameter sets")
     p.add_argument("--objective", choices=["rms", "loglik"])
     p.add_argument("--score-path", choices=["mean", "best"],
                    help="path scored by rms: weighted mean or final best particle")
@@ -392,7 +403,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--optimizer", default="adam", help="an optax optimiser by name whose "
                    "update needs only the gradient (adam, sgd, ...; lbfgs is refused)")
     p.add_argument("--lr", type=float, default=0.05)
-    p.add_argument("--steps", type=int, default=100)
+    p.add_argument("--steps", type=_positive_int, default=100)
     p.add_argument("--params", help="comma-separated names (default: the objective's)")
     p.add_argument("--runs-per-step", type=int, default=4)
     p.add_argument("--crn", action="store_true", help="common random numbers across steps")
@@ -411,7 +422,7 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--path", type=Path, help="dataset folder for --source kitti/euroc")
     p.add_argument("--sequence", metavar="NN", help="KITTI sequence: the folder under "
                    "PATH/sequences (e.g. 00); needed when there are several")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed")
+    p.add_argument("--seed", type=_seed, default=0, help="simulation seed (0 <= seed < 2^32)")
     p.add_argument("--max-frames", type=_positive_int, metavar="N",
                    help="use only the first N frames of the source (not with a Run file)")
     p.add_argument("--on-bad-frame", choices=["error", "fallback"], default="error",
@@ -425,17 +436,19 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
 def _build_rest(sub) -> None:
     """bench, table1 and compare: commands with their own arguments."""
     p = sub.add_parser("bench", help="microseconds per particle per local-map update")
-    p.add_argument("--particles", type=int, nargs="+", default=[50, 200, 1000])
-    p.add_argument("--local", type=int, nargs="+", default=[64], help="local map sides, cells")
-    p.add_argument("--map", type=int, nargs="+", default=[640], help="global map sides, cells")
-    p.add_argument("--repeats", type=int, default=10)
+    p.add_argument("--particles", type=_positive_int, nargs="+", default=[50, 200, 1000])
+    p.add_argument("--local", type=_positive_int, nargs="+", default=[64],
+                   help="local map sides, cells")
+    p.add_argument("--map", type=_positive_int, nargs="+", default=[640],
+                   help="global map sides, cells")
+    p.add_argument("--repeats", type=_positive_int, default=10)
     p.add_argument("--mode", choices=["ignore", "sample"], nargs="+", default=["ignore", "sample"])
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     p.add_argument("--plot", type=Path, help="also plot us per particle against J (PNG)")
     p.add_argument("--course", choices=COURSES, metavar="COURSE",
                    help="also time a whole simulated course after compilation "
                    "(e.g. mars-yard-a), default settings")
-    p.add_argument("--course-particles", type=int, default=200)
+    p.add_argument("--course-particles", type=_positive_int, default=200)
     p.add_argument("--particle-block", type=int, nargs="+", default=[0],
                    help="particles per pass of the update (0: automatic); several values "
                    "compare block sizes in one process")
@@ -443,7 +456,7 @@ def _build_rest(sub) -> None:
 
     p = sub.add_parser("table1", help="the paper's Table I on the five simulated courses")
     p.add_argument("--courses", nargs="+", default=list(COURSES), choices=COURSES, metavar="COURSE")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--seeds", type=_seed, nargs="+", default=[0, 1, 2])
     p.add_argument("--particles", type=_positive_int, metavar="J",
                    help="particles (default: the config's filter.particles, per course; 200 if "
                    "the config does not set it)")
@@ -456,10 +469,10 @@ def _build_rest(sub) -> None:
     p.add_argument("run_file", nargs="?", type=Path, help="Run file (default: a simulated course)")
     p.add_argument("--config", type=Path, help="TOML config (a Table I config's [course.*] tables "
                    "are not applied)")
-    p.add_argument("--particles", type=int, default=200)
+    p.add_argument("--particles", type=_positive_int, default=200)
     p.add_argument("--unknown-cells", choices=["ignore", "sample"])
     p.add_argument("--tile-size", type=float, help="tile side, metres (default 10)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=_seed, default=0)
     p.add_argument("--out", type=Path, help="write compare.json and compare_fig4.png here")
     p.add_argument("--exact", action="store_true",
                    help="disable XLA's fused multiply-adds so both filters round identically")

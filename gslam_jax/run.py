@@ -230,7 +230,8 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
              f"{int(np.argmax(~np.isfinite(ts)))}")
     if (np.diff(ts) <= 0).any():
         t = int(np.argmax(np.diff(ts) <= 0)) + 1
-        fail("timestamps", f"not increasing at frame {t} ({ts[t - 1]!r} s, then {ts[t]!r} s)")
+        fail("timestamps", f"not increasing at frame {t} ({float(ts[t - 1])!r} s, "
+             f"then {float(ts[t])!r} s)")
     if run.ground_truth is not None and np.asarray(run.ground_truth).shape != (T, 3):
         fail("ground_truth", f"expected shape [{T}, 3], got {np.asarray(run.ground_truth).shape}")
     if run.vo_failed is not None and np.asarray(run.vo_failed).shape != (T,):

@@ -256,3 +256,19 @@ def test_trajectory_errors_match_the_metrics_on_full_ground_truth():
     no_heading[:, 2] = np.nan  # positions only: RMS, but no start-anchored final error
     got = errors_over_known_frames({"vo": vo, "slam": slam}, no_heading)
     assert got["vo_rms_m"] == metrics.rms_after_fit(vo, gt) and "vo_final_error_m" not in got
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "--seed", "-1"], "argument --seed: a seed must be in [0, 2^32), got -1"),
+    (["run", "--seed", str(2 ** 32)], "a seed must be in [0, 2^32)"),
+    (["bench", "--particles", "0"], "argument --particles: expected a positive integer, got 0"),
+    (["search", "--n", "0"], "argument --n: expected a positive integer, got 0"),
+    (["compare", "--particles", "-5"], "argument --particles: expected a positive integer"),
+])
+def test_counts_and_seeds_are_usage_errors(argv, message, capsys):
+    """Seeds and counts are checked by argparse, before any work (they were tracebacks from
+    NumPy's RNG or the filter's config, or, for search --n 0, silently the space file's n)."""
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err
