@@ -94,11 +94,16 @@ class FilterConfig(NamedTuple):
         return unknown.BLOCK if self.unknown_cells == "sample" else 1
 
     @property
+    def reach(self) -> int:
+        """Cells from a particle's cell to the farthest map cell its update can touch: every
+        local cell centre lies within L / sqrt(2) cells of the particle (``observation_cells``)."""
+        return math.ceil(self.local_size / math.sqrt(2.0)) + 1
+
+    @property
     def window(self) -> int:
         """Side of a square global-map window that holds a rotated local map (the minimum map
         side; "sample" mode refreshes its known-cell bits over such a window)."""
-        radius = math.ceil(self.local_size / math.sqrt(2.0)) + 1
-        side = 2 * (radius + self.block)
+        side = 2 * (self.reach + self.block)
         return int(unknown.BLOCK * math.ceil(side / unknown.BLOCK))
 
     def validate(self) -> "FilterConfig":
@@ -470,10 +475,9 @@ def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
 
 
 def written_rows(rows: Array, pose: Array, cfg: FilterConfig) -> Array:
-    """``rows`` [lo, hi) widened to every map row an update from ``pose`` [J, 3] can write: a
-    local cell centre lies within L / sqrt(2) cells of the particle (``observation_cells``)."""
-    H = cfg.map_shape[0]
-    reach = math.ceil(cfg.local_size / math.sqrt(2.0)) + 1
+    """``rows`` [lo, hi) widened to every map row an update from ``pose`` [J, 3] can write
+    (``FilterConfig.reach`` rows either side of each particle's row)."""
+    H, reach = cfg.map_shape[0], cfg.reach
     r = jnp.floor((pose[:, 0] - cfg.map_origin[0]) / cfg.resolution)
     r = jnp.clip(jnp.nan_to_num(r, nan=0.0), -reach, H + reach).astype(jnp.int32)
     return jnp.stack([jnp.maximum(jnp.minimum(rows[0], jnp.min(r) - reach), 0),
