@@ -235,7 +235,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if run.ground_truth is not None:
         summary.update(metrics.errors_over_known_frames(
             {"vo": result.vo_path, "slam": result.best_path}, run.ground_truth))
-    _write_figures(out, run, result, config.filter.particles, config.filter.resample_ratio)
+    slam_std = _write_figures(out, run, result, config.filter.particles,
+                              config.filter.resample_ratio)
     _write_json(out / "summary.json", summary)  # rewritten below with the GPS figures
     print(f"distance: {summary['distance_m']:.1f} m")
     if run.ground_truth is not None:
@@ -255,15 +256,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     if result.empty_observations:
         print(f"note: {result.empty_observations} local maps had no informative cell (weights unchanged)")
     if gps_input is not None:
-        summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result)
+        summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result, slam_std)
         _write_json(out / "summary.json", summary)
     print(f"results: {out}")
     return 0
 
 
-def _write_figures(out: Path, run, result, num_particles: int, threshold: float = 0.5) -> None:
+def _write_figures(out: Path, run, result, num_particles: int,
+                   threshold: float = 0.5) -> np.ndarray:
     """Map PNGs (VO-only beside Gamma-SLAM, coloured by expected std) and the ESS plot with the
-    resampling threshold (``threshold`` J, filter.resample_ratio)."""
+    resampling threshold (``threshold`` J, filter.resample_ratio); returns the Gamma-SLAM map's
+    expected std."""
     from gslam_jax import cells, metrics, plots
 
     slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
@@ -276,6 +279,7 @@ def _write_figures(out: Path, run, result, num_particles: int, threshold: float 
                                   slam_path=result.best_path)
     plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled,
                        threshold=threshold)
+    return slam_std
 
 
 def _config_and_run(args: argparse.Namespace):

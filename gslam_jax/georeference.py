@@ -16,6 +16,7 @@ import numpy as np
 from gslam_jax import cells, gps
 from gslam_jax.config import ConfigError
 from gslam_jax.gps import GpsLog, GpsLogError
+from gslam_jax.run import known_positions
 
 __all__ = ["GpsInput", "gps_input", "write_gps_outputs"]
 
@@ -31,31 +32,27 @@ class GpsInput(NamedTuple):
     inside: np.ndarray
 
 
-def gps_input(source: str | Path, run, seed: int = 0, log: GpsLog | None = None) -> GpsInput:
-    """The GPS readings for ``run``: ``log`` (read from file ``source``) or, when ``source`` is
-    "sim", a simulated WAAS-like receiver on the run's ground truth (``seed``).
+def gps_input(name: str, run, seed: int = 0, log: GpsLog | None = None) -> GpsInput:
+    """The GPS readings for ``run``: ``log`` (read by ``gps.read_gps_log`` from the file
+    ``name``) or, without one, a simulated WAAS-like receiver on the run's ground truth
+    (``seed``).
 
     GPS times are seconds on the run's clock (``Run.timestamps``). Fewer than 2 readings
     inside the run's time span is a GpsLogError; fewer than half prints a warning.
     """
     truth_xy = None
+    name = str(name)
     if log is None:
-        if str(source) != "sim":
-            log = gps.read_gps_log(source)
-            name = str(source)
-        else:
-            if run.ground_truth is None:
-                raise ConfigError("--gps sim needs a run with ground truth")
-            from gslam_jax.gps_sim import GpsSimConfig, simulate_gps
-            gt = np.asarray(run.ground_truth, np.float64)
-            known = np.isfinite(gt[:, :2]).all(axis=1)
-            if known.sum() < 2:
-                raise ConfigError("--gps sim needs ground truth at 2 frames or more")
-            sim = simulate_gps(np.random.default_rng(seed), gt[known],
-                               np.asarray(run.timestamps)[known], GpsSimConfig())
-            log, truth_xy, name = sim.log, sim.truth_xy, "simulated GPS"
-    else:
-        name = str(source)
+        if run.ground_truth is None:
+            raise ConfigError("--gps sim needs a run with ground truth")
+        from gslam_jax.gps_sim import GpsSimConfig, simulate_gps
+        gt = np.asarray(run.ground_truth, np.float64)
+        known = known_positions(gt)
+        if known.sum() < 2:
+            raise ConfigError("--gps sim needs ground truth at 2 frames or more")
+        sim = simulate_gps(np.random.default_rng(seed), gt[known],
+                           np.asarray(run.timestamps)[known], GpsSimConfig())
+        log, truth_xy, name = sim.log, sim.truth_xy, "simulated GPS"
     t = np.asarray(run.timestamps, np.float64)
     inside = gps.readings_in_span(t, log.time)
     n, n_in = len(log.time), int(inside.sum())
@@ -70,10 +67,12 @@ def gps_input(source: str | Path, run, seed: int = 0, log: GpsLog | None = None)
     return GpsInput(name, log, truth_xy, inside)
 
 
-def write_gps_outputs(out: Path, readings: GpsInput, run, result) -> dict:
+def write_gps_outputs(out: Path, readings: GpsInput, run, result,
+                      std: np.ndarray | None = None) -> dict:
     """Align the best path of ``result`` to the readings (weighted Procrustes, paper appendix)
     and write ``trajectory_utm.txt``, ``map_utm.png`` (+ world file) and ``gps_alignment.npz``
-    to ``out``; returns the summary's "gps" figures (readings used, residuals, map corners)."""
+    to ``out``; returns the summary's "gps" figures (readings used, residuals, map corners).
+    ``std``: the map's expected std when the caller has it already (else computed here)."""
     log, truth_xy = readings.log, readings.truth_xy
     try:
         al, aligned = gps.align_to_gps(run.timestamps, result.best_path[:, :2], log.time, log.xy,
@@ -89,7 +88,8 @@ def write_gps_outputs(out: Path, readings: GpsInput, run, result) -> dict:
     shape = result.kmap.shape
     corners = np.asarray(gps.transform_points(al, gps.map_corners(result.map_origin, result.resolution,
                                                                   shape)), np.float64) + log.origin
-    std = np.asarray(cells.expected_std(result.kmap, result.smap))
+    if std is None:
+        std = np.asarray(cells.expected_std(result.kmap, result.smap))
     gps.write_georeferenced_png(out / "map_utm.png", std, result.map_origin, result.resolution,
                                 al.R, al.l, log.origin, cmap="inferno")
     np.savez(out / "gps_alignment.npz", R=np.asarray(al.R), l=np.asarray(al.l),

@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import cells
-from .run import Run
+from .run import Run, known_positions
 
 __all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
            "drift_per_distance", "path_length", "trajectory_metrics", "errors_over_known_frames",
@@ -151,7 +151,7 @@ def errors_over_known_frames(paths: dict[str, np.ndarray], reference: np.ndarray
     ``gt_frames_scored``. No figures with fewer than 2 such frames; with every frame known, the
     figures are exactly ``rms_after_fit`` and ``final_position_error`` over all frames."""
     reference = np.asarray(reference, np.float64)
-    frames = np.flatnonzero(np.isfinite(reference[:, :2]).all(axis=1))
+    frames = np.flatnonzero(known_positions(reference))
     out: dict = {"gt_frames_scored": int(frames.size)}
     if frames.size < 2:
         return out

@@ -16,7 +16,7 @@ import numpy as np
 from gslam_jax.errors import InputError
 
 __all__ = ["Run", "RunError", "load_run", "save_run", "validate_run", "integrate_controls",
-           "describe_cells"]
+           "describe_cells", "known_positions"]
 
 
 class RunError(InputError):
@@ -258,6 +258,12 @@ def save_run(path: str | Path, run: Run) -> None:
         if value is not None:
             arrays[name] = np.asarray(value)
     np.savez_compressed(path, **arrays)
+
+
+def known_positions(ground_truth: np.ndarray) -> np.ndarray:
+    """[T] bool: frames whose ground-truth position (x, y) is finite (NaN rows, or a NaN x or
+    y, mark frames without ground truth; a NaN heading alone does not)."""
+    return np.isfinite(np.asarray(ground_truth, np.float64)[:, :2]).all(axis=1)
 
 
 def load_run(path: str | Path) -> Run:

@@ -401,12 +401,7 @@ def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None
     above any design is returned).
     """
     if budget_bytes is None:
-        stats = {}
-        try:
-            stats = jax.devices()[0].memory_stats() or {}
-        except Exception:  # noqa: BLE001 - CPU backends may not implement memory_stats
-            stats = {}
-        limit = stats.get("bytes_limit")
+        limit = slam.device_memory_limit()
         # Accelerators report their own memory; CPU devices share the host's.
         budget_bytes = 0.25 * limit * num_devices if limit else 0.5 * physical_memory()
     J = cfg.num_particles
@@ -519,9 +514,7 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     values = np.asarray(values, np.float64)
     if values.ndim != 2 or values.shape[1] != space.dim:
         raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
-    inputs, cfg = slam.run_arrays(run, config)
-    if objective == "rms":
-        slam.require_ground_truth(inputs.mask, "rms", SearchError)
+    inputs, cfg = slam.run_arrays(run, config)  # evaluate() checks the ground truth for "rms"
     base = slam.filter_params(config)
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:

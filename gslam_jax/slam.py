@@ -20,7 +20,7 @@ from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.localmap import LocalMapParams
 from gslam_jax.motion import MotionParams
-from gslam_jax.run import Run, RunError, describe_cells
+from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
 __all__ = ["MapExtent", "map_extent", "localmap_params", "observed_cells", "filter_config",
            "filter_params", "local_observations", "particle_map_bytes", "map_memory",
@@ -84,13 +84,20 @@ def particle_map_bytes(cfg: gf.FilterConfig) -> int:
     return J * (H * W * 2 * 4 + bits)
 
 
-def map_memory() -> tuple[int, str]:
-    """(bytes, what): the memory the maps live in: the accelerator's limit where the device
-    reports one, else the machine's physical memory."""
+def device_memory_limit() -> int | None:
+    """Bytes the first device reports as its limit (accelerators), or None (CPU backends
+    report none or do not implement ``memory_stats``)."""
     try:
         limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit")
     except Exception:  # noqa: BLE001 - CPU backends may not implement memory_stats
-        limit = None
+        return None
+    return int(limit) if limit else None
+
+
+def map_memory() -> tuple[int, str]:
+    """(bytes, what): the memory the maps live in: the accelerator's limit where the device
+    reports one, else the machine's physical memory."""
+    limit = device_memory_limit()
     if limit:
         return int(limit), f"{jax.devices()[0].device_kind} memory"
     from gslam_jax.bench import physical_memory  # lazily: slam does not import the benchmark
@@ -182,7 +189,7 @@ def ground_truth_mask(run: Run) -> np.ndarray:
     supervised loss of the tuner use positions only: a NaN heading drops no frame."""
     if run.ground_truth is None:
         return np.zeros(run.num_frames, bool)
-    return np.isfinite(np.asarray(run.ground_truth, np.float64)[:, :2]).all(axis=1)
+    return known_positions(run.ground_truth)
 
 
 def require_ground_truth(mask: jax.Array | np.ndarray, objective: str,
