@@ -34,7 +34,7 @@ from ..vo.calib import CalibrationError, RectifiedRig
 from ..vo.fallback import GRAVITY
 from ..vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
 from ..vo.geometry import invert, make_transform, pose_to_2d
-from .kitti import read_image, read_table
+from .kitti import first_not_increasing, read_image, read_table
 
 __all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "quat_to_matrix",
            "euroc_frontend", "load_euroc"]
@@ -160,10 +160,10 @@ def _frames(cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
             stamp = int(fields[0])
         except ValueError:
             raise DatasetError(f"{csv}:{n}: timestamp {fields[0]!r} is not an integer "
-                             "(nanoseconds)") from None
+                               "(nanoseconds)") from None
         if stamps and stamp <= stamps[-1]:
             raise DatasetError(f"{csv}:{n}: timestamp {stamp} is not after {stamps[-1]} "
-                             "(frames must be in time order)")
+                               "(frames must be in time order)")
         stamps.append(stamp)
         paths.append(cam_dir / "data" / fields[1])
     if not stamps:
@@ -188,19 +188,19 @@ def _read_imu(path: Path, ts: np.ndarray,
     """
     table = read_table(path, 7, ",", int_first=True)
     imu_t, gyro, acc = table.stamps, table.data[:, 1:4], table.data[:, 4:7]
-    back = np.flatnonzero(np.diff(imu_t) <= 0)
-    if back.size:
-        raise DatasetError(f"{path}:{table.lines[back[0] + 1]}: timestamp {imu_t[back[0] + 1]} is "
-                         f"not after {imu_t[back[0]]} (samples must be in time order)")
+    i = first_not_increasing(imu_t)
+    if i is not None:
+        raise DatasetError(f"{path}:{table.lines[i]}: timestamp {imu_t[i]} is "
+                           f"not after {imu_t[i - 1]} (samples must be in time order)")
     if imu_t[0] > ts[0] + period:
         raise DatasetError(f"{path}: IMU log starts at {imu_t[0]} ns, after frame 0 ({ts[0]} ns) "
-                         f"by {(imu_t[0] - ts[0]) * 1e-6:.1f} ms, more than one frame period "
-                         f"({period * 1e-6:.1f} ms)")
+                           f"by {(imu_t[0] - ts[0]) * 1e-6:.1f} ms, more than one frame period "
+                           f"({period * 1e-6:.1f} ms)")
     if imu_t[-1] < ts[-1] - period:
         t = int(np.argmax(ts > imu_t[-1] + period))
         raise DatasetError(f"{path}: IMU log ends at {imu_t[-1]} ns, before frame {t} ({ts[t]} ns) "
-                         f"by {(ts[t] - imu_t[-1]) * 1e-6:.1f} ms, more than one frame period "
-                         f"({period * 1e-6:.1f} ms)")
+                           f"by {(ts[t] - imu_t[-1]) * 1e-6:.1f} ms, more than one frame period "
+                           f"({period * 1e-6:.1f} ms)")
     edges = np.searchsorted(imu_t, ts, side="right")
     # Empty frame intervals inside the log's span are gaps; those before its start or after its
     # end (within the tolerance above) are not.
@@ -208,7 +208,7 @@ def _read_imu(path: Path, ts: np.ndarray,
     if empty.size:
         t = int(empty[0]) + 1
         raise DatasetError(f"{path}: no IMU samples between frame {t - 1} ({ts[t - 1]} ns) and "
-                         f"frame {t} ({ts[t]} ns)")
+                           f"frame {t} ({ts[t]} ns)")
     return imu_t, gyro, acc
 
 
@@ -222,10 +222,10 @@ def _ground_truth(path: Path, ts: np.ndarray) -> np.ndarray:
     the span without a row within 5 ms (a gap in the log) is an error naming the file and frame."""
     table = read_table(path, 8, ",", at_least=True, int_first=True)
     g, g_t = table.data, table.stamps
-    back = np.flatnonzero(np.diff(g_t) <= 0)
-    if back.size:
-        raise DatasetError(f"{path}:{table.lines[back[0] + 1]}: timestamp {g_t[back[0] + 1]} is "
-                         f"not after {g_t[back[0]]} (rows must be in time order)")
+    i = first_not_increasing(g_t)
+    if i is not None:
+        raise DatasetError(f"{path}:{table.lines[i]}: timestamp {g_t[i]} is "
+                           f"not after {g_t[i - 1]} (rows must be in time order)")
     idx = np.clip(np.searchsorted(g_t, ts), 0, len(g) - 1)
     prev = np.maximum(idx - 1, 0)
     idx = np.where(np.abs(g_t[prev] - ts) < np.abs(g_t[idx] - ts), prev, idx)
@@ -235,8 +235,8 @@ def _ground_truth(path: Path, ts: np.ndarray) -> np.ndarray:
     if gap.any():
         t = int(np.argmax(gap))
         raise DatasetError(f"{path}: no ground-truth row within 5 ms of frame {t} ({ts[t]} ns); "
-                         f"the nearest is {off[t] * 1e-6:.1f} ms away (a gap in the log, which "
-                         f"spans {g_t[0]} to {g_t[-1]} ns)")
+                           f"the nearest is {off[t] * 1e-6:.1f} ms away (a gap in the log, which "
+                           f"spans {g_t[0]} to {g_t[-1]} ns)")
     poses = np.full((len(ts), 4, 4), np.nan)
     for t in np.flatnonzero(inside):
         r = g[idx[t]]
@@ -269,7 +269,7 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
     if not np.array_equal(ts0[:n], ts1[:n]):
         bad = int(np.argmax(ts0[:n] != ts1[:n]))
         raise DatasetError(f"{mav}: cam0 and cam1 timestamps differ at frame {bad} "
-                         f"({ts0[bad]} vs {ts1[bad]} ns in data.csv)")
+                           f"({ts0[bad]} vs {ts1[bad]} ns in data.csv)")
     ts = ts0[:n]
     imu_csv = mav / "imu0" / "data.csv"
     if not imu_csv.is_file():
@@ -283,8 +283,8 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
     still = first & (np.abs(np.linalg.norm(acc, axis=1) - GRAVITY) < params.frontend.tilt_gate)
     if not still.any():
         raise DatasetError(f"{imu_csv}: no IMU sample within {params.gravity_window} s of frame 0 "
-                         f"has |a| within {params.frontend.tilt_gate} m/s^2 of g; the robot must "
-                         "stand still there (gravity and gyro bias)")
+                           f"has |a| within {params.frontend.tilt_gate} m/s^2 of g; the robot must "
+                           "stand still there (gravity and gyro bias)")
     up_b = acc[still].mean(axis=0)
     # The gyro must be still too (a steady rotation passes the |a| test): then its mean is the
     # bias, removed before integrating yaw.

@@ -103,10 +103,10 @@ def read_table(path: Path, columns: int, delimiter: str | None = None, *, at_lea
         fields = [f.strip() for f in body.split(delimiter)]
         if rows and len(fields) != len(rows[0]):
             raise DatasetError(f"{path}:{n}: {len(fields)} numbers, but {len(rows[0])} on line "
-                             f"{lines[0]}")
+                               f"{lines[0]}")
         if not rows and (len(fields) < columns if at_least else len(fields) != columns):
             raise DatasetError(f"{path}:{n}: expected {columns}{' or more' if at_least else ''} "
-                             f"numbers, got {len(fields)}")
+                               f"numbers, got {len(fields)}")
         row = []
         for f in fields:
             try:
@@ -126,6 +126,13 @@ def read_table(path: Path, columns: int, delimiter: str | None = None, *, at_lea
         raise DatasetError(f"{path}: no data rows")
     return Table(np.array(rows, np.float64), np.array(lines, np.int64),
                  np.array(stamps, np.int64) if int_first else None)
+
+
+def first_not_increasing(values: np.ndarray) -> int | None:
+    """Index i >= 1 of the first value not after values[i - 1], or None when strictly
+    increasing (time stamps of a log, in file order)."""
+    back = np.flatnonzero(np.diff(values) <= 0)
+    return int(back[0]) + 1 if back.size else None
 
 
 def read_kitti_poses(path: Path) -> np.ndarray:
@@ -212,13 +219,12 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams()) -> Fro
         table = read_table(times_file, 1)
         if len(table.data) <= frames[-1]:
             raise DatasetError(f"{times_file}: {len(table.data)} times for frames up to "
-                             f"{lefts[-1].name} (one line per frame from frame 0)")
+                               f"{lefts[-1].name} (one line per frame from frame 0)")
         times, lines = table.data[frames, 0], table.lines[frames]
-        back = np.flatnonzero(np.diff(times) <= 0)
-        if back.size:
-            i = int(back[0]) + 1
+        i = first_not_increasing(times)
+        if i is not None:
             raise DatasetError(f"{times_file}:{lines[i]}: time {times[i]} of frame {lefts[i].name} "
-                             f"is not after {times[i - 1]} (times must increase)")
+                               f"is not after {times[i - 1]} (times must increase)")
     else:
         times = np.arange(n) * params.frame_period
     pose_file = root / "poses" / f"{seq.name}.txt"
@@ -227,7 +233,7 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams()) -> Fro
         cams = read_kitti_poses(pose_file)
         if len(cams) <= frames[-1]:
             raise DatasetError(f"{pose_file}: {len(cams)} poses for frames up to {lefts[-1].name} "
-                             "(one line per frame from frame 0)")
+                               "(one line per frame from frame 0)")
         cams = cams[frames]
     first = read_image(lefts[0])
     rig = read_kitti_calib(seq / "calib.txt", (first.shape[1], first.shape[0]))
