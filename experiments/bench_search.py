@@ -21,10 +21,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gslam_jax import filter as gf  # noqa: E402
+from gslam_jax import rbpf  # noqa: E402
 from gslam_jax import search as S  # noqa: E402
 from gslam_jax import slam  # noqa: E402
-from gslam_jax.bench import environment  # noqa: E402
+from gslam_jax.machine import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
 from gslam_jax.localmap import LocalMapParams  # noqa: E402
@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> dict:
     @jax.jit
     def one(v):
         p = S.params_from_values(v, space.names, base)
-        out = gf.run_filter(key, p, controls, idx, obs, cfg, start)
+        out = rbpf.run_filter(key, p, controls, idx, obs, cfg, start)
         return S.objective_value(out, "rms", ref, mask)
 
     one(jnp.asarray(values[0], jnp.float32)).block_until_ready()

@@ -17,7 +17,7 @@ import numpy as np
 from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_run, report
 
 from gslam_jax import search as S
-from gslam_jax.bench import environment
+from gslam_jax.machine import environment
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
 
 

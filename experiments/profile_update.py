@@ -1,4 +1,4 @@
-"""Where one local-map update spends its time: XLA's own per-thunk trace of ``filter.update``.
+"""Where one local-map update spends its time: XLA's own per-thunk trace of ``rbpf.update``.
 
 Runs the same chained updates as ``gslam bench`` under ``jax.profiler`` and sums the trace
 events of every fused computation per update (XLA CPU runs independent thunks, e.g. the k and S
@@ -22,8 +22,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gslam_jax import filter as gf  # noqa: E402
-from gslam_jax.bench import _chained, _synthetic_state, environment  # noqa: E402
+from gslam_jax import choices, rbpf  # noqa: E402
+from gslam_jax.bench import _chained, _synthetic_state  # noqa: E402
+from gslam_jax.machine import environment  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:
@@ -31,7 +32,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     ap.add_argument("--particles", type=int, default=200)
     ap.add_argument("--local", type=int, default=64)
     ap.add_argument("--map", type=int, default=640)
-    ap.add_argument("--mode", default="ignore", choices=gf.UNKNOWN_MODES)
+    ap.add_argument("--mode", default="ignore", choices=choices.UNKNOWN_CELLS)
     ap.add_argument("--calls", type=int, default=3, help="traced calls of --chain updates")
     ap.add_argument("--chain", type=int, default=10)
     ap.add_argument("--top", type=int, default=15)
@@ -39,16 +40,16 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
 
     J, L, side = args.particles, args.local, args.map
     rng = np.random.default_rng(0)
-    cfg = gf.FilterConfig(num_particles=J, map_shape=(side, side),
-                          map_origin=(-0.08 * side, -0.08 * side), resolution=0.16,
-                          local_size=L, unknown_cells=args.mode, resample_ratio=0.0)
+    cfg = rbpf.FilterConfig(num_particles=J, map_shape=(side, side),
+                            map_origin=(-0.08 * side, -0.08 * side), resolution=0.16,
+                            local_size=L, unknown_cells=args.mode)
     k = rng.integers(0, 30, (L, L)).astype(np.float32)
     obs = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
-    params = gf.FilterParams()
-    noise = gf.update_noise(jax.random.key(0), cfg)
+    params = rbpf.FilterParams()
+    noise = rbpf.update_noise(jax.random.key(0), cfg)
 
-    def one(s: gf.FilterState) -> gf.FilterState:
-        s = gf.update(s, obs, noise, params, cfg)[0]
+    def one(s: rbpf.FilterState) -> rbpf.FilterState:
+        s = rbpf.update(s, obs, noise.unknown_u, params, cfg)[0]
         # Move the particles a little so that XLA cannot hoist the reads out of the loop.
         return s._replace(pose=s.pose + 1e-4 * jnp.tanh(s.log_w)[:, None])
 
@@ -72,7 +73,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
                         else:
                             per[ev.name] += ev.duration_ns
     updates = args.calls * args.chain
-    print(f"profile of filter.update: J = {J}, local {L}, map {side}, {args.mode}; "
+    print(f"profile of rbpf.update: J = {J}, local {L}, map {side}, {args.mode}; "
           f"{updates} updates")
     print(f"  {environment()}")
     busy = {name: ns / updates / 1e6 for name, ns in wall.items()}

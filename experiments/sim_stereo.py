@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 
 from gslam_jax import metrics, slam
-from gslam_jax.bench import environment
+from gslam_jax.machine import environment
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.datasets.sim_stereo import load_sim_stereo

@@ -19,7 +19,7 @@ from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_
 
 from gslam_jax import search as S
 from gslam_jax import tuning as TU
-from gslam_jax.bench import environment
+from gslam_jax.machine import environment
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
 
 

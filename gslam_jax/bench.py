@@ -1,10 +1,10 @@
 """Benchmark of the filter step: microseconds per particle per update (``gslam bench``).
 
-Times ``filter.update`` (footprint reads, fused log-gamma weights, scatter-add map update,
-normalisation, ESS; resampling disabled so every update does the same work) the way
+Times ``rbpf.update`` (footprint reads, fused log-gamma weights, scatter-add map update,
+normalisation, ESS; no resampling, which is a step of its own, so every update does the same work) the way
 ``run_filter`` executes it: ``chain`` updates in one ``lax.scan``, so buffers are reused and the
 maps are updated in place. Also times ``predict`` per frame and one forced resampling per update
-(``filter.gather_particles``: the maps of the particles left without offspring are overwritten by
+(``rbpf.gather_particles``: the maps of the particles left without offspring are overwritten by
 their ancestors', over the map rows the updates have written so far; the survivors' maps are not
 copied). All after compilation, with the machine and library versions printed beside the figures.
 """
@@ -14,8 +14,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
-import platform
 import time
 from pathlib import Path
 
@@ -24,91 +22,22 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from gslam_jax import filter as gf
+from gslam_jax import choices, rbpf
+from gslam_jax.machine import environment, physical_memory
 
-__all__ = ["environment", "cpu_model", "usable_cpus", "physical_memory", "time_update", "main"]
+__all__ = ["time_update", "time_course", "plot_scaling", "main"]
 
-ENV_VARS = ("XLA_FLAGS", "JAX_PLATFORMS")  # reported when set: they change what is measured
-
-
-def cpu_model(cpuinfo: str | Path = "/proc/cpuinfo") -> str:
-    """The CPU model: the first "model name" of ``cpuinfo`` where present (Linux x86), else
-    ``platform.processor()`` (empty on Linux), else the machine type."""
-    try:
-        for line in Path(cpuinfo).read_text(errors="replace").splitlines():
-            name, sep, value = line.partition(":")
-            if sep and name.strip() == "model name" and value.strip():
-                return value.strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def usable_cpus() -> int | None:
-    """Cores this process may run on (its affinity mask), else ``os.cpu_count()``."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count()
-
-
-def environment() -> dict:
-    """Machine and versions, printed beside every figure this project reports: the CPU model,
-    the cores the machine has (``cpus``) and those this process may use (``usable_cpus``), and
-    ``XLA_FLAGS`` / ``JAX_PLATFORMS`` when set."""
-    import cv2
-    import optax
-
-    env = {
-        "date": time.strftime("%Y-%m-%d %H:%M"),
-        "machine": platform.machine(),
-        "processor": cpu_model(),
-        "cpus": os.cpu_count(),
-        "usable_cpus": usable_cpus(),
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-        "jaxlib": jax.lib.__version__ if hasattr(jax.lib, "__version__") else "",
-        "numpy": np.__version__,
-        "opencv": cv2.__version__,
-        "optax": optax.__version__,
-        "backend": jax.default_backend(),
-        "devices": [str(d) for d in jax.devices()],
-    }
-    env.update({k: os.environ[k] for k in ENV_VARS if os.environ.get(k)})
-    return env
-
-
-def _synthetic_state(cfg: gf.FilterConfig, rng: np.random.Generator) -> gf.FilterState:
+def _synthetic_state(cfg: rbpf.FilterConfig, rng: np.random.Generator) -> rbpf.FilterState:
     """Particles scattered around the map centre (1 m standard deviation, any heading) on
-    empty maps (``filter.init``: every cell unknown); the timed updates fill their footprints."""
+    empty maps (``rbpf.init``: every cell unknown); the timed updates fill their footprints."""
     H, W = cfg.map_shape
-    state = gf.init(cfg)
+    state = rbpf.init(cfg)
     centre = np.array([cfg.map_origin[0] + 0.5 * H * cfg.resolution,
                        cfg.map_origin[1] + 0.5 * W * cfg.resolution])
     pose = np.column_stack([centre[0] + rng.normal(0, 1.0, cfg.num_particles),
                             centre[1] + rng.normal(0, 1.0, cfg.num_particles),
                             rng.uniform(-np.pi, np.pi, cfg.num_particles)]).astype(np.float32)
     return state._replace(pose=jnp.asarray(pose))
-
-
-CGROUP_LIMITS = ("/sys/fs/cgroup/memory.max",                    # cgroup v2
-                 "/sys/fs/cgroup/memory/memory.limit_in_bytes")  # cgroup v1
-
-
-def physical_memory() -> int:
-    """Bytes of memory this process may use: physical memory (sysconf), lowered to a container's
-    cgroup limit where one is set; a large number where unknown."""
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        total = 1 << 62
-    for path in CGROUP_LIMITS:
-        try:
-            text = open(path).read().strip()
-        except OSError:
-            continue
-        if text.isdigit():  # "max" (v2) means no limit; v1 writes a huge number instead
-            total = min(total, int(text))
-    return total
 
 
 def _chained(fn, chain: int):
@@ -137,25 +66,25 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
                 seed: int = 0, chain: int = 10, particle_block: int = 0) -> dict:
     """Per-update cost for J particles: best of ``repeats`` scans of ``chain`` updates."""
     rng = np.random.default_rng(seed)
-    cfg = gf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
-                          map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
-                          local_size=local, unknown_cells=mode, resample_ratio=0.0,
-                          particle_block=particle_block)
+    cfg = rbpf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
+                            map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
+                            local_size=local, unknown_cells=mode,
+                            particle_block=particle_block)
     k = rng.integers(0, 30, (local, local)).astype(np.float32)
     obs = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
-    params = gf.FilterParams()
-    noise = gf.update_noise(jax.random.key(seed), cfg)
+    params = rbpf.FilterParams()
+    noise = rbpf.update_noise(jax.random.key(seed), cfg)
     u = jnp.asarray([0.2, 0.0, 0.05], jnp.float32)
-    eps = gf.motion_noise(jax.random.key(seed + 1), cfg)
+    eps = rbpf.motion_noise(jax.random.key(seed + 1), cfg)
 
-    update = _chained(lambda s: gf.update(s, obs, noise, params, cfg)[0], chain)
+    update = _chained(lambda s: rbpf.update(s, obs, noise.unknown_u, params, cfg)[0], chain)
     sec, state = _best_seconds(update, _synthetic_state(cfg, rng), repeats)
-    predict = _chained(lambda s: s._replace(pose=gf.predict(s.pose, u, eps, params)), chain)
+    predict = _chained(lambda s: s._replace(pose=rbpf.predict(s.pose, u, eps, params)), chain)
     sec_predict, state = _best_seconds(predict, state, repeats)
-    # One forced resampling per update (the dead particles' maps copied from their ancestors
-    # over the written rows, ``filter.gather_particles``), minus the update.
+    # The update and one forced resampling (``rbpf.observe``; the dead particles' maps copied
+    # from their ancestors over the written rows, ``rbpf.gather_particles``), minus the update.
     always = cfg._replace(resample_ratio=2.0)
-    resample = _chained(lambda s: gf.update(s, obs, noise, params, always)[0], chain)
+    resample = _chained(lambda s: rbpf.observe(s, obs, noise, params, always)[0], chain)
     sec_resample, state = _best_seconds(resample, state, repeats)
     per = 1.0 / chain
     return {"particles": J, "local": local, "map": map_side, "mode": mode,
@@ -218,7 +147,7 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
 
 
 def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int = 10,
-         modes=("ignore", "sample"), json_path: Path | None = None, course: str | None = None,
+         modes=choices.UNKNOWN_CELLS, json_path: Path | None = None, course: str | None = None,
          course_particles: int = 200, plot_path: Path | None = None,
          particle_block=(0,)) -> int:
     """Print (and optionally save) the update cost over every combination of the arguments.

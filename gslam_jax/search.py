@@ -35,11 +35,10 @@ import numpy as np
 from jax import Array, lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from gslam_jax import filter as gf
-from gslam_jax import slam
-from gslam_jax.bench import physical_memory
+from gslam_jax import choices, rbpf, slam
 from gslam_jax.config import Config
 from gslam_jax.errors import InputError
+from gslam_jax.machine import device_memory_limit, physical_memory
 from gslam_jax.run import Run
 
 __all__ = ["PARAM_NAMES", "DESIGNS", "OBJECTIVES", "SearchError", "SearchSpace", "SearchResult",
@@ -48,9 +47,9 @@ __all__ = ["PARAM_NAMES", "DESIGNS", "OBJECTIVES", "SearchError", "SearchSpace",
            "default_inner", "rank"]
 
 PARAM_NAMES = ("alpha_d", "alpha_theta_d", "alpha_theta", "beta_prev", "beta_new")
-DESIGNS = ("grid", "random", "halton", "sobol")
-OBJECTIVES = ("rms", "loglik")
-PATHS = ("mean", "best")
+DESIGNS = choices.SEARCH_DESIGNS
+OBJECTIVES = choices.SEARCH_OBJECTIVES
+PATHS = choices.SCORE_PATHS
 PROGRESS_CHUNKS = 8  # chunks of a search whose sets run one after another (progress reports)
 
 
@@ -238,8 +237,8 @@ def design_points(space: SearchSpace, design: str, n: int, seed: int = 0) -> np.
 # ----------------------------------------------------------------------------- objectives
 
 
-def params_from_values(values: Array, names: Sequence[str], base: gf.FilterParams
-                       ) -> gf.FilterParams:
+def params_from_values(values: Array, names: Sequence[str], base: rbpf.FilterParams
+                       ) -> rbpf.FilterParams:
     """FilterParams whose named fields take the columns of ``values`` [..., d]; the others
     are broadcast from ``base``."""
     batch = values.shape[:-1]
@@ -251,7 +250,7 @@ def params_from_values(values: Array, names: Sequence[str], base: gf.FilterParam
         return jnp.broadcast_to(jnp.asarray(default, values.dtype), batch)
 
     m = base.motion
-    return gf.FilterParams(
+    return rbpf.FilterParams(
         motion=m._replace(alpha_d=pick("alpha_d", m.alpha_d),
                           alpha_theta_d=pick("alpha_theta_d", m.alpha_theta_d),
                           alpha_theta=pick("alpha_theta", m.alpha_theta)),
@@ -277,7 +276,7 @@ def rigid_rms(estimate: Array, reference: Array, mask: Array) -> Array:
     return jnp.sqrt(jnp.sum(w * (rx * rx + ry * ry)))
 
 
-def objective_value(out: gf.RunOutput, objective: str, reference: Array, mask: Array,
+def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask: Array,
                     path: str = "mean") -> Array:
     """Scalar objective of one filter run (see the module docstring)."""
     if objective == "loglik":
@@ -289,16 +288,16 @@ def objective_value(out: gf.RunOutput, objective: str, reference: Array, mask: A
 _Inputs = slam.RunArrays
 
 
-def _batch_fn(key: Array, inputs: _Inputs, base: gf.FilterParams, names: tuple[str, ...],
-              cfg: gf.FilterConfig, objective: str, path: str, inner: int
+def _batch_fn(key: Array, inputs: _Inputs, base: rbpf.FilterParams, names: tuple[str, ...],
+              cfg: rbpf.FilterConfig, objective: str, path: str, inner: int
               ) -> Callable[[Array], Array]:
     """Objectives of a block of parameter sets [B, d] on one device: ``lax.map`` over the sets
     in vmapped groups of ``inner`` (inner = B: a plain vmap)."""
 
     def one(v: Array) -> Array:
         p = params_from_values(v, names, base)
-        out = gf.run_filter(key, p, inputs.controls, inputs.obs_index, inputs.local_obs, cfg,
-                            inputs.start)
+        out = rbpf.run_filter(key, p, inputs.controls, inputs.obs_index, inputs.local_obs, cfg,
+                              inputs.start)
         return objective_value(out, objective, inputs.reference, inputs.mask, path)
 
     def block(values: Array) -> Array:
@@ -312,8 +311,8 @@ def _batch_fn(key: Array, inputs: _Inputs, base: gf.FilterParams, names: tuple[s
 
 
 @partial(jax.jit, static_argnames=("names", "cfg", "objective", "path", "inner", "mesh"))
-def _evaluate_batch(values: Array, key: Array, inputs: _Inputs, base: gf.FilterParams,
-                    names: tuple[str, ...], cfg: gf.FilterConfig, objective: str, path: str,
+def _evaluate_batch(values: Array, key: Array, inputs: _Inputs, base: rbpf.FilterParams,
+                    names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str, path: str,
                     inner: int, mesh: Mesh) -> Array:
     """shard_map over the 1-D device mesh: each device evaluates its block of sets."""
     spec, rep = PartitionSpec("p"), PartitionSpec()
@@ -325,8 +324,8 @@ def _evaluate_batch(values: Array, key: Array, inputs: _Inputs, base: gf.FilterP
                          out_specs=spec, check_vma=False)(values, key, inputs, base)
 
 
-def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: gf.FilterParams,
-             names: tuple[str, ...], cfg: gf.FilterConfig, objective: str, path: str = "mean",
+def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: rbpf.FilterParams,
+             names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str, path: str = "mean",
              batch: int | None = None, devices: Sequence[jax.Device] | None = None,
              progress: Callable[[int, int], None] | None = None, inner: int | None = None
              ) -> np.ndarray:
@@ -388,7 +387,7 @@ def chunk_size(num_sets: int, max_batch: int, num_devices: int) -> int:
     return num_devices * math.ceil(num_sets / (chunks * num_devices))
 
 
-def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None = None,
+def auto_batch(cfg: rbpf.FilterConfig, num_frames: int, budget_bytes: float | None = None,
                num_devices: int = 1, inner: int | None = None) -> int:
     """Largest number of parameter sets per chunk whose filter states fit in ``budget_bytes``
     (default: a quarter of each device's memory if the first reports it, else half of the
@@ -401,7 +400,7 @@ def auto_batch(cfg: gf.FilterConfig, num_frames: int, budget_bytes: float | None
     above any design is returned).
     """
     if budget_bytes is None:
-        limit = slam.device_memory_limit()
+        limit = device_memory_limit()
         # Accelerators report their own memory; CPU devices share the host's.
         budget_bytes = 0.25 * limit * num_devices if limit else 0.5 * physical_memory()
     J = cfg.num_particles

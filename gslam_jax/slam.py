@@ -1,7 +1,7 @@
 """Running Gamma-SLAM on a Run: sizing the map, converting observations, chunked scan, results.
 
 This is the host-side driver the CLI, the experiments and the benchmarks share. The filter math
-lives in ``filter``; this module only prepares its inputs and collects its outputs.
+lives in ``rbpf``; this module only prepares its inputs and collects its outputs.
 """
 
 from __future__ import annotations
@@ -15,10 +15,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import cells, filter as gf, unknown
+from gslam_jax import cells, rbpf, unknown
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.localmap import LocalMapParams
+from gslam_jax.machine import device_memory_limit, physical_memory
 from gslam_jax.motion import MotionParams
 from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
@@ -74,7 +75,7 @@ def observed_cells(run: Run, multiple: int = 128) -> int:
     return min(L * L, multiple * max(1, math.ceil(most / multiple)))
 
 
-def particle_map_bytes(cfg: gf.FilterConfig) -> int:
+def particle_map_bytes(cfg: rbpf.FilterConfig) -> int:
     """Bytes of the particles' maps: k and S [J, H, W] float32, plus the known-cell bits
     [J, H/B, W/B, 2] uint32 in "sample" mode (resampling copies them in place)."""
     J = cfg.num_particles
@@ -84,28 +85,16 @@ def particle_map_bytes(cfg: gf.FilterConfig) -> int:
     return J * (H * W * 2 * 4 + bits)
 
 
-def device_memory_limit() -> int | None:
-    """Bytes the first device reports as its limit (accelerators), or None (CPU backends
-    report none or do not implement ``memory_stats``)."""
-    try:
-        limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit")
-    except Exception:  # noqa: BLE001 - CPU backends may not implement memory_stats
-        return None
-    return int(limit) if limit else None
-
-
 def map_memory() -> tuple[int, str]:
     """(bytes, what): the memory the maps live in: the accelerator's limit where the device
     reports one, else the machine's physical memory."""
     limit = device_memory_limit()
     if limit:
         return int(limit), f"{jax.devices()[0].device_kind} memory"
-    from gslam_jax.bench import physical_memory  # lazily: slam does not import the benchmark
-
     return physical_memory(), "physical memory"
 
 
-def check_map_memory(cfg: gf.FilterConfig, available: int | None = None) -> None:
+def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None) -> None:
     """ConfigError, before anything is allocated, when the particle maps alone would exceed
     ``available`` bytes (default: ``map_memory()``)."""
     need = particle_map_bytes(cfg)
@@ -121,7 +110,7 @@ def check_map_memory(cfg: gf.FilterConfig, available: int | None = None) -> None
             f"[map] resolution or a smaller [map] margin")
 
 
-def filter_config(config: Config, run: Run) -> gf.FilterConfig:
+def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
     """Static filter settings for this Run (map sized from its VO path); a ConfigError when
     the particle maps would not fit in memory (``check_map_memory``)."""
     if not math.isclose(run.resolution, config.map.resolution, rel_tol=1e-6):
@@ -129,11 +118,11 @@ def filter_config(config: Config, run: Run) -> gf.FilterConfig:
                          f"{config.map.resolution} m; rebuild the local maps or change the config")
     L = int(run.local_maps.shape[1]) if run.num_local_maps else 8
     f = config.filter
-    probe = gf.FilterConfig(num_particles=f.particles, map_shape=(8, 8), map_origin=(0.0, 0.0),
-                            resolution=config.map.resolution, local_size=L,
-                            unknown_cells=f.unknown_cells)
+    probe = rbpf.FilterConfig(num_particles=f.particles, map_shape=(8, 8), map_origin=(0.0, 0.0),
+                              resolution=config.map.resolution, local_size=L,
+                              unknown_cells=f.unknown_cells)
     extent = map_extent(run.vo_poses(), L, config.map.resolution, config.map.margin, probe.window)
-    cfg = gf.FilterConfig(
+    cfg = rbpf.FilterConfig(
         num_particles=f.particles, map_shape=extent.shape, map_origin=extent.origin,
         resolution=config.map.resolution, local_size=L, resampler=f.resampler,
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
@@ -143,9 +132,9 @@ def filter_config(config: Config, run: Run) -> gf.FilterConfig:
     return cfg
 
 
-def filter_params(config: Config) -> gf.FilterParams:
+def filter_params(config: Config) -> rbpf.FilterParams:
     m = config.motion
-    return gf.FilterParams(
+    return rbpf.FilterParams(
         motion=MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
                             jnp.float32(m.alpha_theta)),
         beta_prev=jnp.float32(config.filter.beta_prev),
@@ -201,7 +190,7 @@ def require_ground_truth(mask: jax.Array | np.ndarray, objective: str,
                     f"has no frame with a finite position (x, y); use objective 'loglik'")
 
 
-def run_arrays(run: Run, config: Config) -> tuple[RunArrays, gf.FilterConfig]:
+def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
     """Device arrays of ``run`` and the static filter config for it."""
     T = run.num_frames
     gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
@@ -215,7 +204,7 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, gf.FilterConfig]:
     return arrays, filter_config(config, run)
 
 
-def _check_weights(info: gf.StepInfo, start: int, frames: int, obs_index: np.ndarray) -> None:
+def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.ndarray) -> None:
     """WeightError at the first of ``frames`` frames from ``start`` whose ESS or log_lik is
     not finite (NaN weights would otherwise be carried silently: no resampling, NaN poses)."""
     ess = np.asarray(info.ess)[:frames]
@@ -272,7 +261,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     obs = jnp.asarray(local_observations(run, config.map.min_variance))
     T = run.num_frames
     key = jax.random.key(config.filter.seed) if key is None else key
-    keys = gf.frame_keys(key, T)
+    keys = rbpf.frame_keys(key, T)
     controls = np.asarray(run.controls, np.float32)
     obs_index = np.asarray(run.obs_index, np.int32)
     chunk = max(1, min(chunk, T))
@@ -281,15 +270,15 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     obs_index = np.concatenate([obs_index, -np.ones(pad, np.int32)])
     keys = jnp.concatenate([keys, jax.random.split(jax.random.key(0), pad)]) if pad else keys
 
-    state = gf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
+    state = rbpf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
     outputs = []
     t0 = time.perf_counter()
     compile_s = 0.0
     for start in range(0, T + pad, chunk):
         sl = slice(start, start + chunk)
         c0 = time.perf_counter()
-        state, out = gf.scan_frames(state, keys[sl], jnp.asarray(controls[sl]),
-                                    jnp.asarray(obs_index[sl]), obs, params, cfg)
+        state, out = rbpf.scan_frames(state, keys[sl], jnp.asarray(controls[sl]),
+                                      jnp.asarray(obs_index[sl]), obs, params, cfg)
         out = jax.device_get(out)
         if start == 0:
             compile_s = time.perf_counter() - c0  # first chunk includes compilation
@@ -302,8 +291,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     best = np.concatenate([o[1] for o in outputs])[:T]
     mean = np.concatenate([o[2] for o in outputs])[:T]
     final_best = int(state.best)
-    path = np.asarray(gf.backtrack_path(jnp.asarray(infos.pose), jnp.asarray(infos.ancestors),
-                                        jnp.int32(final_best)))
+    path = np.asarray(rbpf.backtrack_path(jnp.asarray(infos.pose), jnp.asarray(infos.ancestors),
+                                          jnp.int32(final_best)))
     dropped = int(np.sum(infos.dropped_cells))
     if dropped:  # observed_cells(run) sizes M so that this cannot happen
         raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "

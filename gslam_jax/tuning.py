@@ -2,9 +2,10 @@
 
 The filter's map lookup is a floor of the particle pose and resampling is discrete, so plain
 autodiff of ``run_filter`` gives zero or biased gradients. This module re-runs the same filter
-(same draws, same numbers in the forward pass: built from ``filter.update``, ``motion_noise``,
-``update_noise``, ``apply_motion`` and the resamplers) with the stop-gradient estimator of
-Scibior & Wood (2021, "Differentiable particle filtering without modifying the forward pass"):
+(same draws, same numbers in the forward pass: ``rbpf.step``, the filter's own frame, with the
+proposal ``sw_propose`` and the resampler ``sw_resample`` passed in) with the stop-gradient
+estimator of Scibior & Wood (2021, "Differentiable particle filtering without modifying the
+forward pass"):
 
 * particle poses are sampled from the motion model (eqs. 1-3) and then stop-gradiented, so no
   gradient flows through the map lookup;
@@ -40,8 +41,7 @@ import numpy as np
 import optax
 from jax import Array, lax
 
-from gslam_jax import filter as gf
-from gslam_jax import resampling, slam
+from gslam_jax import choices, rbpf, slam
 from gslam_jax.config import Config
 from gslam_jax.errors import InputError
 from gslam_jax.motion import MotionParams, motion_stds
@@ -49,9 +49,9 @@ from gslam_jax.run import Run
 from gslam_jax.search import PARAM_NAMES, params_from_values
 
 __all__ = ["TUNE_OBJECTIVES", "TuneError", "TuneInputs", "TuneResult", "transition_score",
-           "sw_objectives", "objective_fn", "make_inputs", "tune", "default_names"]
+           "sw_propose", "sw_resample", "sw_objectives", "objective_fn", "make_inputs", "tune", "default_names"]
 
-TUNE_OBJECTIVES = ("loglik", "supervised")
+TUNE_OBJECTIVES = choices.TUNE_OBJECTIVES
 sg = lax.stop_gradient
 
 
@@ -91,54 +91,42 @@ def transition_score(eps: Array, u: Array, params: MotionParams) -> Array:
     return lp - sg(lp)
 
 
-def _resample(state: gf.FilterState, noise: gf.UpdateNoise, cfg: gf.FilterConfig
-              ) -> gf.FilterState:
-    """ESS-gated resampling with stop-gradient ancestors; weights keep their gradient."""
+def sw_propose(state: rbpf.FilterState, u: Array, eps: Array, params: rbpf.FilterParams
+               ) -> rbpf.FilterState:
+    """The Scibior-Wood proposal (an ``rbpf.Proposal``): particles moved as the filter moves
+    them, stop-gradiented (no gradient through the map lookup); each log weight gains
+    ``transition_score`` (zero in value)."""
+    pose = sg(rbpf.predict(sg(state.pose), u, eps, jax.tree.map(sg, params)))
+    return state._replace(pose=pose, log_w=state.log_w + transition_score(eps, u, params.motion))
+
+
+def sw_resample(state: rbpf.FilterState, u: Array, cfg: rbpf.FilterConfig
+                ) -> tuple[rbpf.FilterState, Array, Array]:
+    """The Scibior-Wood resampler (an ``rbpf.Resampler``): the filter's ESS-gated resampling
+    (stop-gradient choice and ancestors) with new log weights ``-log J + lw[a] - sg(lw[a])``,
+    equal in value, so the ancestry's gradient survives."""
     J = cfg.num_particles
-    lw = state.log_w
-    do = resampling.ess(sg(lw)) < cfg.resample_ratio * J
-
-    def yes(s: gf.FilterState) -> gf.FilterState:
-        anc = resampling.keep_in_place(
-            resampling.resample(cfg.resampler, jnp.exp(sg(s.log_w)), noise.resample_u))
-        lwa = jnp.take(s.log_w, anc)
-        kmap, smap, bits = gf.gather_particles((s.kmap, s.smap, s.known_bits), anc, s.rows)
-        return gf.FilterState(jnp.take(s.pose, anc, axis=0), -math.log(J) + (lwa - sg(lwa)),
-                              kmap, smap, bits, s.rows, gf.best_slot(sg(s.log_w), anc))
-
-    return lax.cond(do, yes, lambda s: s, state)
+    state = state._replace(kmap=sg(state.kmap), smap=sg(state.smap))
+    return rbpf.resample(state, u, cfg, new_log_w=lambda lwa: -math.log(J) + (lwa - sg(lwa)))
 
 
-def sw_objectives(key: Array, params: gf.FilterParams, inputs: TuneInputs,
-                  cfg: gf.FilterConfig) -> Objectives:
-    """One filter run with Scibior-Wood stop-gradient weights (see the module docstring).
+def sw_objectives(key: Array, params: rbpf.FilterParams, inputs: TuneInputs,
+                  cfg: rbpf.FilterConfig) -> Objectives:
+    """One filter run with Scibior-Wood stop-gradient weights (see the module docstring):
+    ``rbpf.step``, the filter's own frame, with ``sw_propose`` and ``sw_resample``.
 
-    Same draws as ``filter.run_filter(key, ...)``: the forward values equal the filter's.
+    Same draws as ``rbpf.run_filter(key, ...)``: the forward values equal the filter's.
     """
-    cfg_keep = cfg._replace(resample_ratio=0.0)  # update() weighs and normalises; we resample
-    state = gf.init(cfg, inputs.start)
-    keys = gf.frame_keys(key, inputs.controls.shape[0])
-    p_fwd = jax.tree.map(sg, params)
+    state = rbpf.init(cfg, inputs.start)
+    keys = rbpf.frame_keys(key, inputs.controls.shape[0])
 
-    def frame(state: gf.FilterState, xs):
+    def frame(state: rbpf.FilterState, xs):
         k, u, idx, ref, m = xs
-        k_motion, k_update = jax.random.split(k)
-        eps = gf.motion_noise(k_motion, cfg)
-        pose = sg(gf.predict(sg(state.pose), u, eps, p_fwd))
-        log_w = state.log_w + transition_score(eps, u, params.motion)
-        state = state._replace(pose=pose, log_w=log_w)
-        obs = inputs.local_obs[jnp.maximum(idx, 0)]
-
-        def upd(s: gf.FilterState):
-            noise = gf.update_noise(k_update, cfg)
-            s, info = gf.update(s, obs, noise, params, cfg_keep)
-            s = s._replace(kmap=sg(s.kmap), smap=sg(s.smap))
-            return _resample(s, noise, cfg), info.log_lik
-
-        state, ll = lax.cond(idx >= 0, upd, lambda s: (s, jnp.zeros((), s.log_w.dtype)), state)
+        state, info = rbpf.step(k, state, u, inputs.local_obs[jnp.maximum(idx, 0)], params, cfg,
+                                idx >= 0, propose=sw_propose, resampler=sw_resample)
         w = jax.nn.softmax(state.log_w)  # self-normalised: weights carry the gradient
         d2 = jnp.sum((state.pose[:, :2] - ref[:2]) ** 2, axis=-1)
-        return state, (ll, jnp.where(m, w @ d2, 0.0))
+        return state, (info.log_lik, jnp.where(m, w @ d2, 0.0))
 
     _, (ll, err) = lax.scan(frame, state, (keys, inputs.controls, inputs.obs_index,
                                            inputs.reference, inputs.mask))
@@ -146,13 +134,13 @@ def sw_objectives(key: Array, params: gf.FilterParams, inputs: TuneInputs,
     return Objectives(jnp.sum(ll), jnp.sum(err) / n)
 
 
-def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, gf.FilterConfig]:
+def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, rbpf.FilterConfig]:
     """Device inputs and the static filter config for ``run`` (``slam.run_arrays``)."""
     return slam.run_arrays(run, config)
 
 
-def objective_fn(log_values: Array, keys: Array, base: gf.FilterParams, inputs: TuneInputs,
-                 names: tuple[str, ...], cfg: gf.FilterConfig, objective: str) -> Array:
+def objective_fn(log_values: Array, keys: Array, base: rbpf.FilterParams, inputs: TuneInputs,
+                 names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str) -> Array:
     """Loss to minimise at log parameter values [d], averaged over independent runs ``keys``
     [K]: ``-loglik / updates`` or the mean expected squared error (m^2)."""
     params = params_from_values(jnp.exp(log_values), names, base)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from synthetic import World, make_run
 
-from gslam_jax import filter as gf
+from gslam_jax import rbpf
+from gslam_jax.rbpf.importance import _log_importance
 from gslam_jax import slam
 from gslam_jax.cells import obs_from_stats
 from gslam_jax.config import Config, FilterSection, MotionSection
@@ -19,8 +20,8 @@ LM = LocalMapParams(resolution=RES, max_range=5.0, cells=64)
 
 
 def _cfg(J, mode="ignore", **kw):
-    return gf.FilterConfig(num_particles=J, map_shape=(256, 256), map_origin=(-20.48, -20.48),
-                           resolution=RES, local_size=64, unknown_cells=mode, **kw)
+    return rbpf.FilterConfig(num_particles=J, map_shape=(256, 256), map_origin=(-20.48, -20.48),
+                             resolution=RES, local_size=64, unknown_cells=mode, **kw)
 
 
 def _local_obs(world, pose, seed):
@@ -37,14 +38,14 @@ def test_particle_nearest_truth_gains_weight(mode):
     truth = np.array([0.3, -0.2, 0.4])
     J = 9
     cfg = _cfg(J, mode, resample_ratio=0.0)
-    params = gf.FilterParams()
-    state = gf.init(cfg, jnp.asarray(truth, jnp.float32))
-    noise = gf.update_noise(jax.random.key(0), cfg)
-    state, _ = gf.update(state, _local_obs(world, truth, 1), noise, params, cfg)
+    params = rbpf.FilterParams()
+    state = rbpf.init(cfg, jnp.asarray(truth, jnp.float32))
+    noise = rbpf.update_noise(jax.random.key(0), cfg)
+    state, _ = rbpf.observe(state, _local_obs(world, truth, 1), noise, params, cfg)
     offsets = np.array([[0, 0, 0], [0.5, 0, 0], [-0.5, 0, 0], [0, 0.5, 0], [0, -0.5, 0],
                         [0.3, 0.3, 0.05], [0, 0, 0.1], [0, 0, -0.1], [1.0, 0.0, 0.0]])
     state = state._replace(pose=jnp.asarray(truth + offsets, jnp.float32))
-    state, info = gf.update(state, _local_obs(world, truth, 2), noise, params, cfg)
+    state, info = rbpf.observe(state, _local_obs(world, truth, 2), noise, params, cfg)
     w = np.exp(np.asarray(info.log_w))
     assert int(np.argmax(w)) == 0
     assert w[0] > 0.5
@@ -58,23 +59,23 @@ def test_best_particle_survives_resampling():
     world = World(3)
     truth = np.array([0.3, -0.2, 0.4])
     J = 9
-    params = gf.FilterParams()
+    params = rbpf.FilterParams()
     keep_cfg, resample_cfg = _cfg(J, resample_ratio=0.0), _cfg(J, resample_ratio=2.0)
-    state = gf.init(keep_cfg, jnp.asarray(truth, jnp.float32))
-    noise = gf.update_noise(jax.random.key(0), keep_cfg)
-    state, _ = gf.update(state, _local_obs(world, truth, 1), noise, params, keep_cfg)
+    state = rbpf.init(keep_cfg, jnp.asarray(truth, jnp.float32))
+    noise = rbpf.update_noise(jax.random.key(0), keep_cfg)
+    state, _ = rbpf.observe(state, _local_obs(world, truth, 1), noise, params, keep_cfg)
     offsets = np.array([[1.0, 0, 0], [0.5, 0, 0], [-0.5, 0, 0], [0, 0.5, 0], [0, -0.5, 0],
                         [0.3, 0.3, 0.05], [0, 0, 0.1], [0, 0, 0], [0, 0, -0.1]])
     state = state._replace(pose=jnp.asarray(truth + offsets, jnp.float32))
     obs = _local_obs(world, truth, 2)
-    kept, kept_info = gf.update(jax.tree.map(jnp.copy, state), obs, noise, params, keep_cfg)
-    resampled, info = gf.update(state, obs, noise, params, resample_cfg)
+    kept, kept_info = rbpf.observe(jax.tree.map(jnp.copy, state), obs, noise, params, keep_cfg)
+    resampled, info = rbpf.observe(state, obs, noise, params, resample_cfg)
     assert bool(info.resampled) and not bool(kept_info.resampled)
     assert np.ptp(np.asarray(info.log_w)) == 0.0  # equal weights: argmax would say slot 0
     assert int(np.argmax(kept_info.log_w)) == 7 == int(kept.best)
     np.testing.assert_array_equal(resampled.pose[resampled.best], state.pose[7])
-    moved, moved_info = gf.step(jax.random.key(1), resampled, jnp.zeros(3), None, params,
-                                resample_cfg)
+    moved, moved_info = rbpf.step(jax.random.key(1), resampled, jnp.zeros(3), None, params,
+                                  resample_cfg)
     assert int(moved_info.best) == int(resampled.best) == int(moved.best)
 
 
@@ -83,8 +84,8 @@ def test_without_map_updates_the_weights_stay_uniform(mode):
     run, _ = make_run(seed=1, steps=30)
     cfg = _cfg(16, mode, update_map=False)
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
-    out = gf.run_filter(jax.random.key(0), gf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
-                        jnp.asarray(run.obs_index), obs, cfg)
+    out = rbpf.run_filter(jax.random.key(0), rbpf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
+                          jnp.asarray(run.obs_index), obs, cfg)
     np.testing.assert_allclose(np.exp(np.asarray(out.infos.log_w)), 1 / 16, rtol=1e-5)
     assert not np.asarray(out.infos.resampled).any()
 
@@ -119,11 +120,11 @@ def test_slam_corrects_vo_heading_drift_on_a_loop():
 
 def test_footprints_leaving_the_map_are_counted_not_wrapped():
     run, _ = make_run(seed=1, steps=20)
-    cfg = gf.FilterConfig(num_particles=4, map_shape=(112, 112), map_origin=(-2.0, -9.0),
-                          resolution=RES, local_size=64, unknown_cells="ignore")
+    cfg = rbpf.FilterConfig(num_particles=4, map_shape=(112, 112), map_origin=(-2.0, -9.0),
+                            resolution=RES, local_size=64, unknown_cells="ignore")
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
-    out = gf.run_filter(jax.random.key(0), gf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
-                        jnp.asarray(run.obs_index), obs, cfg)
+    out = rbpf.run_filter(jax.random.key(0), rbpf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
+                          jnp.asarray(run.obs_index), obs, cfg)
     assert int(np.sum(out.infos.extent_violations)) > 0
 
 
@@ -132,13 +133,13 @@ def test_observation_cells_match_float64_geometry():
     (up to float32 rounding at cell borders), and off-map cells are flagged, not wrapped."""
     rng = np.random.default_rng(0)
     L, H, W = 16, 40, 48
-    cfg = gf.FilterConfig(1, (H, W), (-3.0, -2.0), RES, L, unknown_cells="ignore")
+    cfg = rbpf.FilterConfig(1, (H, W), (-3.0, -2.0), RES, L, unknown_cells="ignore")
     centre = (np.arange(L) - L // 2 + 0.5) * RES
     a, b = np.meshgrid(centre, centre, indexing="ij")
     mismatches = 0
     for _ in range(50):
         pose = np.array([rng.uniform(-3.5, 3.5), rng.uniform(-2.5, 6.0), rng.uniform(-np.pi, np.pi)])
-        flat, on_map = map(np.asarray, gf.observation_cells(
+        flat, on_map = map(np.asarray, rbpf.observation_cells(
             jnp.asarray(pose, jnp.float32), jnp.arange(L * L, dtype=jnp.int32), cfg))
         c, s = np.cos(pose[2]), np.sin(pose[2])
         gi = np.floor((pose[0] + c * a - s * b - cfg.map_origin[0]) / RES).astype(int).ravel()
@@ -154,16 +155,16 @@ def test_observation_cells_match_float64_geometry():
 def test_update_adds_every_on_map_cell_once():
     """Eq. 14 through the scatter: the map gains exactly the on-map local statistics."""
     L = 16
-    cfg = gf.FilterConfig(1, (40, 40), (0.0, 0.0), RES, L, unknown_cells="ignore",
-                          resample_ratio=0.0)
+    cfg = rbpf.FilterConfig(1, (40, 40), (0.0, 0.0), RES, L, unknown_cells="ignore",
+                            resample_ratio=0.0)
     rng = np.random.default_rng(1)
     k = rng.integers(0, 5, (L, L)).astype(np.float32)
     local = jnp.asarray(np.stack([k, 0.1 * k], -1))
     for pose in ([3.2, 3.2, 0.7], [0.3, 3.2, 2.0]):  # inside; half off the map's top edge
-        state = gf.init(cfg)._replace(pose=jnp.asarray([pose], jnp.float32))
-        noise = gf.update_noise(jax.random.key(0), cfg)
-        new, info = gf.update(state, local, noise, gf.FilterParams(), cfg)
-        _, on_map = gf.observation_cells(state.pose[0], jnp.arange(L * L, dtype=jnp.int32), cfg)
+        state = rbpf.init(cfg)._replace(pose=jnp.asarray([pose], jnp.float32))
+        noise = rbpf.update_noise(jax.random.key(0), cfg)
+        new, info = rbpf.observe(state, local, noise, rbpf.FilterParams(), cfg)
+        _, on_map = rbpf.observation_cells(state.pose[0], jnp.arange(L * L, dtype=jnp.int32), cfg)
         expected = float(np.sum(k.ravel()[np.asarray(on_map)]))
         assert float(jnp.sum(new.kmap)) == expected
         assert int(info.extent_violations) == int(expected < k.sum())
@@ -188,22 +189,22 @@ def test_compacted_update_equals_full_and_reports_overflow(mode):
     L = obs.shape[1]
     M = slam.observed_cells(run)
     assert M < L * L
-    base = gf.FilterConfig(8, (160, 160), (-8.0, -12.8), RES, L, unknown_cells=mode,
-                           unknown_samples=64)
+    base = rbpf.FilterConfig(8, (160, 160), (-8.0, -12.8), RES, L, unknown_cells=mode,
+                             unknown_samples=64)
     outs = []
     for cap in (0, M):
         cfg = base._replace(observed_cells=cap)
-        outs.append(gf.run_filter(jax.random.key(1), gf.FilterParams(),
-                                  jnp.asarray(run.controls, jnp.float32),
-                                  jnp.asarray(run.obs_index), obs, cfg))
+        outs.append(rbpf.run_filter(jax.random.key(1), rbpf.FilterParams(),
+                                    jnp.asarray(run.controls, jnp.float32),
+                                    jnp.asarray(run.obs_index), obs, cfg))
     full, compact = outs
     np.testing.assert_allclose(compact.infos.log_w, full.infos.log_w, atol=1e-5)
     np.testing.assert_array_equal(compact.final_state.kmap, full.final_state.kmap)
     assert int(np.sum(compact.infos.dropped_cells)) == 0
     small = base._replace(observed_cells=8)
-    state = gf.init(small)
-    _, info = gf.update(state, obs[0], gf.update_noise(jax.random.key(0), small),
-                        gf.FilterParams(), small)
+    state = rbpf.init(small)
+    _, info = rbpf.observe(state, obs[0], rbpf.update_noise(jax.random.key(0), small),
+                           rbpf.FilterParams(), small)
     assert int(info.dropped_cells) == int(np.sum(np.asarray(obs[0, ..., 0]) > 0)) - 8 > 0
 
 
@@ -215,11 +216,11 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
     run, _ = make_run(seed=2, steps=30)
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
     L = obs.shape[1]
-    base = gf.FilterConfig(11, (160, 160), (-8.0, -12.8), RES, L, unknown_cells=mode,
-                           unknown_samples=64, observed_cells=slam.observed_cells(run))
-    outs = [gf.run_filter(jax.random.key(4), gf.FilterParams(),
-                          jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs,
-                          base._replace(particle_block=block)) for block in (11, 3)]
+    base = rbpf.FilterConfig(11, (160, 160), (-8.0, -12.8), RES, L, unknown_cells=mode,
+                             unknown_samples=64, observed_cells=slam.observed_cells(run))
+    outs = [rbpf.run_filter(jax.random.key(4), rbpf.FilterParams(),
+                            jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs,
+                            base._replace(particle_block=block)) for block in (11, 3)]
     one, blocks = outs
     assert int(np.sum(one.infos.resampled)) >= 1
     np.testing.assert_array_equal(blocks.infos.resampled, one.infos.resampled)
@@ -231,7 +232,7 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
     np.testing.assert_array_equal(blocks.final_state.known_bits, one.final_state.known_bits)
 
     big = base._replace(num_particles=200, observed_cells=4096)
-    assert big.update_block == (gf.CPU_BLOCK_CELLS // 4096 if jax.default_backend() == "cpu"
+    assert big.update_block == (rbpf.CPU_BLOCK_CELLS // 4096 if jax.default_backend() == "cpu"
                                 else 200)
     assert big._replace(particle_block=7).update_block == 7
     with pytest.raises(ValueError, match="particle_block"):
@@ -250,11 +251,11 @@ def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
     Sp = (kp * rng.gamma(2.0, 0.01, M)).astype(np.float32)
     kd = np.where(rng.uniform(size=D) < 0.8, rng.integers(1, 400, D), 0).astype(np.float32)
     Sd = (kd * rng.gamma(2.0, 0.02, D)).astype(np.float32)
-    params = gf.FilterParams(beta_prev=0.3, beta_new=0.7)
-    spelled = gf.log_importance(k, S, kp, Sp, kd[np.arange(M) % D], Sd[np.arange(M) % D],
-                                jnp.bool_(True), params, "sample")
+    params = rbpf.FilterParams(beta_prev=0.3, beta_new=0.7)
+    spelled = rbpf.log_importance(k, S, kp, Sp, kd[np.arange(M) % D], Sd[np.arange(M) % D],
+                                  jnp.bool_(True), params, "sample")
     from gslam_jax.cells import log_v_obs
-    drawn = gf._log_importance(jnp.asarray(k), jnp.asarray(S), jnp.asarray(kp), jnp.asarray(Sp),
+    drawn = _log_importance(jnp.asarray(k), jnp.asarray(S), jnp.asarray(kp), jnp.asarray(Sp),
                                jnp.asarray(kd), jnp.asarray(Sd), jnp.bool_(True), params,
                                "sample", log_v_obs(jnp.asarray(k), jnp.asarray(S)))
     np.testing.assert_allclose(float(drawn), float(spelled), rtol=1e-5)
@@ -267,10 +268,10 @@ def test_written_rows_cover_every_written_cell(mode):
     after a run with resampling."""
     run, _ = make_run(seed=3, steps=40)
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
-    cfg = gf.FilterConfig(10, (160, 160), (-8.0, -12.8), RES, obs.shape[1], unknown_cells=mode,
-                          unknown_samples=64, resample_ratio=0.9)
-    out = gf.run_filter(jax.random.key(2), gf.FilterParams(),
-                        jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs, cfg)
+    cfg = rbpf.FilterConfig(10, (160, 160), (-8.0, -12.8), RES, obs.shape[1], unknown_cells=mode,
+                            unknown_samples=64, resample_ratio=0.9)
+    out = rbpf.run_filter(jax.random.key(2), rbpf.FilterParams(),
+                          jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs, cfg)
     assert int(np.sum(out.infos.resampled)) >= 2
     lo, hi = (int(v) for v in out.final_state.rows)
     written = np.nonzero(np.asarray(out.final_state.kmap).any(axis=(0, 2)))[0]

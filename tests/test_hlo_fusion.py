@@ -2,7 +2,7 @@
 
 DESIGN.md asks that the log-gamma terms of all (particle, cell) pairs and their reduction to one
 log lambda per particle be one fused XLA computation, verified rather than assumed. What XLA
-(jax 0.10.2, CPU) actually produces for ``jax.vmap(filter.log_importance)`` over [J, W, W]
+(jax 0.10.2, CPU) actually produces for ``jax.vmap(rbpf.log_importance)`` over [J, W, W]
 windows, and what these tests pin down:
 
 * One elementwise loop fusion per importance term holds every lgamma table lookup (``gather``
@@ -24,7 +24,7 @@ windows, and what these tests pin down:
 * The cell-count reductions (N_prev, N_obs) are integer reductions of masks only and are not
   part of the log-gamma computation.
 
-Checked for ``cells.log_predictive_integer`` behind ``filter.log_importance``. ``filter.update``
+Checked for ``cells.log_predictive_integer`` behind ``rbpf.log_importance``. ``rbpf.update``
 runs the same kernel with log v of the observation passed in (computed once per update for all
 particles), which only moves those two logs out of the per-particle fusion.
 """
@@ -39,7 +39,8 @@ import jax.numpy as jnp
 import pytest
 
 from gslam_jax import cells
-from gslam_jax import filter as gf
+from gslam_jax import rbpf
+from gslam_jax.rbpf.importance import _log_importance
 
 J, WN = 16, 96
 
@@ -97,11 +98,11 @@ def _logs(f: Fusion) -> int:
 
 
 def _compiled(mode: str, log_pred) -> list[Fusion]:
-    params = gf.FilterParams()
+    params = rbpf.FilterParams()
     x = jnp.ones((J, WN, WN), jnp.float32)
-    fn = jax.jit(jax.vmap(lambda *a: gf._log_importance(*a, params, mode, log_pred)))
+    fn = jax.jit(jax.vmap(lambda *a: _log_importance(*a, params, mode, log_pred)))
     if log_pred is cells.log_predictive_integer:  # the public entry point, same computation
-        fn = jax.jit(jax.vmap(lambda *a: gf.log_importance(*a, params, mode)))
+        fn = jax.jit(jax.vmap(lambda *a: rbpf.log_importance(*a, params, mode)))
     hlo = fn.lower(x, x, x, x, x, x, jnp.ones((J,), bool)).compile().as_text()
     return _parse(hlo)
 

@@ -60,7 +60,7 @@ def _equivalence() -> dict:
     sys.path.insert(0, str(Path(__file__).parent))
     from synthetic import make_run
 
-    from gslam_jax import filter as gf
+    from gslam_jax import rbpf
     from gslam_jax.slam import local_observations, map_extent, observed_cells
     from gslam_jax.tiled.compare import DenseOutput, check_agreement
     from gslam_jax.tiled.reference import run_tiled
@@ -71,16 +71,16 @@ def _equivalence() -> dict:
     out = {}
     # "ignore" in one pass over the particles; "sample" in blocks of 5 (3 blocks and a tail of 1).
     for mode, block in (("ignore", 16), ("sample", 5)):
-        probe = gf.FilterConfig(16, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
+        probe = rbpf.FilterConfig(16, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
         ext = map_extent(run.vo_poses(), L, 0.16, -2.5, probe.window)  # footprints reach the edge
-        cfg = gf.FilterConfig(16, ext.shape, ext.origin, 0.16, L, unknown_cells=mode,
-                              unknown_samples=64, observed_cells=observed_cells(run),
-                              particle_block=block).validate()
+        cfg = rbpf.FilterConfig(16, ext.shape, ext.origin, 0.16, L, unknown_cells=mode,
+                                unknown_samples=64, observed_cells=observed_cells(run),
+                                particle_block=block).validate()
         assert cfg.max_observed < L * L  # the compacted update is what is compared
         key = jax.random.key(3)
-        params = gf.FilterParams()
-        d = gf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
-                          jnp.asarray(run.obs_index), jnp.asarray(obs), cfg)
+        params = rbpf.FilterParams()
+        d = rbpf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
+                            jnp.asarray(run.obs_index), jnp.asarray(obs), cfg)
         i = jax.device_get(d.infos)
         dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.kmap),
                             np.asarray(d.final_state.smap), 0, 0.0, 0.0)
@@ -116,21 +116,21 @@ def test_dense_update_timing_replays_the_run():
     sys.path.insert(0, str(Path(__file__).parent))
     from synthetic import make_run
 
-    from gslam_jax import filter as gf
+    from gslam_jax import rbpf
     from gslam_jax.slam import local_observations, map_extent
     from gslam_jax.tiled.compare import time_dense_updates
 
     run, _ = make_run(seed=1, steps=40)
     obs = local_observations(run, 1e-4)
     L = obs.shape[1]
-    probe = gf.FilterConfig(12, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells="ignore")
+    probe = rbpf.FilterConfig(12, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells="ignore")
     ext = map_extent(run.vo_poses(), L, 0.16, 1.0, probe.window)
-    cfg = gf.FilterConfig(12, ext.shape, ext.origin, 0.16, L, unknown_cells="ignore",
-                          resample_ratio=0.9).validate()
-    key, params = jax.random.key(5), gf.FilterParams()
-    scanned = gf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
-                            jnp.asarray(run.obs_index), jnp.asarray(obs), cfg,
-                            jnp.asarray(run.start_pose(), jnp.float32))
+    cfg = rbpf.FilterConfig(12, ext.shape, ext.origin, 0.16, L, unknown_cells="ignore",
+                            resample_ratio=0.9).validate()
+    key, params = jax.random.key(5), rbpf.FilterParams()
+    scanned = rbpf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
+                              jnp.asarray(run.obs_index), jnp.asarray(obs), cfg,
+                              jnp.asarray(run.start_pose(), jnp.float32))
     seconds, resampled = time_dense_updates(key, params, run, obs, cfg)
     at_updates = np.asarray(scanned.infos.resampled)[np.asarray(run.obs_index) >= 0]
     assert seconds.shape == (run.num_local_maps,) and np.all(seconds > 0)
@@ -171,17 +171,17 @@ def _small_setup(mode: str, J: int = 8):
     sys.path.insert(0, str(Path(__file__).parent))
     from synthetic import make_run
 
-    from gslam_jax import filter as gf
+    from gslam_jax import rbpf
     from gslam_jax.slam import local_observations, map_extent
 
     run, _ = make_run(seed=1, steps=24)
     obs = local_observations(run, 1e-4)
     L = obs.shape[1]
-    probe = gf.FilterConfig(J, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
+    probe = rbpf.FilterConfig(J, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
     ext = map_extent(run.vo_poses(), L, 0.16, 1.0, probe.window)
-    cfg = gf.FilterConfig(J, ext.shape, ext.origin, 0.16, L, unknown_cells=mode,
-                          unknown_samples=16, resample_ratio=0.9).validate()
-    params = gf.FilterParams(beta_prev=jax.numpy.float32(0.05))  # JAX scalars, as compare's
+    cfg = rbpf.FilterConfig(J, ext.shape, ext.origin, 0.16, L, unknown_cells=mode,
+                            unknown_samples=16, resample_ratio=0.9).validate()
+    params = rbpf.FilterParams(beta_prev=jax.numpy.float32(0.05))  # JAX scalars, as compare's
     return run, obs, cfg, jax.random.key(2), params
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import filter as gf
+from gslam_jax import rbpf
 from gslam_jax import slam
 from gslam_jax import tuning as TU
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
@@ -49,8 +49,8 @@ def test_forward_values_equal_the_filter(short_run):
     params = slam.filter_params(config)
     key = jax.random.key(5)
     obj = TU.sw_objectives(key, params, inputs, cfg)
-    out = gf.run_filter(key, params, inputs.controls, inputs.obs_index, inputs.local_obs, cfg,
-                        inputs.start)
+    out = rbpf.run_filter(key, params, inputs.controls, inputs.obs_index, inputs.local_obs, cfg,
+                          inputs.start)
     np.testing.assert_allclose(float(obj.loglik), float(jnp.sum(out.infos.log_lik)), rtol=1e-6)
 
 

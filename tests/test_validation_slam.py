@@ -50,7 +50,7 @@ def test_maps_larger_than_memory_are_a_config_error_before_allocating(monkeypatc
     def no_alloc(*args, **kwargs):
         raise AssertionError("the particle maps were allocated")
 
-    monkeypatch.setattr(slam.gf, "init", no_alloc)
+    monkeypatch.setattr(slam.rbpf, "init", no_alloc)
     with pytest.raises(ConfigError, match=r"the particle maps need [\d.]+ GiB \(10000000 "
                                           r"particles x \d+ x \d+ cells .* more than this "
                                           r"machine's .*fewer \[filter\] particles, a coarser "

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import filter as gf
+from gslam_jax import rbpf
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 from gslam_jax.tiled.reference import DEFAULT_TILE_SIZE, TiledOutput, draw_noise, run_tiled
@@ -76,14 +76,14 @@ def _mean(x: np.ndarray) -> float:
     return float(np.mean(x)) if len(x) else float("nan")
 
 
-def _state_bytes(state: gf.FilterState) -> int:
+def _state_bytes(state: rbpf.FilterState) -> int:
     return int(sum(np.asarray(x).nbytes for x in state))
 
 
-def time_dense_updates(key: jax.Array, params: gf.FilterParams, run: Run, obs: np.ndarray,
-                       cfg: gf.FilterConfig) -> tuple[np.ndarray, np.ndarray]:
+def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarray,
+                       cfg: rbpf.FilterConfig) -> tuple[np.ndarray, np.ndarray]:
     """Wall time of every local-map update as the run executes it, resampling included (as the
-    tiled reference's times are): the run replayed frame by frame through ``filter.step`` (the
+    tiled reference's times are): the run replayed frame by frame through ``rbpf.step`` (the
     frame of ``run_filter``, same draws), jitted with the state donated. A timed call is the
     frame's predict (~0.03 us per particle) and its update.
 
@@ -91,15 +91,15 @@ def time_dense_updates(key: jax.Array, params: gf.FilterParams, run: Run, obs: n
     JAX indexing lands in a timed call.
 
     Returns [M] seconds and [M] whether each update resampled."""
-    all_keys = gf.frame_keys(key, run.num_frames)
-    step = jax.jit(lambda k, s, u, local: gf.step(k, s, u, local, params, cfg), donate_argnums=1)
+    all_keys = rbpf.frame_keys(key, run.num_frames)
+    step = jax.jit(lambda k, s, u, local: rbpf.step(k, s, u, local, params, cfg), donate_argnums=1)
     keys = [all_keys[t] for t in range(run.num_frames)]
     controls = [jnp.asarray(u) for u in np.asarray(run.controls, np.float32)]
     local_obs = [jnp.asarray(o) for o in np.asarray(obs)]
     start = jnp.asarray(run.start_pose(), jnp.float32)
     jax.block_until_ready(keys + controls + local_obs)
-    jax.block_until_ready(step(keys[0], gf.init(cfg, start), controls[0], local_obs[0]))  # compile
-    state = gf.init(cfg, start)
+    jax.block_until_ready(step(keys[0], rbpf.init(cfg, start), controls[0], local_obs[0]))  # compile
+    state = rbpf.init(cfg, start)
     times, resampled = [], []
     for t, idx in enumerate(np.asarray(run.obs_index)):
         if idx < 0:
@@ -113,32 +113,32 @@ def time_dense_updates(key: jax.Array, params: gf.FilterParams, run: Run, obs: n
     return np.array(times), np.array(resampled, bool)
 
 
-def run_dense(key: jax.Array, params: gf.FilterParams, run: Run, obs: np.ndarray,
-              cfg: gf.FilterConfig, repeats: int = 5) -> DenseOutput:
+def run_dense(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarray,
+              cfg: rbpf.FilterConfig, repeats: int = 5) -> DenseOutput:
     """The dense filter over the Run (compiled once, then timed), the update alone on its final
     maps, and every update as the run executes it (``time_dense_updates``). The state's bytes
     are those of its fixed-shape arrays, allocated once: the same at every frame."""
     args = (key, params, jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index, jnp.int32),
             jnp.asarray(obs), cfg, jnp.asarray(run.start_pose(), jnp.float32))
-    jax.block_until_ready(gf.run_filter(*args))  # compile
+    jax.block_until_ready(rbpf.run_filter(*args))  # compile
     t0 = time.perf_counter()
-    out = jax.block_until_ready(gf.run_filter(*args))
+    out = jax.block_until_ready(rbpf.run_filter(*args))
     seconds = time.perf_counter() - t0
     i = jax.device_get(out.infos)
     kmap, smap, nbytes = np.asarray(out.final_state.kmap), np.asarray(out.final_state.smap), \
         _state_bytes(out.final_state)
-    # One update on the final maps, state donated as in the scan; no resampling, so every
-    # repeat does the same work (as gslam bench).
-    upd = jax.jit(partial(gf.update, cfg=cfg._replace(resample_ratio=0.0)), donate_argnums=0)
+    # One update on the final maps, state donated as in the scan; ``update`` does not
+    # resample, so every repeat does the same work (as gslam bench).
+    upd = jax.jit(partial(rbpf.update, cfg=cfg), donate_argnums=0)
     state = jax.tree.map(jnp.copy, out.final_state)
     del out
-    noise = gf.update_noise(jax.random.key(1), cfg)
+    noise = rbpf.update_noise(jax.random.key(1), cfg)
     local = jnp.asarray(obs[int(np.max(run.obs_index))])
-    state, _ = jax.block_until_ready(upd(state, local, noise, params))
+    state, _ = jax.block_until_ready(upd(state, local, noise.unknown_u, params))
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
-        state, _ = jax.block_until_ready(upd(state, local, noise, params))
+        state, _ = jax.block_until_ready(upd(state, local, noise.unknown_u, params))
         times.append(time.perf_counter() - t)
     del state
     run_times, resampled = time_dense_updates(key, params, run, obs, cfg)
@@ -146,7 +146,7 @@ def run_dense(key: jax.Array, params: gf.FilterParams, run: Run, obs: np.ndarray
                        float(np.median(times)), run_times, resampled)
 
 
-def check_agreement(dense: DenseOutput, tiled: TiledOutput, cfg: gf.FilterConfig) -> dict:
+def check_agreement(dense: DenseOutput, tiled: TiledOutput, cfg: rbpf.FilterConfig) -> dict:
     """Largest differences per quantity and whether each is within ``TOLERANCES``.
 
     Also reports where the two runs part: the first frame whose resampling decision or poses
@@ -220,7 +220,7 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
     Returns a dict with ``agreement``, timings, memory figures, per-frame memory and ESS; writes
     ``compare.json`` and ``compare_fig4.png`` to ``out_dir`` when given.
     """
-    from gslam_jax.bench import environment
+    from gslam_jax.machine import environment
     from gslam_jax.slam import filter_config, filter_params, local_observations
 
     say = print if verbose else (lambda *a, **k: None)

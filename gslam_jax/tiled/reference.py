@@ -30,7 +30,7 @@ from typing import Callable, NamedTuple
 import jax
 import numpy as np
 
-from gslam_jax.filter import FilterConfig, FilterParams, UpdateNoise, frame_keys, motion_noise, update_noise
+from gslam_jax.rbpf import FilterConfig, FilterParams, UpdateNoise, frame_keys, motion_noise, update_noise
 from gslam_jax.tiled import numerics as nm
 from gslam_jax.tiled.tiles import Ledger, TileMap, tile_cells
 

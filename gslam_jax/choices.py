@@ -1,0 +1,21 @@
+"""The allowed values of every enumerated setting, each defined once (no JAX: the CLI's
+argument parser imports this before JAX is loaded).
+
+Config validation (``config``), argparse ``choices`` (``cli``), the filter
+(``rbpf.FilterConfig.validate``, ``resampling.RESAMPLERS``), the search and the tuner all read
+these tuples; a test checks that the implementations behind them match.
+"""
+
+from __future__ import annotations
+
+__all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TUNE_OBJECTIVES", "SEARCH_OBJECTIVES",
+           "SEARCH_DESIGNS", "SCORE_PATHS", "SOURCES", "BAD_FRAME_POLICIES"]
+
+UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
+RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
+TUNE_OBJECTIVES = ("loglik", "supervised")  # ``gslam tune --objective``
+SEARCH_OBJECTIVES = ("rms", "loglik")  # ``gslam search --objective``
+SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --design``
+SCORE_PATHS = ("mean", "best")  # ``gslam search --score-path``
+SOURCES = ("sim", "sim-stereo", "kitti", "euroc")  # ``gslam run --source``
+BAD_FRAME_POLICIES = ("error", "fallback")  # ``gslam run --on-bad-frame``

@@ -1,0 +1,332 @@
+"""The filter kernel (paper 6.1-6.2): init, predict, update, resample, one frame, the scan.
+
+One frame (``step``) is:
+
+* a proposal at every frame: sample the motion model (eqs. 1-3, 24) (``propagate``);
+* at frames that carry a local map, ``update``: for each particle, the log-gamma importance
+  factors of the observed cells against the map cells under them (eq. 26) and their tempered
+  combination (eq. 30 or 31), in blocks of particles sized for the cache on a CPU
+  (``FilterConfig.update_block``); the local map scatter-added into each particle's map (the
+  conjugate update, eq. 14); the weights multiplied (eq. 27) and normalised;
+* then ``resample`` when the ESS (eq. 23) drops below ``resample_ratio * J``.
+
+The proposal and the resampler are arguments of ``step``, so the tuner's Scibior-Wood
+estimator (``tuning``) runs this very frame with its stop-gradient versions of both. The whole
+Run is a ``lax.scan`` of ``step`` (``scan_frames``, ``run_filter``); poses and resampling
+ancestors are kept per frame so the best particle's full path survives resampling
+(``backtrack_path``). Random numbers come from ``motion_noise`` and ``update_noise`` so that
+another implementation can be driven with exactly the same draws. The maps are touched only
+through ``rbpf.maps`` (the map store seam).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array, lax
+
+from gslam_jax import cells, resampling, unknown
+from gslam_jax.motion import apply_motion
+from gslam_jax.rbpf import maps
+from gslam_jax.rbpf.footprint import (compact_observation, read_footprints, window_origin,
+                                      written_rows)
+from gslam_jax.rbpf.importance import log_lambda
+from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Observation,
+                                  RunOutput, StepInfo, UpdateInfo, UpdateNoise)
+
+__all__ = ["Proposal", "Resampler", "init", "motion_noise", "update_noise", "predict",
+           "propagate", "update", "ancestors", "resample", "observe", "step", "scan_frames",
+           "frame_keys", "run_filter", "backtrack_path", "best_slot"]
+
+Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
+"""(state, u [3], standard-normal draws [J, 2], params) -> state with the particles moved."""
+
+Resampler = Callable[[FilterState, Array, FilterConfig], tuple[FilterState, Array, Array]]
+"""(state, uniforms [J], cfg) -> (state, ancestors [J], resampled []): ESS-gated resampling."""
+
+
+def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
+    """All particles at ``start_pose`` with equal weights and empty maps."""
+    cfg.validate()
+    J = cfg.num_particles
+    H, W = cfg.map_shape
+    start = jnp.zeros(3, jnp.float32) if start_pose is None else jnp.asarray(start_pose, jnp.float32)
+    nb = (H // unknown.BLOCK, W // unknown.BLOCK) if cfg.unknown_cells == "sample" else (0, 0)
+    kmap, smap = maps.empty_maps(J, cfg.map_shape)
+    return FilterState(
+        pose=jnp.broadcast_to(start, (J, 3)),
+        log_w=jnp.full((J,), -math.log(J), jnp.float32),
+        kmap=kmap,
+        smap=smap,
+        known_bits=jnp.zeros((J,) + nb + (2,), jnp.uint32),
+        rows=jnp.array([H, 0], jnp.int32),
+        best=jnp.int32(0),
+    )
+
+
+def motion_noise(key: Array, cfg: FilterConfig) -> Array:
+    """Standard-normal motion draws [J, 2] for one frame (along-track, heading)."""
+    return jax.random.normal(key, (cfg.num_particles, 2), jnp.float32)
+
+
+def update_noise(key: Array, cfg: FilterConfig) -> UpdateNoise:
+    """Uniforms for one update (unknown-cell sampling, then resampling)."""
+    k_unknown, k_resample = jax.random.split(key)
+    n = cfg.unknown_samples if cfg.unknown_cells == "sample" else 0
+    return UpdateNoise(
+        unknown_u=jax.random.uniform(k_unknown, (cfg.num_particles, n), jnp.float32),
+        resample_u=resampling.draw_uniforms(k_resample, cfg.num_particles),
+    )
+
+
+def predict(pose: Array, u: Array, eps: Array, params: FilterParams) -> Array:
+    """Prediction step (eq. 24) for all particles, given their standard-normal draws."""
+    return apply_motion(pose, u, eps, params.motion)
+
+
+def propagate(state: FilterState, u: Array, eps: Array, params: FilterParams) -> FilterState:
+    """The filter's proposal (a ``Proposal``): every particle moved by ``predict``."""
+    return state._replace(pose=predict(state.pose, u, eps, params))
+
+
+class _Weighed(NamedTuple):
+    kflat: Array     # [J, H*W] maps after eq. 14
+    sflat: Array
+    log_lam: Array   # [J] log importance factors (eqs. 26, 30 / 31) against the old maps
+    off_map: Array   # [J] some observed local cell fell outside the map
+
+
+def _weigh_block(w: _Weighed, j0: Array, n: int, state: FilterState, obs: Observation,
+                 log_v: Array, unknown_u: Array, params: FilterParams, cfg: FilterConfig
+                 ) -> _Weighed:
+    """Particles j0 .. j0+n-1: read their footprints, weigh them, add the local map."""
+    rows = j0 + jnp.arange(n, dtype=jnp.int32)
+    take = partial(lax.dynamic_slice_in_dim, start_index=j0, slice_size=n)
+    f = read_footprints(w.kflat, w.sflat, take(state.known_bits), take(state.pose), rows,
+                        take(unknown_u), obs, cfg)
+    log_lam = log_lambda(f, log_v, params, cfg)
+    kflat, sflat = w.kflat, w.sflat
+    if cfg.update_map:
+        # Write only after every read of these maps (the known-cell draws included): the
+        # target cells are made to depend on the weights by a min() that never changes them
+        # (cells <= H*W). Without that ordering XLA copies the whole maps before the update.
+        after = (jnp.sum(log_lam) > 0).astype(jnp.int32)
+        cells_ = jnp.minimum(f.cells, kflat.shape[1] + after)
+        kflat = maps.add_to_cells(kflat, rows, cells_, obs.k)
+        sflat = maps.add_to_cells(sflat, rows, cells_, obs.S)
+    put = partial(lax.dynamic_update_slice_in_dim, start_index=j0, axis=0)
+    return _Weighed(kflat, sflat, put(w.log_lam, log_lam), put(w.off_map, f.off_map))
+
+
+def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
+                     params: FilterParams, cfg: FilterConfig) -> _Weighed:
+    """Eq. 26 weights of every particle against its map, and eq. 14 into that map, one block
+    of ``cfg.update_block`` particles at a time (see ``FilterConfig.particle_block``)."""
+    J = cfg.num_particles
+    B = cfg.update_block
+    w = _Weighed(maps.flat_maps(state.kmap), maps.flat_maps(state.smap),
+                 jnp.zeros((J,), state.log_w.dtype), jnp.zeros((J,), bool))
+    # log v of each observed cell is shared by every particle: computed once, not J times.
+    block = partial(_weigh_block, state=state, obs=obs, log_v=cells.log_v_obs(obs.k, obs.S),
+                    unknown_u=unknown_u, params=params, cfg=cfg)
+    full, tail = divmod(J, B)
+    if full == 1:
+        w = block(w, jnp.int32(0), B)
+    else:
+        w = lax.fori_loop(0, full, lambda b, w: block(w, b * B, B), w)
+    if tail:
+        w = block(w, jnp.int32(full * B), tail)
+    return w
+
+
+def _refresh_known_bits(kmap: Array, bits: Array, pose: Array, cfg: FilterConfig) -> Array:
+    """"sample" mode: the known-cell bits around each particle's footprint, after eq. 14."""
+    if cfg.unknown_cells != "sample" or not cfg.update_map:
+        return bits
+
+    def refresh(kmap, bits, pose):
+        b, Wn = unknown.BLOCK, cfg.window
+        oi, oj, _ = window_origin(pose, cfg)
+        known = maps.read_window(kmap, (oi, oj), Wn) > 0
+        return lax.dynamic_update_slice(bits, unknown.pack_known(known), (oi // b, oj // b, 0))
+
+    return jax.vmap(refresh)(kmap, bits, pose)
+
+
+def best_slot(log_w: Array, ancestors: Array) -> Array:
+    """Slot of the highest-weight particle. ``log_w`` [J] are the normalised weights before the
+    resampling that put particle ``ancestors[i]`` into slot i (the identity when none did).
+    After a resampling the weights are all equal, so the choice is made on the weights before
+    it; if the best particle left no offspring, this is the slot of the best one that did."""
+    return jnp.argmax(log_w[ancestors]).astype(jnp.int32)
+
+
+def update(state: FilterState, local_obs: Array, unknown_u: Array, params: FilterParams,
+           cfg: FilterConfig) -> tuple[FilterState, UpdateInfo]:
+    """Weigh, write, normalise: eq. 26 with eq. 30 / 31 against each particle's map, eq. 14
+    into it, the weights multiplied (eq. 27) and normalised. No resampling (``resample``).
+
+    local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred; unknown_u:
+    ``UpdateNoise.unknown_u``. The state's ``best`` becomes the highest-weight particle.
+    """
+    J = cfg.num_particles
+    obs = compact_observation(local_obs, cfg)
+    w = _weigh_and_write(state, obs, unknown_u, params, cfg)
+    unnorm = state.log_w + w.log_lam
+    log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
+    log_w = unnorm - log_lik
+    kmap = maps.unflat_maps(w.kflat, cfg.map_shape)
+    smap = maps.unflat_maps(w.sflat, cfg.map_shape)
+    bits = _refresh_known_bits(kmap, state.known_bits, state.pose, cfg)
+    rows = written_rows(state.rows, state.pose, cfg)
+    best = best_slot(log_w, jnp.arange(J, dtype=jnp.int32))
+    info = UpdateInfo(ess=resampling.ess(log_w), log_lik=log_lik,
+                      extent_violations=jnp.sum(w.off_map).astype(jnp.int32),
+                      empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped)
+    return FilterState(state.pose, log_w, kmap, smap, bits, rows, best), info
+
+
+def ancestors(log_w: Array, u: Array, cfg: FilterConfig) -> Array:
+    """Ancestor indices by ``cfg.resampler`` from normalised log weights and uniforms [J],
+    arranged so that survivors keep their slots (``resampling.keep_in_place``)."""
+    return resampling.keep_in_place(resampling.resample(cfg.resampler, jnp.exp(log_w), u))
+
+
+def _equal_weights(log_w: Array) -> Array:
+    return jnp.full(log_w.shape, -math.log(log_w.shape[0]), log_w.dtype)
+
+
+def resample(state: FilterState, u: Array, cfg: FilterConfig,
+             new_log_w: Callable[[Array], Array] = _equal_weights
+             ) -> tuple[FilterState, Array, Array]:
+    """ESS-gated resampling (eq. 23; a ``Resampler``): when ESS < ``resample_ratio * J``,
+    particles are drawn by ``ancestors`` and their maps copied (``maps.gather_particles``,
+    over the rows written so far). Returns (state, ancestors [J], resampled []).
+
+    The choice and the ancestors use the weights' values only (stop-gradient); the new log
+    weights are ``new_log_w(log_w[ancestors])``: equal by default (the paper's filter); the
+    tuner passes the Scibior-Wood weights, which keep the ancestry's gradient. ``best`` stays
+    the particle that was best before resampling (``best_slot``).
+    """
+    J = cfg.num_particles
+    lw = lax.stop_gradient(state.log_w)
+    do = resampling.ess(lw) < cfg.resample_ratio * J
+
+    def yes(s: FilterState) -> tuple[FilterState, Array]:
+        anc = ancestors(lw, u, cfg)
+        kmap, smap, bits = maps.gather_particles((s.kmap, s.smap, s.known_bits), anc, s.rows)
+        return s._replace(pose=jnp.take(s.pose, anc, axis=0), kmap=kmap, smap=smap,
+                          known_bits=bits, log_w=new_log_w(jnp.take(s.log_w, anc))), anc
+
+    def keep(s: FilterState) -> tuple[FilterState, Array]:
+        return s, jnp.arange(J, dtype=jnp.int32)
+
+    new, anc = lax.cond(do, yes, keep, state)
+    return new._replace(best=best_slot(lw, anc)), anc, do
+
+
+def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: FilterParams,
+            cfg: FilterConfig, resampler: Resampler = resample) -> tuple[FilterState, StepInfo]:
+    """``update`` with ``noise.unknown_u``, then ``resampler`` with ``noise.resample_u``."""
+    state, upd = update(state, local_obs, noise.unknown_u, params, cfg)
+    state, anc, resampled = resampler(state, noise.resample_u, cfg)
+    return state, StepInfo(pose=state.pose, ancestors=anc, best=state.best, log_w=state.log_w,
+                           ess=upd.ess, resampled=resampled, updated=jnp.bool_(True),
+                           log_lik=upd.log_lik, extent_violations=upd.extent_violations,
+                           empty_obs=upd.empty_obs, dropped_cells=upd.dropped_cells)
+
+
+def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
+    J = cfg.num_particles
+    return StepInfo(pose=state.pose, ancestors=jnp.arange(J, dtype=jnp.int32), best=state.best,
+                    log_w=state.log_w,
+                    ess=resampling.ess(state.log_w), resampled=jnp.bool_(False),
+                    updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
+                    extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False),
+                    dropped_cells=jnp.int32(0))
+
+
+def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
+         params: FilterParams, cfg: FilterConfig, has_obs: Array | bool = True, *,
+         propose: Proposal = propagate, resampler: Resampler = resample
+         ) -> tuple[FilterState, StepInfo]:
+    """One frame, the filter's only one: ``propose`` (predict, eq. 24), then, if the frame has
+    a local map, ``observe`` (update, then ``resampler``).
+
+    ``local_obs`` None: no update (a Python-level choice); else ``has_obs`` says whether the
+    frame has one: True (Python) updates, a traced bool chooses under ``lax.cond``. The key is
+    split once into the motion draws and the update's draws (``update_noise``).
+    """
+    k_motion, k_update = jax.random.split(key)
+    state = propose(state, u, motion_noise(k_motion, cfg), params)
+    if local_obs is None or has_obs is False:
+        return state, _no_update_info(state, cfg)
+
+    def observe_frame(s: FilterState) -> tuple[FilterState, StepInfo]:
+        return observe(s, local_obs, update_noise(k_update, cfg), params, cfg, resampler)
+
+    if has_obs is True:
+        return observe_frame(state)
+    return lax.cond(has_obs, observe_frame, lambda s: (s, _no_update_info(s, cfg)), state)
+
+
+def _summaries(info: StepInfo) -> tuple[Array, Array]:
+    w = jnp.exp(info.log_w)
+    best = info.pose[info.best]
+    xy = w @ info.pose[:, :2]
+    th = jnp.arctan2(w @ jnp.sin(info.pose[:, 2]), w @ jnp.cos(info.pose[:, 2]))
+    return best, jnp.concatenate([xy, th[None]])
+
+
+def backtrack_path(poses: Array, ancestors: Array, last: Array) -> Array:
+    """Follow ancestry back from particle ``last`` at the final frame: [T, J, 3] -> [T, 3]."""
+
+    def back(j, xs):
+        pose_t, anc_t = xs
+        return anc_t[j], pose_t[j]
+
+    _, path = lax.scan(back, last, (poses, ancestors), reverse=True)
+    return path
+
+
+@partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
+def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Array,
+                local_obs: Array, params: FilterParams, cfg: FilterConfig
+                ) -> tuple[FilterState, tuple[StepInfo, Array, Array]]:
+    """``lax.scan`` of ``step`` over frames (update where obs_index >= 0).
+
+    keys [T], controls [T, 3], obs_index [T] (index into local_obs or -1), local_obs
+    [M, L, L, 2] observations (k, S) from ``cells.obs_from_stats`` with M >= 1.
+    Returns the final state and per-frame (StepInfo, best pose, weighted-mean pose).
+    ``state`` is donated: the maps are updated in its buffers, so do not use it afterwards
+    (pass ``jax.tree.map(jnp.copy, state)`` to keep it).
+    """
+
+    def frame(state, xs):
+        k, u, idx = xs
+        state, info = step(k, state, u, local_obs[jnp.maximum(idx, 0)], params, cfg, idx >= 0)
+        best, mean = _summaries(info)
+        return state, (info, best, mean)
+
+    return lax.scan(frame, state, (keys, controls, obs_index))
+
+
+def frame_keys(key: Array, num_frames: int) -> Array:
+    """Per-frame keys: frame t always uses the same key, however the run is chunked."""
+    return jax.random.split(key, num_frames)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Array,
+               local_obs: Array, cfg: FilterConfig, start_pose: Array | None = None) -> RunOutput:
+    """The whole filter in one jitted call (see ``scan_frames``); vmappable and differentiable
+    in ``params``."""
+    state = init(cfg, start_pose)
+    final, (infos, best, mean) = scan_frames(
+        state, frame_keys(key, controls.shape[0]), controls, obs_index, local_obs, params, cfg)
+    path = backtrack_path(infos.pose, infos.ancestors, final.best)
+    return RunOutput(final, infos, best, mean, path)

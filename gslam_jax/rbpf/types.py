@@ -1,0 +1,191 @@
+"""The filter's data: static settings, tunable parameters, the particle set, random numbers and
+per-frame outputs (NamedTuple pytrees)."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+from jax import Array
+
+from gslam_jax import choices, unknown
+from gslam_jax.motion import MotionParams
+
+__all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "UpdateInfo",
+           "StepInfo", "RunOutput", "Observation", "UNKNOWN_MODES", "CPU_BLOCK_CELLS"]
+
+UNKNOWN_MODES = choices.UNKNOWN_CELLS
+CPU_BLOCK_CELLS = 102_400  # footprint cells per update pass on CPU (FilterConfig.update_block)
+
+
+class FilterConfig(NamedTuple):
+    """Static settings: shapes and discrete choices (hashable, a jit static argument).
+
+    map_origin is the world (x, y) of the corner of cell (0, 0); cell (i, j) covers
+    x in [x0 + i res, x0 + (i+1) res), y likewise with j. map_shape entries are multiples of 8.
+    The defaults of the settings a config file also holds are ``config.FilterSection``'s (a
+    test checks that they agree).
+    """
+
+    num_particles: int
+    map_shape: tuple[int, int]
+    map_origin: tuple[float, float]
+    resolution: float
+    local_size: int
+    resampler: str = "multinomial"
+    resample_ratio: float = 0.5
+    unknown_cells: str = "ignore"
+    unknown_samples: int = 1024
+    update_map: bool = True
+    observed_cells: int = 0
+    particle_block: int = 0
+
+    @property
+    def update_block(self) -> int:
+        """Particles per pass of the update's read-weigh-write (``particle_block``; 0: auto).
+
+        Each pass reads a block's footprints, weighs them (eq. 26) and adds the local map to
+        them (eq. 14) while they are still in cache. Auto: on a CPU, blocks of about
+        ``CPU_BLOCK_CELLS`` footprint cells (25 particles of a 64 x 64 local map: 34-36 us per
+        particle against 57-60 for one pass over J = 200, A/B in one process); on
+        accelerators, one pass over all particles (the device wants them all at once). Auto
+        reads the default backend when the update is traced; JAX may reuse that trace on
+        another backend in the same process, so set ``particle_block`` there (the block size
+        changes the speed; the results agree to float rounding).
+        """
+        J = self.num_particles
+        if self.particle_block:
+            return min(self.particle_block, J)
+        if jax.default_backend() != "cpu":
+            return J
+        return max(1, min(J, CPU_BLOCK_CELLS // self.max_observed))
+
+    @property
+    def max_observed(self) -> int:
+        """M: how many observed local cells one update evaluates (``observed_cells`` or L*L)."""
+        return self.observed_cells or self.local_size ** 2
+
+    @property
+    def block(self) -> int:
+        """Window alignment: bitmask blocks in "sample" mode, single cells otherwise."""
+        return unknown.BLOCK if self.unknown_cells == "sample" else 1
+
+    @property
+    def reach(self) -> int:
+        """Cells from a particle's cell to the farthest map cell its update can touch: every
+        local cell centre lies within L / sqrt(2) cells of the particle (``observation_cells``)."""
+        return math.ceil(self.local_size / math.sqrt(2.0)) + 1
+
+    @property
+    def window(self) -> int:
+        """Side of a square global-map window that holds a rotated local map (the minimum map
+        side; "sample" mode refreshes its known-cell bits over such a window)."""
+        side = 2 * (self.reach + self.block)
+        return int(unknown.BLOCK * math.ceil(side / unknown.BLOCK))
+
+    def validate(self) -> "FilterConfig":
+        H, W = self.map_shape
+        if self.resampler not in choices.RESAMPLERS:
+            raise ValueError(f"resampler '{self.resampler}' unknown; choose one of "
+                             f"{list(choices.RESAMPLERS)}")
+        if self.unknown_cells not in choices.UNKNOWN_CELLS:
+            raise ValueError(f"unknown_cells '{self.unknown_cells}' unknown; choose one of "
+                             f"{list(choices.UNKNOWN_CELLS)}")
+        if H % unknown.BLOCK or W % unknown.BLOCK:
+            raise ValueError(f"map_shape {self.map_shape} must be multiples of {unknown.BLOCK}")
+        if min(H, W) < self.window:
+            raise ValueError(f"map_shape {self.map_shape} is smaller than the update window "
+                             f"{self.window} cells")
+        if not 0 <= self.observed_cells <= self.local_size ** 2:
+            raise ValueError(f"observed_cells {self.observed_cells} must lie in [0, "
+                             f"{self.local_size ** 2}] (0: every local cell)")
+        if self.unknown_samples < 1:
+            raise ValueError("unknown_samples must be at least 1")
+        if self.num_particles < 1:
+            raise ValueError("num_particles must be at least 1")
+        if self.particle_block < 0:
+            raise ValueError(f"particle_block {self.particle_block} must be >= 0 (0: auto)")
+        return self
+
+
+class FilterParams(NamedTuple):
+    """The continuous (tunable, differentiable) parameters."""
+
+    motion: MotionParams = MotionParams()
+    beta_prev: Array | float = 0.05
+    beta_new: Array | float = 0.05
+
+
+class FilterState(NamedTuple):
+    """Particle set. known_bits is the unknown-cell sampler's state ([J, 0, 0, 2] if unused).
+
+    kmap, smap and known_bits are the map store: only ``rbpf.maps`` reads, writes and copies
+    them (``init`` allocates them).
+    """
+
+    pose: Array        # [J, 3]
+    log_w: Array       # [J] normalised
+    kmap: Array        # [J, H, W] degrees of freedom k
+    smap: Array        # [J, H, W] sums of squared deviations S
+    known_bits: Array  # [J, H/8, W/8, 2] uint32
+    rows: Array        # [2] int32: map rows [lo, hi) that any update may have written so far
+    best: Array        # [] int32: slot of the highest-weight particle (``kernel.best_slot``):
+                       # after a resampling, the one that was best before it (the weights are
+                       # then all equal)
+
+
+class UpdateNoise(NamedTuple):
+    """Random numbers of one update: unknown-cell choices and resampling uniforms."""
+
+    unknown_u: Array   # [J, unknown_samples] uniforms ([J, 0] in "ignore" mode)
+    resample_u: Array  # [J]
+
+
+class Observation(NamedTuple):
+    """The observed cells of one local map, compacted (paper 6.3: compute where it matters).
+
+    The first ``count`` entries are the cells with k > 0 in row-major order; the rest are
+    padding (index 0, k = S = 0) up to the static length M = ``cfg.max_observed``.
+    """
+
+    index: Array    # [M] int32 flat local cell index a * L + b
+    k: Array        # [M]
+    S: Array        # [M]
+    dropped: Array  # observed cells that did not fit in M (0 when M is large enough)
+
+
+class UpdateInfo(NamedTuple):
+    """What ``update`` (weigh, write, normalise) reports besides the new state."""
+
+    ess: Array           # ESS after the weight update, before any resampling (eq. 23)
+    log_lik: Array       # log mean weight increment (log marginal likelihood term)
+    extent_violations: Array  # particles with observed local cells outside the map extent
+    empty_obs: Array     # bool: the local map had no informative cell
+    dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
+
+
+class StepInfo(NamedTuple):
+    """Per-frame outputs of ``step`` (stacked to [T, ...] by ``run_filter``)."""
+
+    pose: Array          # [J, 3] after resampling
+    ancestors: Array     # [J] index of each particle's parent before this frame's resampling
+    best: Array          # [] slot of the highest-weight particle (FilterState.best)
+    log_w: Array         # [J] normalised weights after the frame
+    ess: Array           # ESS after the weight update, before resampling (eq. 23)
+    resampled: Array     # bool
+    updated: Array       # bool: the frame carried a local map
+    log_lik: Array       # log mean weight increment (log marginal likelihood term), 0 if none
+    extent_violations: Array  # particles with observed local cells outside the map extent
+    empty_obs: Array     # bool: the local map had no informative cell
+    dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
+
+
+class RunOutput(NamedTuple):
+    """What ``run_filter`` returns."""
+
+    final_state: FilterState
+    infos: StepInfo         # stacked per frame: pose [T, J, 3], ancestors [T, J], ess [T], ...
+    best_pose: Array        # [T, 3] highest-weight particle at each frame
+    mean_pose: Array        # [T, 3] weighted mean (circular mean for theta)
+    best_path: Array        # [T, 3] path of the final best particle, through its ancestry
