@@ -15,6 +15,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from gslam_jax import choices  # noqa: E402
 from gslam_jax import search as S  # noqa: E402
 from gslam_jax import slam  # noqa: E402
 from gslam_jax.config import Config  # noqa: E402
@@ -31,7 +32,7 @@ def add_known_noise_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--course", default="mars-yard-a")
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--particles", type=int, default=64)
-    ap.add_argument("--unknown", default="ignore", choices=("ignore", "sample"),
+    ap.add_argument("--unknown", default="ignore", choices=choices.UNKNOWN_CELLS,
                     help="unknown-cell mode of the filter (eq. 30 or eq. 31)")
     ap.add_argument("--white", action="store_true",
                     help="VO noise of eqs. 1-3 only (no bias, no failures): the model is exact")

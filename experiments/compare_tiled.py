@@ -14,10 +14,12 @@ import sys
 
 
 def main(argv: list[str] | None = None) -> int:
+    from gslam_jax import choices  # light (no JAX): --exact still sets XLA_FLAGS first
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--run", help="native .npz Run (default: simulated course)")
     ap.add_argument("--particles", type=int, default=200)
-    ap.add_argument("--unknown-cells", choices=("ignore", "sample"), default=None)
+    ap.add_argument("--unknown-cells", choices=choices.UNKNOWN_CELLS, default=None)
     ap.add_argument("--tile-size", type=float, default=None, help="metres (default: nearest 10 m)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="directory for compare.json and the figure")

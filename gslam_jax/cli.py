@@ -14,6 +14,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from gslam_jax import choices  # light (no JAX), as the next two
 from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still set XLA_FLAGS
 from gslam_jax.errors import InputError
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
@@ -137,13 +138,10 @@ def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int]
 def _load_config(args: argparse.Namespace):
     """--config (with the [course.<name>.*] tables of a Table I config applied for a simulated
     --course), then the --set overrides."""
-    from gslam_jax.config import apply_overrides
-    from gslam_jax.table1 import load_table_config
+    from gslam_jax.config import layered_config
 
-    shared, per_course = load_table_config(args.config)
     simulated = getattr(args, "run_file", None) is None and args.source in ("sim", "sim-stereo")
-    config = per_course.get(args.course, shared) if simulated else shared
-    return apply_overrides(config, args.set or [])
+    return layered_config(args.config, args.course if simulated else None, args.set)
 
 
 @contextlib.contextmanager
@@ -355,7 +353,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         # No fused multiply-adds in XLA, so float32 rounding matches NumPy's step for step.
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_max_isa=AVX").strip()
     from gslam_jax.run import load_run
-    from gslam_jax.table1 import load_table_config
+    from gslam_jax.config import load_table_config
     from gslam_jax.tiled.compare import compare
 
     # A Table I config works too: its shared settings are used, its [course.*] tables are not.
@@ -392,10 +390,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_source_arguments(p)
     p.add_argument("--space", type=Path, required=True, help="TOML search space (see "
                    "configs/search_example.toml)")
-    p.add_argument("--design", choices=["grid", "random", "halton", "sobol"])
+    p.add_argument("--design", choices=choices.SEARCH_DESIGNS)
     p.add_argument("--n", type=_positive_int, help="number of parameter sets")
-    p.add_argument("--objective", choices=["rms", "loglik"])
-    p.add_argument("--score-path", choices=["mean", "best"],
+    p.add_argument("--objective", choices=choices.SEARCH_OBJECTIVES)
+    p.add_argument("--score-path", choices=choices.SCORE_PATHS,
                    help="path scored by rms: weighted mean or final best particle")
     p.add_argument("--batch", type=int, help="parameter sets per chunk")
     p.add_argument("--out", type=Path, help="write results.csv and results.json here")
@@ -403,7 +401,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("tune", help="gradient tuning of the noise parameters with optax")
     _add_source_arguments(p)
-    p.add_argument("--objective", choices=["loglik", "supervised"], default="loglik")
+    p.add_argument("--objective", choices=choices.TUNE_OBJECTIVES, default="loglik")
     p.add_argument("--optimizer", default="adam", help="an optax optimiser by name whose "
                    "update needs only the gradient (adam, sgd, ...; lbfgs is refused)")
     p.add_argument("--lr", type=float, default=0.05)
@@ -419,7 +417,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (see README)")
-    p.add_argument("--source", choices=["sim", "sim-stereo", "kitti", "euroc"], default="sim",
+    p.add_argument("--source", choices=choices.SOURCES, default="sim",
                    help="where frames come from when no Run file is given (default: sim)")
     p.add_argument("--course", default="mars-yard-a", choices=COURSES, metavar="COURSE",
                    help=f"simulated course: {', '.join(COURSES)} (default mars-yard-a)")
@@ -429,7 +427,7 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=_seed, default=0, help="simulation seed (0 <= seed < 2^32)")
     p.add_argument("--max-frames", type=_positive_int, metavar="N",
                    help="use only the first N frames of the source (not with a Run file)")
-    p.add_argument("--on-bad-frame", choices=["error", "fallback"], default="error",
+    p.add_argument("--on-bad-frame", choices=choices.BAD_FRAME_POLICIES, default="error",
                    help="a missing/corrupt image stops the run (error) or is counted and bridged "
                    "by the fallback odometry")
     p.add_argument("--config", type=Path, help="TOML config (defaults: the paper's settings)")
@@ -446,7 +444,8 @@ def _build_rest(sub) -> None:
     p.add_argument("--map", type=_positive_int, nargs="+", default=[640],
                    help="global map sides, cells")
     p.add_argument("--repeats", type=_positive_int, default=10)
-    p.add_argument("--mode", choices=["ignore", "sample"], nargs="+", default=["ignore", "sample"])
+    p.add_argument("--mode", choices=choices.UNKNOWN_CELLS, nargs="+",
+                   default=list(choices.UNKNOWN_CELLS))
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     p.add_argument("--plot", type=Path, help="also plot us per particle against J (PNG)")
     p.add_argument("--course", choices=COURSES, metavar="COURSE",
@@ -474,7 +473,7 @@ def _build_rest(sub) -> None:
     p.add_argument("--config", type=Path, help="TOML config (a Table I config's [course.*] tables "
                    "are not applied)")
     p.add_argument("--particles", type=_positive_int, default=200)
-    p.add_argument("--unknown-cells", choices=["ignore", "sample"])
+    p.add_argument("--unknown-cells", choices=choices.UNKNOWN_CELLS)
     p.add_argument("--tile-size", type=float, help="tile side, metres (default 10)")
     p.add_argument("--seed", type=_seed, default=0)
     p.add_argument("--out", type=Path, help="write compare.json and compare_fig4.png here")

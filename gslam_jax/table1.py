@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax import metrics, slam
-from gslam_jax.config import Config, ConfigError, config_to_toml, parse_config, read_toml
+from gslam_jax.config import Config, config_to_toml, load_table_config
 
-__all__ = ["PAPER_TABLE1", "load_table_config", "run_course", "main"]
+__all__ = ["PAPER_TABLE1", "run_course", "main"]
 
 # Paper Table I: distance (m), VO-only RMS (m), Gamma-SLAM RMS (m). The text of 7.2 repeats the
 # Arroyo Seco rows (0.42 vs 0.34 m on course A, 1.22 vs 0.32 m on course B).
@@ -27,31 +27,6 @@ PAPER_TABLE1 = {
     "arroyo-b": (406, 1.22, 0.32),
     "maze": (543, 1.98, 0.65),
 }
-
-
-def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config]]:
-    """The shared config and per-course configs of a Table I TOML file.
-
-    Besides the usual sections, the file may hold ``[course.<name>.<section>]`` tables whose
-    keys override the shared settings for that course only, as the paper tuned its noise
-    parameters per environment (7.3). Unknown course names are errors that name the file.
-    """
-    if path is None:
-        return Config(), {}
-    data = read_toml(path)
-    per_course = data.pop("course", {})
-    base = parse_config(data, str(path))
-    if not isinstance(per_course, dict):
-        raise ConfigError(f"{path}: [course] must be a table of [course.<name>.<section>] tables")
-    courses = {}
-    for name, table in per_course.items():
-        if name not in PAPER_TABLE1:
-            raise ConfigError(f"{path}: unknown course [course.{name}]; known courses: "
-                              f"{', '.join(PAPER_TABLE1)}")
-        if not isinstance(table, dict):
-            raise ConfigError(f"{path}: [course.{name}] must be a table of sections")
-        courses[name] = parse_config(table, f"{path} [course.{name}]", base=base)
-    return base, courses
 
 
 def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
@@ -77,7 +52,7 @@ def main(courses: list[str], seeds: list[int], particles: int | None = None,
          quick: bool = False) -> int:
     """Run and print Table I; ``particles`` None takes each course's filter.particles from the
     config (200 where it does not set it); ``quick``: Mars Yard A, one seed, J <= 100."""
-    from gslam_jax.bench import environment
+    from gslam_jax.machine import environment
 
     shared, per_course = load_table_config(config_path)
     if quick:

@@ -51,7 +51,7 @@ def test_shipped_configs_load():
     from pathlib import Path
 
     from gslam_jax.search import load_space
-    from gslam_jax.table1 import load_table_config
+    from gslam_jax.config import load_table_config
 
     paths = sorted((Path(__file__).parents[1] / "configs").glob("*.toml"))
     assert paths
@@ -66,7 +66,7 @@ def test_shipped_configs_load():
 
 
 def test_table1_per_course_sections_override_only_their_course(tmp_path):
-    from gslam_jax.table1 import load_table_config
+    from gslam_jax.config import load_table_config
 
     path = tmp_path / "t.toml"
     path.write_text("[filter]\nparticles = 50\n[motion]\nalpha_d = 0.04\n"
@@ -84,7 +84,7 @@ def test_table1_per_course_sections_override_only_their_course(tmp_path):
     ("[course.maze.motion]\nalpha_d = 'x'\n", "[course.maze]"),
 ])
 def test_table1_bad_course_sections_are_named(tmp_path, text, named):
-    from gslam_jax.table1 import load_table_config
+    from gslam_jax.config import load_table_config
 
     path = tmp_path / "t.toml"
     path.write_text(text)

@@ -1,0 +1,91 @@
+"""One default per setting and one list of allowed values per enumerated setting: the filter's
+own defaults, the config's, the documented ones and the command line's must not drift apart."""
+
+import dataclasses
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from gslam_jax import choices, resampling, rbpf
+from gslam_jax.cli import build_parser
+from gslam_jax.config import Config, ConfigError, apply_overrides, load_config
+from gslam_jax.localmap import LocalMapParams
+from gslam_jax.motion import MotionParams
+from gslam_jax.tiled import numerics
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_filter_config_defaults_are_the_config_defaults():
+    f = Config().filter
+    cfg = rbpf.FilterConfig(f.particles, (8, 8), (0.0, 0.0), 0.16, 8)
+    for name, section_key in [("resampler", "resampler"), ("resample_ratio", "resample_ratio"),
+                              ("unknown_cells", "unknown_cells"),
+                              ("unknown_samples", "unknown_samples"),
+                              ("particle_block", "particle_block")]:
+        assert getattr(cfg, name) == getattr(f, section_key), name
+    params = rbpf.FilterParams()
+    assert (params.beta_prev, params.beta_new) == (f.beta_prev, f.beta_new)
+    assert MotionParams() == tuple(dataclasses.asdict(Config().motion).values())
+    lm, m = Config().localmap, Config().map
+    assert LocalMapParams() == LocalMapParams(resolution=m.resolution, cells=lm.cells,
+                                              max_range=lm.max_range, min_height=lm.min_height,
+                                              max_height=lm.max_height, travel=lm.travel)
+
+
+def test_paper_config_file_holds_every_default():
+    """configs/paper.toml says every field in it is the built-in default, and lists them all."""
+    path = ROOT / "configs" / "paper.toml"
+    assert load_config(path) == Config()
+    data = tomllib.loads(path.read_text())
+    for section in ("filter", "motion", "map", "localmap"):
+        assert set(data[section]) == set(dataclasses.asdict(getattr(Config(), section)))
+
+
+def test_readme_settings_table_shows_the_defaults():
+    rows = re.findall(r"^\| ((?:`\w+\.\w+`(?:, )?)+) \| ([^|]+) \|", (ROOT / "README.md").read_text(),
+                      re.MULTILINE)
+    seen = set()
+    for keys, defaults in rows:
+        keys = re.findall(r"`(\w+)\.(\w+)`", keys)
+        values = [tomllib.loads(f"v = {v.strip().strip('`')}")["v"] for v in defaults.split(",")]
+        assert len(values) == len(keys), keys
+        for (section, key), value in zip(keys, values):
+            assert getattr(getattr(Config(), section), key) == value, f"{section}.{key}"
+            seen.add((section, key))
+    every = {(s, k) for s in ("filter", "motion", "map", "localmap")
+             for k in dataclasses.asdict(getattr(Config(), s))}
+    assert seen == every
+
+
+def test_one_list_of_allowed_values_per_setting():
+    assert tuple(resampling.RESAMPLERS) == choices.RESAMPLERS
+    assert tuple(numerics.RESAMPLERS) == choices.RESAMPLERS
+    assert rbpf.UNKNOWN_MODES == choices.UNKNOWN_CELLS
+    for setting, allowed in (("resampler", choices.RESAMPLERS),
+                             ("unknown_cells", choices.UNKNOWN_CELLS)):
+        for value in allowed:
+            apply_overrides(Config(), [f"filter.{setting}={value}"])
+            rbpf.FilterConfig(1, (64, 64), (0.0, 0.0), 0.16, 8, **{setting: value}).validate()
+        with pytest.raises(ConfigError, match=setting):
+            apply_overrides(Config(), [f"filter.{setting}=other"])
+        with pytest.raises(ValueError, match=setting):
+            rbpf.FilterConfig(1, (64, 64), (0.0, 0.0), 0.16, 8, **{setting: "other"}).validate()
+
+
+def test_command_line_choices_are_the_shared_lists():
+    parser = build_parser()
+    subparsers = next(a for a in parser._actions if a.choices and "run" in a.choices).choices
+    found = {}
+    for name, sub in subparsers.items():
+        for action in sub._actions:
+            if action.choices is not None:
+                found.setdefault(action.option_strings[0], set()).add(tuple(action.choices))
+    expected = {"--source": choices.SOURCES, "--on-bad-frame": choices.BAD_FRAME_POLICIES,
+                "--design": choices.SEARCH_DESIGNS, "--score-path": choices.SCORE_PATHS,
+                "--mode": choices.UNKNOWN_CELLS, "--unknown-cells": choices.UNKNOWN_CELLS}
+    for option, allowed in expected.items():
+        assert found[option] == {tuple(allowed)}, option
+    assert found["--objective"] == {choices.SEARCH_OBJECTIVES, choices.TUNE_OBJECTIVES}
