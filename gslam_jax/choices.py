@@ -9,7 +9,7 @@ these tuples; a test checks that the implementations behind them match.
 from __future__ import annotations
 
 __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TUNE_OBJECTIVES", "SEARCH_OBJECTIVES",
-           "SEARCH_DESIGNS", "SCORE_PATHS", "SOURCES", "BAD_FRAME_POLICIES"]
+           "SEARCH_DESIGNS", "SCORE_PATHS", "SOURCES", "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
@@ -19,3 +19,4 @@ SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --desig
 SCORE_PATHS = ("mean", "best")  # ``gslam search --score-path``
 SOURCES = ("sim", "sim-stereo", "kitti", "euroc")  # ``gslam run --source``
 BAD_FRAME_POLICIES = ("error", "fallback")  # ``gslam run --on-bad-frame``
+STEREO_ALGORITHMS = ("sgbm", "bm")  # ``[stereo] algorithm`` (vo.stereo.DenseStereoParams)

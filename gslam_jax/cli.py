@@ -4,54 +4,22 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import json
 import math
 import sys
-import time
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
 
 from gslam_jax import choices  # light (no JAX), as the next two
 from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still set XLA_FLAGS
 from gslam_jax.errors import InputError
+from gslam_jax.pipeline import json_ready  # light too
+from gslam_jax.progress import ProgressBar
+from gslam_jax.results import results_folder
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
 
 __all__ = ["main"]
-
-
-class ProgressBar:
-    """A one-line console progress bar on stderr; when stderr is not a terminal (a log file, a
-    pipe) only one final line is written."""
-
-    def __init__(self, label: str, stream=None):
-        self.label = label
-        self.stream = sys.stderr if stream is None else stream
-        isatty = getattr(self.stream, "isatty", None)
-        self.tty = bool(isatty()) if callable(isatty) else False
-        self.start = time.perf_counter()
-        self.last = -1.0
-        self.finished = False
-
-    def __call__(self, done: int, total: int) -> None:
-        now = time.perf_counter()
-        if not self.tty:
-            if done >= total and not self.finished:
-                self.finished = True
-                self.stream.write(f"{self.label}: {done}/{total} in {now - self.start:.1f}s\n")
-                self.stream.flush()
-            return
-        if done < total and now - self.last < 0.2:
-            return
-        self.last = now
-        frac = done / max(total, 1)
-        bar = "#" * int(30 * frac)
-        end = "\n" if done >= total else ""
-        self.stream.write(f"\r{self.label} [{bar:<30}] {done}/{total} "
-                          f"{now - self.start:6.1f}s{end}")
-        self.stream.flush()
 
 
 def _positive_int(text: str) -> int:
@@ -76,63 +44,24 @@ def _seed(text: str) -> int:
     return value
 
 
-def _check_source_arguments(args: argparse.Namespace) -> None:
-    """Reject source options that would be silently ignored (ConfigError naming them)."""
-    if args.run_file is not None:
-        extra = [opt for opt, given in (("--source", args.source != "sim"),
-                                        ("--path", args.path is not None),
-                                        ("--sequence", args.sequence is not None),
-                                        ("--max-frames", args.max_frames is not None)) if given]
-        if extra:
-            raise ConfigError(f"{args.run_file}: a Run file is used as it is; {', '.join(extra)} "
-                              "only apply without one (drop them, or re-create the Run with "
-                              "--save-run)")
-        return
-    if args.path is not None and args.source not in ("kitti", "euroc"):
-        raise ConfigError(f"--path is for --source kitti/euroc, not --source {args.source}")
-    if args.sequence is not None and args.source != "kitti":
-        raise ConfigError(f"--sequence is for --source kitti, not --source {args.source}")
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (else a usage error; float() accepts 'nan', 'inf')."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite positive number, got {text}")
+    return value
 
 
-def _load_source(args: argparse.Namespace, config, progress: Callable[[int, int], None]):
-    """Return (Run, description) for the chosen source."""
-    from gslam_jax.run import load_run
-    from gslam_jax.slam import localmap_params
+def _source(args: argparse.Namespace):
+    """The pipeline's Source from the source arguments."""
+    from gslam_jax.pipeline import Source
 
-    params = localmap_params(config)
-    if args.run_file is not None:
-        return load_run(args.run_file), str(args.run_file), None
-    if args.source == "sim":
-        from gslam_jax.datasets.sim import simulate_run
-        run, info = simulate_run(args.course, seed=args.seed, params=params,
-                                 max_frames=args.max_frames, progress=progress)
-        return run, f"simulated course {args.course} (seed {args.seed})", info
-    if args.source == "sim-stereo":
-        from gslam_jax.datasets.sim_stereo import load_sim_stereo
-        run, info = load_sim_stereo(args.course, args.seed, params, max_frames=args.max_frames,
-                                    progress=progress)
-        print(info.text())
-        return run, f"rendered stereo of course {args.course} (seed {args.seed})", None
-    if args.source in ("kitti", "euroc") and args.path is None:
-        raise ConfigError(f"--source {args.source} needs --path DATASET_FOLDER")
-    if args.source == "kitti":
-        from gslam_jax.datasets.kitti import KittiParams, find_sequence, kitti_frontend
-        sequence = find_sequence(Path(args.path), args.sequence).name
-        fe = kitti_frontend(args.path, KittiParams(  # KITTI's own front-end defaults, with:
-            sequence=sequence, max_frames=args.max_frames,
-            frontend=dataclasses.replace(KittiParams().frontend, local_map=params,
-                                         on_bad_frame=args.on_bad_frame)))
-        print(fe.summary.text())
-        return fe.run, f"KITTI {args.path} sequence {sequence}", None
-    if args.source == "euroc":
-        from gslam_jax.datasets.euroc import EurocParams, euroc_frontend
-        from gslam_jax.vo.frontend import FrontEndParams
-        fe = euroc_frontend(args.path, EurocParams(
-            max_frames=args.max_frames,
-            frontend=FrontEndParams(local_map=params, on_bad_frame=args.on_bad_frame)))
-        print(fe.summary.text())
-        return fe.run, f"EuRoC {args.path}", None
-    raise SystemExit(f"unknown source {args.source!r}")
+    return Source(run_file=args.run_file, source=args.source, course=args.course,
+                  path=args.path, sequence=args.sequence, seed=args.seed,
+                  max_frames=args.max_frames, on_bad_frame=args.on_bad_frame)
 
 
 def _load_config(args: argparse.Namespace):
@@ -144,147 +73,27 @@ def _load_config(args: argparse.Namespace):
     return layered_config(args.config, args.course if simulated else None, args.set)
 
 
-@contextlib.contextmanager
-def _results_dir(out: Path | None, kind: str) -> Iterator[Path]:
-    """Create the results directory before any work (ConfigError naming it when it cannot be);
-    the folders created here are removed again if the command fails before writing into them."""
-    path = Path(out) if out else Path("results") / time.strftime(f"{kind}-%Y%m%d-%H%M%S")
-    name = f"--out {path}" if out else f"results directory {path}"
-    if path.exists() and not path.is_dir():
-        raise ConfigError(f"{name}: exists and is not a directory")
-    new = [p for p in (path, *path.parents) if not p.exists()]  # deepest first
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise ConfigError(f"{name}: cannot create the directory ({err})") from err
-    try:
-        yield path
-    except BaseException:
-        for folder in new:
-            if not folder.is_dir() or any(folder.iterdir()):
-                break
-            folder.rmdir()
-        raise
-
-
-def _json_ready(value):
-    """``value`` with NumPy scalars as Python numbers and NaN/inf as None (valid JSON)."""
-    if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def _write_json(path: Path, data: dict) -> None:
-    path.write_text(json.dumps(_json_ready(data), indent=2, allow_nan=False))
-
-
 def cmd_run(args: argparse.Namespace) -> int:
-    from gslam_jax import metrics, slam
-    from gslam_jax.config import config_to_toml
-    from gslam_jax.io import save_map, write_kitti, write_tum
+    from gslam_jax.pipeline import run_pipeline
 
-    _check_source_arguments(args)
     config = _load_config(args)
-    with _results_dir(args.out, "run") as out:
-        gps_log = None  # a GPS file is read before the front-end: its errors come first
-        if args.gps is not None and str(args.gps) != "sim":
-            from gslam_jax import gps
-            gps_log = gps.read_gps_log(args.gps)
-        run, description, sim_info = _load_source(args, config, ProgressBar("front-end"))
-        if args.save_run:
-            from gslam_jax.run import save_run
-            save_run(args.save_run, run)
-        gps_input = None
-        if args.gps is not None:
-            from gslam_jax import georeference
-            gps_input = georeference.gps_input(args.gps, run, args.seed, log=gps_log)
-        print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps, "
-              f"{run.distance():.1f} m")
-        result = slam.run_slam(run, config, progress=ProgressBar("gamma-slam"))
-    (out / "config.toml").write_text(config_to_toml(config))
-    if sim_info is not None:
-        (out / "simulation.json").write_text(json.dumps(sim_info.summary(), indent=2, default=float))
-    write_tum(out / "trajectory_tum.txt", run.timestamps, result.best_path)
-    write_kitti(out / "trajectory_kitti.txt", result.best_path)
-    write_tum(out / "vo_tum.txt", run.timestamps, result.vo_path)
-    save_map(out / "map.npz", result.kmap, result.smap, result.map_origin, result.resolution)
-    np.savez_compressed(out / "trace.npz", ess=result.ess, resampled=result.resampled,
-                        updated=result.updated, log_lik=result.log_lik,
-                        best_pose=result.best_pose, mean_pose=result.mean_pose)
-    summary = {
-        "source": description,
-        "frames": run.num_frames,
-        "local_maps": run.num_local_maps,
-        "distance_m": run.distance(),
-        "particles": config.filter.particles,
-        "resampling_events": int(np.sum(result.resampled)),
-        "extent_violations": result.extent_violations,
-        "empty_observations": result.empty_observations,
-        "vo_failures": int(np.sum(run.vo_failed)) if run.vo_failed is not None else 0,
-        "filter_seconds": result.seconds,
-        "compile_seconds": result.compile_seconds,
-    }
-    if run.ground_truth is not None:
-        summary.update(metrics.errors_over_known_frames(
-            {"vo": result.vo_path, "slam": result.best_path}, run.ground_truth))
-    slam_std = _write_figures(out, run, result, config.filter.particles,
-                              config.filter.resample_ratio)
-    _write_json(out / "summary.json", summary)  # rewritten below with the GPS figures
-    print(f"distance: {summary['distance_m']:.1f} m")
-    if run.ground_truth is not None:
-        scored = summary["gt_frames_scored"]
-        over = "" if scored == run.num_frames else \
-            f" (over the {scored} of {run.num_frames} frames with ground truth)"
-        if "vo_rms_m" in summary:
-            print(f"VO-only RMS: {summary['vo_rms_m']:.3f} m{over}")
-            print(f"Gamma-SLAM RMS: {summary['slam_rms_m']:.3f} m{over}")
-        else:
-            print(f"ground truth: only {scored} of {run.num_frames} frames have a finite pose; "
-                  "no RMS")
-    print(f"resampling events: {summary['resampling_events']}, filter time "
-          f"{result.seconds:.1f} s (+{result.compile_seconds:.1f} s first chunk incl. compile)")
-    if result.extent_violations:
-        print(f"WARNING: {result.extent_violations} particle updates reached the map edge")
-    if result.empty_observations:
-        print(f"note: {result.empty_observations} local maps had no informative cell (weights unchanged)")
-    if gps_input is not None:
-        summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result, slam_std)
-        _write_json(out / "summary.json", summary)
+    out, _ = run_pipeline(_source(args), config, args.out, overwrite=args.overwrite,
+                          gps=args.gps, save_run=args.save_run, progress=ProgressBar)
     print(f"results: {out}")
     return 0
 
 
-def _write_figures(out: Path, run, result, num_particles: int,
-                   threshold: float = 0.5) -> np.ndarray:
-    """Map PNGs (VO-only beside Gamma-SLAM, coloured by expected std) and the ESS plot with the
-    resampling threshold (``threshold`` J, filter.resample_ratio); returns the Gamma-SLAM map's
-    expected std."""
-    from gslam_jax import cells, metrics, plots
-
-    slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
-    vo_map = metrics.vo_only_map(run)
-    vo_std = np.asarray(cells.expected_std(vo_map.k, vo_map.S))
-    plots.save_map_png(out / "map.png", slam_std, result.map_origin, result.resolution,
-                       path=result.best_path, title="Gamma-SLAM")
-    plots.save_map_comparison_png(out / "maps_vo_vs_slam.png", vo_std, vo_map.origin, slam_std,
-                                  result.map_origin, result.resolution, vo_path=result.vo_path,
-                                  slam_path=result.best_path)
-    plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled,
-                       threshold=threshold)
-    return slam_std
-
-
 def _config_and_run(args: argparse.Namespace):
-    _check_source_arguments(args)
+    from gslam_jax.pipeline import check_local_map_size, check_source, load_source
+
     config = _load_config(args)
-    run, description, _ = _load_source(args, config, ProgressBar("front-end"))
-    print(f"source: {description}: {run.num_frames} frames, {run.num_local_maps} local maps")
+    src = _source(args)
+    check_source(src, config)
+    check_local_map_size(config)
+    loaded = load_source(src, config, ProgressBar("front-end"))
+    run = loaded.run
+    print(f"source: {loaded.description}: {run.num_frames} frames, {run.num_local_maps} "
+          "local maps")
     return config, run
 
 
@@ -293,7 +102,8 @@ def cmd_search(args: argparse.Namespace) -> int:
 
     try:
         space, options = load_space(args.space)
-        with _results_dir(args.out, "search") as out:
+        with results_folder(args.out, "search", overwrite=args.overwrite,
+                            command="gslam search") as folder:
             config, run = _config_and_run(args)
             result = search(run, config, space,
                             design=args.design or options.get("design", "halton"),
@@ -302,12 +112,12 @@ def cmd_search(args: argparse.Namespace) -> int:
                             path=args.score_path or options.get("path", "mean"),
                             seed=options.get("seed", 0), batch=args.batch,
                             progress=ProgressBar("search"))
+            result.to_csv(folder.staging / "results.csv")
+            result.to_json(folder.staging / "results.json")
     except SearchError as err:
         raise ConfigError(str(err)) from err
-    result.to_csv(out / "results.csv")
-    result.to_json(out / "results.json")
     print(f"best: {result.best()}")
-    print(f"results: {out}")
+    print(f"results: {folder.target}")
     return 0
 
 
@@ -316,20 +126,22 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
     try:
         names = args.params.split(",") if args.params else None
-        with _results_dir(args.out, "tune") if args.out else contextlib.nullcontext():
+        with (results_folder(args.out, "tune", overwrite=args.overwrite, command="gslam tune")
+              if args.out else contextlib.nullcontext()) as folder:
             config, run = _config_and_run(args)
             result = tune(run, config, objective=args.objective, optimizer=args.optimizer,
                           lr=args.lr, steps=args.steps, names=names,
                           runs_per_step=args.runs_per_step, crn=args.crn,
                           progress=ProgressBar("tune"))
+            if folder is not None:
+                (folder.staging / "tuned.json").write_text(json.dumps(json_ready({
+                    "objective": result.objective, "values": result.values,
+                    "history": np.asarray(result.history).tolist(),
+                    "losses": np.asarray(result.losses).tolist(),
+                    "seconds": result.seconds}), indent=2, allow_nan=False))
     except TuneError as err:
         raise ConfigError(str(err)) from err
     print("tuned: " + ", ".join(f"{k} = {v:.5g}" for k, v in result.values.items()))
-    if args.out:
-        (Path(args.out) / "tuned.json").write_text(json.dumps({
-            "objective": result.objective, "values": result.values,
-            "history": np.asarray(result.history).tolist(),
-            "losses": np.asarray(result.losses).tolist(), "seconds": result.seconds}, indent=2))
     return 0
 
 
@@ -382,8 +194,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "with a warning when fewer than half do. Or 'sim' for a simulated WAAS-like "
                    "receiver on a run with ground truth")
     p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as .npz")
-    p.add_argument("--out", type=Path, help="results directory, created before the run "
-                   "(default results/run-<time>)")
+    p.add_argument("--out", type=Path, help="results directory (default results/run-<time>); "
+                   "the results appear there only when complete (marker file COMPLETE); an "
+                   "existing, non-empty folder is refused unless --overwrite")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing results "
+                   "folder --out as a whole once the new results are complete")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("search", help="batched parameter search (vmapped/sharded over sets)")
@@ -396,7 +211,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--score-path", choices=choices.SCORE_PATHS,
                    help="path scored by rms: weighted mean or final best particle")
     p.add_argument("--batch", type=int, help="parameter sets per chunk")
-    p.add_argument("--out", type=Path, help="write results.csv and results.json here")
+    p.add_argument("--out", type=Path, help="write results.csv and results.json here "
+                   "(when complete)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=cmd_search)
 
     p = sub.add_parser("tune", help="gradient tuning of the noise parameters with optax")
@@ -404,12 +221,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--objective", choices=choices.TUNE_OBJECTIVES, default="loglik")
     p.add_argument("--optimizer", default="adam", help="an optax optimiser by name whose "
                    "update needs only the gradient (adam, sgd, ...; lbfgs is refused)")
-    p.add_argument("--lr", type=float, default=0.05)
+    p.add_argument("--lr", type=_positive_float, default=0.05, help="learning rate (> 0)")
     p.add_argument("--steps", type=_positive_int, default=100)
     p.add_argument("--params", help="comma-separated names (default: the objective's)")
     p.add_argument("--runs-per-step", type=int, default=4)
     p.add_argument("--crn", action="store_true", help="common random numbers across steps")
-    p.add_argument("--out", type=Path, help="write tuned.json here")
+    p.add_argument("--out", type=Path, help="write tuned.json here (when complete)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=cmd_tune)
     _build_rest(sub)
     return parser
@@ -424,7 +242,8 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--path", type=Path, help="dataset folder for --source kitti/euroc")
     p.add_argument("--sequence", metavar="NN", help="KITTI sequence: the folder under "
                    "PATH/sequences (e.g. 00); needed when there are several")
-    p.add_argument("--seed", type=_seed, default=0, help="simulation seed (0 <= seed < 2^32)")
+    p.add_argument("--seed", type=_seed, help="simulation seed, 0 <= seed < 2^32 (default 0); "
+                   "only for simulated sources and --gps sim (the filter's seed is filter.seed)")
     p.add_argument("--max-frames", type=_positive_int, metavar="N",
                    help="use only the first N frames of the source (not with a Run file)")
     p.add_argument("--on-bad-frame", choices=choices.BAD_FRAME_POLICIES, default="error",
@@ -474,12 +293,17 @@ def _build_rest(sub) -> None:
                    "are not applied)")
     p.add_argument("--particles", type=_positive_int, default=200)
     p.add_argument("--unknown-cells", choices=choices.UNKNOWN_CELLS)
-    p.add_argument("--tile-size", type=float, help="tile side, metres (default 10)")
+    p.add_argument("--tile-size", type=_positive_float, help="tile side, metres (default 10)")
     p.add_argument("--seed", type=_seed, default=0)
     p.add_argument("--out", type=Path, help="write compare.json and compare_fig4.png here")
     p.add_argument("--exact", action="store_true",
                    help="disable XLA's fused multiply-adds so both filters round identically")
     p.set_defaults(func=cmd_compare)
+
+
+def _out_of_memory(err: BaseException) -> bool:
+    """XLA's RESOURCE_EXHAUSTED (an allocation the process may not make) or a MemoryError."""
+    return isinstance(err, MemoryError) or "RESOURCE_EXHAUSTED" in str(err)[:2000]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -489,6 +313,18 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, FileNotFoundError) as err:
         print(f"gslam: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("gslam: interrupted; no results were written", file=sys.stderr)
+        return 130
+    except Exception as err:  # noqa: BLE001 - only memory exhaustion is reported, not hidden
+        if not _out_of_memory(err):
+            raise
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        print(f"gslam: error: out of memory ({first[:300]}); the process may use less memory "
+              "than the machine has (a ulimit -v or container limit: check `ulimit -a`): use "
+              "fewer [filter] particles, a coarser [map] resolution or a smaller [map] margin",
+              file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":

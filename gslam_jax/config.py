@@ -22,8 +22,8 @@ from gslam_jax.errors import InputError
 from gslam_jax.sim.courses import COURSES
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
-           "Config", "read_toml", "load_config", "parse_config", "apply_overrides", "config_to_toml",
-           "load_table_config", "layered_config"]
+           "StereoSection", "Config", "read_toml", "load_config", "parse_config",
+           "apply_overrides", "config_to_toml", "load_table_config", "layered_config"]
 
 
 class ConfigError(InputError):
@@ -79,11 +79,27 @@ class LocalMapSection:
 
 
 @dataclass(frozen=True)
+class StereoSection:
+    """Dense stereo of the image sources (sim-stereo, kitti, euroc; vo.stereo.DenseStereoParams).
+    0 or "" keeps the source's own setting (64 disparities, KITTI 128; block 5; stride 2;
+    "sgbm")."""
+
+    num_disparities: int = 0
+    block: int = 0
+    stride: int = 0
+    algorithm: str = ""
+
+    def is_default(self) -> bool:
+        return self == StereoSection()
+
+
+@dataclass(frozen=True)
 class Config:
     filter: FilterSection = field(default_factory=FilterSection)
     motion: MotionSection = field(default_factory=MotionSection)
     map: MapSection = field(default_factory=MapSection)
     localmap: LocalMapSection = field(default_factory=LocalMapSection)
+    stereo: StereoSection = field(default_factory=StereoSection)
 
     def validate(self, source: str = "<config>") -> "Config":
         """Check every value; a ConfigError names the source, section and key at fault.
@@ -95,7 +111,7 @@ class Config:
             for key, value in dataclasses.asdict(section).items():
                 if isinstance(value, float) and not math.isfinite(value):
                     raise ConfigError(f"{source}: [{name}] {key} must be finite, got {value}")
-        f, m, lm = self.filter, self.map, self.localmap
+        f, m, lm, st = self.filter, self.map, self.localmap, self.stereo
         checks = [
             (f.particles >= 1, "filter", "particles", "must be at least 1"),
             (f.resampler in choices.RESAMPLERS, "filter", "resampler",
@@ -118,6 +134,14 @@ class Config:
             (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
             (lm.travel > 0, "localmap", "travel", "must be positive"),
             (lm.cells >= 0 and lm.cells % 2 == 0, "localmap", "cells", "must be even and >= 0"),
+            (st.num_disparities >= 0 and st.num_disparities % 16 == 0, "stereo",
+             "num_disparities", "must be a multiple of 16 (0: the source's default)"),
+            (st.block == 0 or (st.block >= 1 and st.block % 2 == 1), "stereo", "block",
+             "must be odd (0: the source's default)"),
+            (st.stride >= 0, "stereo", "stride", "must be >= 0 (0: the source's default)"),
+            (st.algorithm in ("", *choices.STEREO_ALGORITHMS), "stereo", "algorithm",
+             f"must be one of {', '.join(choices.STEREO_ALGORITHMS)} (\"\": the source's "
+             "default)"),
         ]
         for ok, section, key, msg in checks:
             if not ok:
@@ -126,7 +150,7 @@ class Config:
 
 
 _SECTION_TYPES = {"filter": FilterSection, "motion": MotionSection, "map": MapSection,
-                  "localmap": LocalMapSection}
+                  "localmap": LocalMapSection, "stereo": StereoSection}
 
 
 def _coerce(value: Any, expected: type, where: str) -> Any:
@@ -172,9 +196,15 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     if not path.exists():
         raise ConfigError(f"{path}: no such config file")
     try:
-        return tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: malformed TOML: {err}") from err
+    except UnicodeDecodeError as err:
+        line = path.read_bytes()[:err.start].count(b"\n") + 1
+        raise ConfigError(f"{path}:{line}: not UTF-8 text (byte 0x{err.object[err.start]:02x}; "
+                          "TOML files must be UTF-8)") from err
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read the config file ({err.strerror or err})") from err
 
 
 def load_config(path: str | Path | None) -> Config:

@@ -61,6 +61,18 @@ def gps_input(name: str, run, seed: int = 0, log: GpsLog | None = None) -> GpsIn
         raise GpsLogError(f"{name}: {n_in} of {n} GPS readings fall inside the run's time span, "
                           f"need at least 2 ({span}); GPS times must be seconds on the run's "
                           "clock (Run.timestamps)")
+    usable = inside & np.isfinite(log.xy).all(axis=1)
+    times = np.unique(np.asarray(log.time, np.float64)[usable])
+    if len(times) < 2:
+        raise GpsLogError(f"{name}: the {int(usable.sum())} usable GPS readings inside the run's "
+                          f"time span are all at one time ({times[0] if len(times) else 'none'}"
+                          " s); the alignment needs readings at 2 times or more")
+    vo = run.vo_poses()[:, :2]
+    at = np.stack([np.interp(times, t, vo[:, k]) for k in range(2)], -1)
+    if np.ptp(at, axis=0).max() < 1e-3:
+        raise GpsLogError(f"{name}: the run's VO path does not move between the GPS readings "
+                          f"({times[0]:.3f} to {times[-1]:.3f} s on the run's clock); the "
+                          "alignment's rotation would be undetermined")
     if n_in < 0.5 * n:
         print(f"WARNING: {name}: only {n_in} of {n} GPS readings fall inside the run's time span "
               f"({span}); the others are not used")
@@ -78,8 +90,7 @@ def write_gps_outputs(out: Path, readings: GpsInput, run, result,
         al, aligned = gps.align_to_gps(run.timestamps, result.best_path[:, :2], log.time, log.xy,
                                        log.epe)
     except ValueError as err:
-        raise GpsLogError(f"{readings.name}: {err} (the results without GPS are in "
-                          f"{out})") from err
+        raise GpsLogError(f"{readings.name}: {err}") from err
     path_gps = np.asarray(gps.transform_poses(al, result.best_path), np.float64)
     path_gps[:, :2] += np.asarray(log.origin, np.float64)
     np.savetxt(out / "trajectory_utm.txt", np.column_stack([run.timestamps, path_gps]),

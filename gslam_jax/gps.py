@@ -296,6 +296,9 @@ def _tm_inverse(x: np.ndarray, y: np.ndarray, lon0: float, k0: float,
     return np.degrees(np.arctan(tau)), lon0 + np.degrees(lam)
 
 
+UTM_LATITUDES = (-80.0, 84.0)  # UTM's defined range; beyond it the polar stereographic UPS
+
+
 def utm_zone(lat: float, lon: float) -> int:
     """UTM zone number from longitude, with the Norway (32V) and Svalbard (31X-37X) exceptions."""
     lon = (lon + 180.0) % 360.0 - 180.0
@@ -317,6 +320,10 @@ def latlon_to_utm(lat: ArrayLike, lon: ArrayLike, zone: int | None = None,
     """WGS84 degrees -> UTM (easting, northing) metres in one zone (default: from the first
     point), returning (easting, northing, zone, north)."""
     lat, lon = np.asarray(lat, np.float64), np.asarray(lon, np.float64)
+    outside = (lat < UTM_LATITUDES[0]) | (lat > UTM_LATITUDES[1])  # NaN is not outside
+    if outside.any():
+        raise ValueError(f"latitude {float(lat[outside].flat[0])} is outside UTM's range "
+                         f"({-UTM_LATITUDES[0]:g} S to {UTM_LATITUDES[1]:g} N)")
     if zone is None:
         zone = utm_zone(float(lat.flat[0]), float(lon.flat[0]))
     if north is None:
@@ -439,6 +446,10 @@ def read_gps_log(path: str | Path, origin: ArrayLike | None = None, zone: int | 
             bad = f"coordinate out of range (lat {la}, lon {lo})"
         elif not (math.isfinite(ep) and ep > 0):
             bad = f"EPE must be positive and finite, got {ep}"
+        if bad is None and not UTM_LATITUDES[0] <= la <= UTM_LATITUDES[1]:
+            raise GpsLogError(f"{path}:{lineno}: latitude {la} is outside UTM's range "
+                              f"({-UTM_LATITUDES[0]:g} S to {UTM_LATITUDES[1]:g} N); polar "
+                              "sites need UPS, which gslam does not implement")
         if bad is not None:
             if strict:
                 raise GpsLogError(f"{path}:{lineno}: {bad}")

@@ -9,14 +9,28 @@ import numpy as np
 __all__ = ["write_tum", "write_kitti", "read_tum", "save_map"]
 
 
-def write_tum(path: str | Path, timestamps: np.ndarray, poses: np.ndarray) -> None:
-    """TUM RGB-D format: ``t x y z qx qy qz qw`` per line; planar poses (z = 0, yaw only)."""
+def write_tum(path: str | Path, timestamps: np.ndarray, poses: np.ndarray,
+              origin_ns: int | None = None) -> None:
+    """TUM RGB-D format: ``t x y z qx qy qz qw`` per line; planar poses (z = 0, yaw only).
+
+    ``origin_ns``: the dataset clock's time of timestamp 0 in integer nanoseconds (EuRoC); the
+    times written are then that clock's, in seconds with all nine decimals exact (float64
+    seconds since 1970 would round them by up to 0.2 us)."""
     poses = np.asarray(poses, dtype=np.float64)
     half = 0.5 * poses[:, 2]
-    rows = np.column_stack([np.asarray(timestamps, np.float64), poses[:, 0], poses[:, 1],
-                            np.zeros(len(poses)), np.zeros(len(poses)), np.zeros(len(poses)),
-                            np.sin(half), np.cos(half)])
-    np.savetxt(path, rows, fmt="%.9f", header="timestamp tx ty tz qx qy qz qw")
+    rows = np.column_stack([poses[:, 0], poses[:, 1], np.zeros(len(poses)),
+                            np.zeros(len(poses)), np.zeros(len(poses)), np.sin(half),
+                            np.cos(half)])
+    t = np.asarray(timestamps, np.float64)
+    if origin_ns is None:
+        times = [f"{v:.9f}" for v in t]
+    else:
+        ns = int(origin_ns) + np.round(t * 1e9).astype(np.int64)
+        times = [f"{v // 10**9}.{v % 10**9:09d}" for v in ns.tolist()]
+    with open(path, "w") as f:
+        f.write("# timestamp tx ty tz qx qy qz qw\n")
+        for stamp, row in zip(times, rows):
+            f.write(stamp + " " + " ".join(f"{v:.9f}" for v in row) + "\n")
 
 
 def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -16,8 +16,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["cpu_model", "usable_cpus", "physical_memory", "device_memory_limit", "environment",
-           "CGROUP_LIMITS", "ENV_VARS"]
+__all__ = ["cpu_model", "usable_cpus", "physical_memory", "process_memory_limit",
+           "device_memory_limit", "environment", "CGROUP_LIMITS", "ENV_VARS"]
 
 ENV_VARS = ("XLA_FLAGS", "JAX_PLATFORMS")  # reported when set: they change what is measured
 
@@ -87,6 +87,17 @@ def physical_memory() -> int:
         if text.isdigit():  # "max" (v2) means no limit; v1 writes a huge number instead
             total = min(total, int(text))
     return total
+
+
+def process_memory_limit() -> int | None:
+    """Bytes of address space this process may use (``ulimit -v``, RLIMIT_AS), or None when
+    unlimited or unknown."""
+    try:
+        import resource
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    except (ImportError, OSError, ValueError):
+        return None
+    return None if soft in (resource.RLIM_INFINITY, -1) or soft <= 0 else int(soft)
 
 
 def device_memory_limit() -> int | None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import zipfile
 from pathlib import Path
-from typing import NamedTuple
+from typing import BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -44,6 +44,9 @@ class Run(NamedTuple):
         vo_failed: [T] bool, frames whose control came from the wheel/IMU fallback (a file
             may store it as integers 0/1).
         initial_pose: [3] pose before frame 0 (ground-truth frame; zeros if unknown).
+        time_origin_ns: the dataset's own clock at timestamp 0, integer nanoseconds (EuRoC:
+            its first frame's stamp), or None (the timestamps are the dataset's clock). The
+            TUM outputs add it back; the filter and GPS use ``timestamps``.
     """
 
     controls: np.ndarray
@@ -54,6 +57,7 @@ class Run(NamedTuple):
     ground_truth: np.ndarray | None = None
     vo_failed: np.ndarray | None = None
     initial_pose: np.ndarray | None = None
+    time_origin_ns: int | None = None
 
     @property
     def num_frames(self) -> int:
@@ -161,6 +165,15 @@ def _check_types(fields: dict, fail) -> None:
         fail("resolution", f"expected a scalar, got shape {np.asarray(fields['resolution']).shape}")
     if fields.get("vo_failed") is not None and np.asarray(fields["vo_failed"]).dtype != bool:
         fail("vo_failed", f"expected bool, got dtype {np.asarray(fields['vo_failed']).dtype}")
+    kind = np.asarray(fields["controls"]).dtype
+    if kind.kind in "iu":  # whole metres and radians only: surely truncated on the way
+        fail("controls", f"stored as integers ({kind}), so only whole metres and radians; "
+             "store the increments as floating point")
+    origin = fields.get("time_origin_ns")
+    if origin is not None and (np.asarray(origin).shape != () or
+                               np.asarray(origin).dtype.kind not in "iu"):
+        fail("time_origin_ns", f"expected one integer (nanoseconds), got "
+             f"{np.asarray(origin).dtype} of shape {np.asarray(origin).shape}")
 
 
 def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None = None) -> Run:
@@ -246,17 +259,19 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
 
 
 _REQUIRED = ("controls", "obs_index", "local_maps", "resolution", "timestamps")
-_OPTIONAL = ("ground_truth", "vo_failed", "initial_pose")
+_OPTIONAL = ("ground_truth", "vo_failed", "initial_pose", "time_origin_ns")
 
 
-def save_run(path: str | Path, run: Run) -> None:
-    """Write a Run as a native ``.npz`` file (the format documented in README)."""
-    validate_run(run, str(path))
+def save_run(path: str | Path | BinaryIO, run: Run) -> None:
+    """Write a Run as a native ``.npz`` file (the format documented in README); ``path`` may
+    be an open binary file."""
+    validate_run(run, str(getattr(path, "name", path)))
     arrays = {name: np.asarray(getattr(run, name)) for name in _REQUIRED}
     for name in _OPTIONAL:
         value = getattr(run, name)
         if value is not None:
-            arrays[name] = np.asarray(value)
+            arrays[name] = np.asarray(value, np.int64) if name == "time_origin_ns" else \
+                np.asarray(value)
     np.savez_compressed(path, **arrays)
 
 
@@ -284,7 +299,12 @@ def load_run(path: str | Path) -> Run:
         unknown = sorted(set(data.files) - set(_REQUIRED) - set(_OPTIONAL))
         if unknown:
             raise RunError(f"{path}: unknown field(s) {', '.join(unknown)}")
-        fields = {k: data[k] for k in data.files}
+        fields = {}
+        for k in data.files:
+            try:
+                fields[k] = data[k]
+            except ValueError as err:  # object arrays (e.g. a None saved by np.savez)
+                raise RunError(f"{path}: field '{k}': not an array of numbers ({err})") from err
 
     def fail(field: str, msg: str) -> None:
         raise RunError(f"{path}: field '{field}': {msg}")
@@ -301,5 +321,6 @@ def load_run(path: str | Path) -> Run:
         ground_truth=fields.get("ground_truth"),
         vo_failed=fields.get("vo_failed"),
         initial_pose=fields.get("initial_pose"),
+        time_origin_ns=(int(fields["time_origin_ns"]) if "time_origin_ns" in fields else None),
     )
     return validate_run(run, str(path), stats_dtype=stats_dtype)

@@ -19,7 +19,7 @@ from gslam_jax import cells, rbpf, unknown
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.localmap import LocalMapParams
-from gslam_jax.machine import device_memory_limit, physical_memory
+from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.motion import MotionParams
 from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
@@ -46,13 +46,19 @@ class MapExtent(NamedTuple):
 def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin: float,
                window: int) -> MapExtent:
     """Dense map extent from the VO path: its bounding box, plus the reach of a rotated local
-    map, plus ``margin`` metres for drift; sides are multiples of 8 and at least one window."""
+    map, plus ``margin`` metres for drift; sides are multiples of 8 and at least one window.
+    A ConfigError names [map] margin when the extent is not even a finite number of metres."""
     xy = np.asarray(vo_poses, dtype=np.float64)[:, :2]
     reach = 0.5 * window * resolution + margin
     lo = xy.min(axis=0) - reach
     hi = xy.max(axis=0) + reach
-    cells_needed = np.ceil((hi - lo) / resolution).astype(int)
-    shape = tuple(int(max(window, 8 * math.ceil(n / 8))) for n in cells_needed)
+    cells_needed = (hi - lo) / resolution
+    if not np.isfinite(cells_needed).all():
+        raise ConfigError(f"the map extent is not finite: [map] margin {margin:g} m around a VO "
+                          f"path spanning {np.ptp(xy, axis=0).tolist()} m at [map] resolution "
+                          f"{resolution:g} m; use a smaller [map] margin")
+    # Python ints: a huge extent stays huge (and fails the memory check) instead of wrapping.
+    shape = tuple(max(window, 8 * math.ceil(math.ceil(float(n)) / 8)) for n in cells_needed)
     return MapExtent((float(lo[0]), float(lo[1])), shape)  # type: ignore[arg-type]
 
 
@@ -87,16 +93,34 @@ def particle_map_bytes(cfg: rbpf.FilterConfig) -> int:
 
 def map_memory() -> tuple[int, str]:
     """(bytes, what): the memory the maps live in: the accelerator's limit where the device
-    reports one, else the machine's physical memory."""
+    reports one, else the machine's physical memory or the process's limit (``ulimit -v``)
+    when that is lower."""
     limit = device_memory_limit()
     if limit:
         return int(limit), f"{jax.devices()[0].device_kind} memory"
-    return physical_memory(), "physical memory"
+    physical, process = physical_memory(), process_memory_limit()
+    if process is not None and process < physical:
+        return process, "address space allowed to this process (ulimit -v)"
+    return physical, "physical memory"
 
 
-def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None) -> None:
+def _gib(n: int) -> str:
+    """``n`` bytes in GiB, readable however large (Python ints beyond float range too)."""
+    return f"{n / 2**30:.1f}" if n < 2**50 else _large(n // 2**30)
+
+
+def _large(n: int) -> str:
+    """A whole number, as 1.23e45 beyond a billion (Python ints beyond float range too)."""
+    if n < 10**9:
+        return str(n)
+    digits = str(n)
+    return f"{digits[0]}.{digits[1:3]}e{len(digits) - 1}"
+
+
+def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None,
+                     extent: str = "") -> None:
     """ConfigError, before anything is allocated, when the particle maps alone would exceed
-    ``available`` bytes (default: ``map_memory()``)."""
+    ``available`` bytes (default: ``map_memory()``); ``extent`` says what sized the map."""
     need = particle_map_bytes(cfg)
     what = "memory"
     if available is None:
@@ -104,10 +128,10 @@ def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None) -> No
     if need > available:
         H, W = cfg.map_shape
         raise ConfigError(
-            f"the particle maps need {need / 2**30:.1f} GiB ({cfg.num_particles} particles x "
-            f"{H} x {W} cells of {cfg.resolution:g} m x 2 float32), more than this machine's "
-            f"{available / 2**30:.1f} GiB of {what}; use fewer [filter] particles, a coarser "
-            f"[map] resolution or a smaller [map] margin")
+            f"the particle maps need {_gib(need)} GiB ({cfg.num_particles} particles x "
+            f"{_large(H)} x {_large(W)} cells of {cfg.resolution:g} m x 2 float32), more than this machine's "
+            f"{available / 2**30:.1f} GiB of {what}{extent}; use fewer [filter] particles, a "
+            f"coarser [map] resolution or a smaller [map] margin")
 
 
 def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
@@ -128,8 +152,32 @@ def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
         unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
         particle_block=f.particle_block).validate()
-    check_map_memory(cfg)
+    try:
+        check_map_memory(cfg, extent=_extent_cause(run, config))
+    except ConfigError as err:
+        _check_steps(run, str(err))
+        raise
     return cfg
+
+
+def _extent_cause(run: Run, config: Config) -> str:
+    """What sizes the map, for the memory message: the VO path's span and the margin."""
+    span = np.ptp(run.vo_poses()[:, :2], axis=0)
+    return (f" (the map covers the VO path, {span[0]:.4g} x {span[1]:.4g} m, plus [map] margin "
+            f"{config.map.margin:g} m on each side)")
+
+
+def _check_steps(run: Run, memory: str) -> None:
+    """RunError naming the frame when one control alone spans most of a map too large for
+    memory (a corrupt or mis-scaled control, not a large area): ``memory`` is the message."""
+    xy = run.vo_poses()[:, :2]
+    steps = np.hypot(run.controls[:, 0], run.controls[:, 1])
+    t = int(np.argmax(steps))
+    median = float(np.median(steps))
+    if steps[t] > 0.5 * float(np.ptp(xy, axis=0).max()) and steps[t] > 1000 * max(median, 1e-3):
+        raise RunError(f"field 'controls': frame {t} moves {steps[t]:.4g} m in one step (the "
+                       f"median step is {median:.3g} m), which makes the map too large: "
+                       f"{memory.split(';')[0]}; check the Run's controls (units?)")
 
 
 def filter_params(config: Config) -> rbpf.FilterParams:

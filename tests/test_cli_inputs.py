@@ -176,7 +176,7 @@ def test_kitti_and_euroc_get_sequence_and_max_frames(tmp_path, capsys, monkeypat
     seen = {}
 
     def fake(name):
-        def frontend(root, params):
+        def frontend(root, params, **kwargs):
             seen[name] = params
             raise RunError(f"{root}: stop here")
         return frontend

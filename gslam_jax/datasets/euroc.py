@@ -21,9 +21,11 @@ frames the first min(n0, n1) pairs are used (a warning names both counts).
 
 from __future__ import annotations
 
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -99,7 +101,13 @@ def read_sensor_yaml(path: Path) -> CameraYaml:
     """
     if not path.is_file():
         raise CalibrationError(f"{path}: calibration file is missing")
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:  # OpenCV raises (cv2.error, or SystemError from its bindings) on text it cannot parse
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as err:
+        text = str(err.__cause__ if err.__cause__ is not None else err)
+        found = re.search(r"\((\d+)\): ([^'\n]*)", text)
+        detail = f"line {found[1]}: {found[2]}" if found else text.strip().splitlines()[-1]
+        raise CalibrationError(f"{path}: not a readable YAML file ({detail})") from err
     if not fs.isOpened():
         raise CalibrationError(f"{path}: not a readable YAML file")
     model = fs.getNode("distortion_model").string()
@@ -244,8 +252,13 @@ def _ground_truth(path: Path, ts: np.ndarray) -> np.ndarray:
     return poses
 
 
-def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> FrontEndResult:
+def euroc_frontend(root: str | Path, params: EurocParams = EurocParams(), *,
+                   progress: Callable[[int, int], None] | None = None) -> FrontEndResult:
     """Run the stereo front-end over an EuRoC ASL folder (``root`` holds ``mav0``).
+
+    The Run's timestamps are seconds from the first frame; ``Run.time_origin_ns`` keeps that
+    frame's stamp (EuRoC's nanosecond clock) for the TUM outputs. ``progress(done, total)``
+    follows the frames.
 
     Warns (``warnings.warn``) when trailing frames of one camera are dropped, when ground truth
     covers only some frames (NaN rows for the others) or none (the run has no ground truth), and
@@ -344,7 +357,8 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams()) -> Fro
 
     return run_frontend(load, n, rig, t_robot_cam, (ts - ts[0]) * 1e-9, params.frontend,
                         aids=SensorAids(imu_yaw=yaw, accel=accel), ground_truth=gt,
-                        initial_pose=None if gt is None else gt[first_gt], source=str(mav))
+                        initial_pose=None if gt is None else gt[first_gt], source=str(mav),
+                        progress=progress, time_origin_ns=int(ts[0]))
 
 
 def load_euroc(root: str | Path, params: EurocParams = EurocParams()) -> Run:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import cv2
 import numpy as np
@@ -203,8 +203,10 @@ def _check_frames(seq: Path, max_frames: int | None) -> list[Path]:
     return [p for _, p in used]
 
 
-def kitti_frontend(root: str | Path, params: KittiParams = KittiParams()) -> FrontEndResult:
+def kitti_frontend(root: str | Path, params: KittiParams = KittiParams(), *,
+                   progress: Callable[[int, int], None] | None = None) -> FrontEndResult:
     """Run the stereo front-end over a KITTI odometry sequence; returns Run, summary and poses.
+    ``progress(done, total)`` follows the frames.
 
     Frame numbers come from the image names (``NNNNNN.png``, consecutive); frame k takes line k of
     times.txt and of the poses file. Missing or out-of-order rows are named errors.
@@ -247,7 +249,8 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams()) -> Fro
         return read_image(lefts[t]), read_image(seq / "image_1" / lefts[t].name)
 
     return run_frontend(load, n, rig, t_robot_cam, times, params.frontend, ground_truth=gt,
-                        initial_pose=None if gt is None else gt[0], source=str(seq))
+                        initial_pose=None if gt is None else gt[0], source=str(seq),
+                        progress=progress)
 
 
 def load_kitti(root: str | Path, params: KittiParams = KittiParams()) -> Run:

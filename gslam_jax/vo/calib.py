@@ -87,6 +87,9 @@ class RectifiedRig:
         if not (int(size[0]) > 0 and int(size[1]) > 0):
             raise CalibrationError(f"{source}: image size must be positive, got {size}")
         size = (int(size[0]), int(size[1]))
+        if not np.linalg.norm(np.asarray(t_10, float)) > 0:
+            raise CalibrationError(f"{source}: the two cameras are at the same place (zero "
+                                   "baseline: are cam0's and cam1's extrinsics the same?)")
         r0, r1, p0, p1, _, _, _ = cv2.stereoRectify(
             np.asarray(k0, float), np.asarray(d0, float), np.asarray(k1, float),
             np.asarray(d1, float), size, np.asarray(r_10, float),

@@ -102,14 +102,17 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
                  params: FrontEndParams = FrontEndParams(), *,
                  aids: SensorAids = SensorAids(), ground_truth: np.ndarray | None = None,
                  initial_pose: np.ndarray | None = None, source: str = "<stereo>",
-                 extra_pairs: ExtraPairs | None = None) -> FrontEndResult:
+                 extra_pairs: ExtraPairs | None = None,
+                 progress: Callable[[int, int], None] | None = None,
+                 time_origin_ns: int | None = None) -> FrontEndResult:
     """Process ``num_frames`` raw stereo pairs (``load_pair(t)``) into a validated Run.
 
     ``t_robot_cam``: 4x4 rectified-left-camera mount in the robot body frame (x fwd, y left,
     z up, origin on the ground). ``initial_pose``: (x, y, theta) of frame 0 in the world frame.
     With ``params.dense`` the dense disparity is computed first and, when
     ``params.vo.disparity == "dense"``, VO reads its feature disparities from it (paper sec. 4).
-    ``extra_pairs``: see :data:`ExtraPairs` (needs ``params.dense``).
+    ``extra_pairs``: see :data:`ExtraPairs` (needs ``params.dense``). ``progress(done,
+    total)`` is called every few frames; ``time_origin_ns`` goes into the Run unchanged.
     """
     if params.on_bad_frame not in ("error", "fallback"):
         raise ValueError(f"on_bad_frame must be 'error' or 'fallback', got {params.on_bad_frame!r}")
@@ -129,7 +132,10 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
     summary = FrontEndSummary(frames=num_frames)
     poses, poses_2d, results, failed, maps, obs_index = [], [], [], [], [], []
     controls = np.zeros((num_frames, 3))
+    every = max(num_frames // 100, 1)
     for t in range(num_frames):
+        if progress is not None and t and t % every == 0:
+            progress(t, num_frames)
         pair = None
         try:
             pair = rig.rectify(*load_pair(t), frame=f"{source} frame {t}")
@@ -191,6 +197,8 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
         obs_index.append(len(maps) if stats is not None else -1)
         if stats is not None:
             maps.append(stats)
+    if progress is not None:
+        progress(num_frames, num_frames)
     summary.dropped_points = builder.dropped_points
     L = params.local_map.size
     slip = None
@@ -203,5 +211,6 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
               local_maps=np.stack(maps) if maps else np.zeros((0, L, L, 3)),
               resolution=params.local_map.resolution,
               timestamps=np.asarray(timestamps, np.float64), ground_truth=ground_truth,
-              vo_failed=np.asarray(failed, bool), initial_pose=start)
+              vo_failed=np.asarray(failed, bool), initial_pose=start,
+              time_origin_ns=time_origin_ns)
     return FrontEndResult(validate_run(run, source), summary, np.stack(poses), results, slip)

@@ -1,0 +1,166 @@
+"""A results folder that is written completely or not at all.
+
+A command writes into a staging folder beside the target (``.<name>.partial-<random>``),
+created before any work, so that a place where nothing can be written is reported before the
+run, not after it. When every output is written, a marker ``COMPLETE`` (JSON: the command,
+the finishing time, every file with its size) is added and the folder is renamed into place in
+one step. A failed or interrupted command removes its staging folder; a killed one leaves it
+hidden beside the target, never a half-written target.
+
+An existing, non-empty target is refused unless ``overwrite``; then it is replaced as a whole
+(the old run's files are never mixed with the new run's), and only when it holds gslam
+results (the marker, or only file names gslam writes), never an unrelated folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import errno
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Iterator, NamedTuple
+
+from gslam_jax.errors import InputError
+
+__all__ = ["MARKER", "RESULT_FILES", "ResultsError", "Staged", "results_folder", "is_complete"]
+
+MARKER = "COMPLETE"
+
+# Every name a gslam command writes into a results folder (run, search, tune, compare): an
+# unmarked folder holding only these (from a version without the marker) may be overwritten.
+RESULT_FILES = frozenset({
+    MARKER, "summary.json", "config.toml", "simulation.json", "trajectory_tum.txt",
+    "trajectory_kitti.txt", "vo_tum.txt", "ground_truth_tum.txt", "map.npz", "map.png",
+    "maps_vo_vs_slam.png", "ess.png", "trace.npz", "trajectory_utm.txt", "map_utm.png",
+    "map_utm.pgw", "gps_alignment.npz", "results.csv", "results.json", "tuned.json",
+    "compare.json", "compare_fig4.png"})
+
+
+class ResultsError(InputError):
+    """The results folder cannot be used or written: the message names it and says why."""
+
+
+class Staged(NamedTuple):
+    """A command's results folder while it is written: ``staging`` (write here), the
+    ``target`` it becomes when complete, and ``name`` for messages (e.g. "--out DIR")."""
+
+    staging: Path
+    target: Path
+    name: str
+
+
+class _Taken(ResultsError):
+    """``out`` was taken by another command while this one ran; the results stay staged."""
+
+
+def is_complete(folder: str | Path) -> bool:
+    """True when ``folder`` holds the completeness marker of a finished command."""
+    return (Path(folder) / MARKER).is_file()
+
+
+def _check_target(target: Path, name: str, overwrite: bool) -> None:
+    """ResultsError when ``target`` may not receive the results (before any work)."""
+    if not target.exists():
+        return
+    if not target.is_dir():
+        raise ResultsError(f"{name}: exists and is not a directory")
+    entries = sorted(p.name for p in target.iterdir())
+    if not entries:
+        return
+    if not overwrite:
+        what = "a finished results folder" if is_complete(target) else \
+            f"not empty ({len(entries)} entries)"
+        raise ResultsError(f"{name}: is {what}; choose another --out, or add --overwrite to "
+                           "replace it as a whole")
+    foreign = [e for e in entries if e not in RESULT_FILES]
+    if foreign and not is_complete(target):
+        shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
+        raise ResultsError(f"{name}: holds files gslam does not write ({shown}); --overwrite "
+                           "only replaces a gslam results folder: choose another --out")
+
+
+def _write_marker(staging: Path, command: str) -> None:
+    files = {p.name: p.stat().st_size for p in sorted(staging.iterdir()) if p.is_file()}
+    text = json.dumps({"command": command,
+                       "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(
+                           timespec="seconds"),
+                       "files": files}, indent=2)
+    (staging / MARKER).write_text(text + "\n")
+
+
+def _publish(staging: Path, target: Path, name: str, overwrite: bool) -> None:
+    """Rename ``staging`` to ``target`` (replacing an old results folder when ``overwrite``).
+    When another command took ``target`` meanwhile, ResultsError says where the results are."""
+    old = None
+    if overwrite and target.is_dir() and any(target.iterdir()):
+        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+        os.rename(target, old / "results")
+    try:
+        os.rename(staging, target)  # atomic; replaces an empty directory, never a full one
+    except OSError as err:
+        if err.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR):
+            raise
+        if old is not None:
+            os.rename(old / "results", target)
+            old.rmdir()
+        raise _Taken(f"{name}: another command wrote there while this one ran; these "
+                           f"results are complete and kept in {staging}") from err
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def results_folder(out: str | Path | None, kind: str, overwrite: bool = False,
+                   command: str | None = None) -> Iterator[Staged]:
+    """Yield a staging folder (``Staged``) for a command's outputs; on success mark it complete and rename
+    it to ``out`` (default ``results/<kind>-<time>``). ResultsError, before the command does
+    any work, when ``out`` exists and is not an empty directory (without ``overwrite``) or
+    when nothing can be written beside it. When the command fails or is interrupted, the
+    staging folder and the folders created here are removed: nothing is left under ``out``.
+    """
+    if out is not None:
+        target, name = Path(out), f"--out {out}"
+    else:
+        stamp = time.strftime(f"{kind}-%Y%m%d-%H%M%S")
+        target = Path("results") / stamp
+        for i in range(2, 1000):
+            if not target.exists():
+                break
+            target = Path("results") / f"{stamp}-{i}"
+        name = f"results directory {target}"
+    _check_target(target, name, overwrite)
+    parent = target.absolute().parent
+    new = [p for p in (parent, *parent.parents) if not p.exists()]  # deepest first
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=parent))
+    except OSError as err:
+        _remove_empty(new)
+        raise ResultsError(f"{name}: cannot write there ({err.strerror or err}); nothing was "
+                           "run") from err
+    try:
+        yield Staged(staging, target, name)
+        try:
+            _write_marker(staging, command or f"gslam {kind}")
+        except OSError as err:
+            raise ResultsError(f"{name}: cannot write the results ({err}); nothing was "
+                               f"written to {target}") from err
+        _publish(staging, target, name, overwrite)
+    except BaseException as err:
+        if not isinstance(err, _Taken):
+            shutil.rmtree(staging, ignore_errors=True)
+            _remove_empty(new)
+        raise
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove the folders this module created (deepest first) while they are empty."""
+    for folder in folders:
+        if not folder.is_dir() or any(folder.iterdir()):
+            break
+        folder.rmdir()
