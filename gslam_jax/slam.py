@@ -50,9 +50,10 @@ def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin:
     A ConfigError names [map] margin when the extent is not even a finite number of metres."""
     xy = np.asarray(vo_poses, dtype=np.float64)[:, :2]
     reach = 0.5 * window * resolution + margin
-    lo = xy.min(axis=0) - reach
-    hi = xy.max(axis=0) + reach
-    cells_needed = (hi - lo) / resolution
+    with np.errstate(over="ignore"):  # an infinite extent is reported just below
+        lo = xy.min(axis=0) - reach
+        hi = xy.max(axis=0) + reach
+        cells_needed = (hi - lo) / resolution
     if not np.isfinite(cells_needed).all():
         raise ConfigError(f"the map extent is not finite: [map] margin {margin:g} m around a VO "
                           f"path spanning {np.ptp(xy, axis=0).tolist()} m at [map] resolution "

@@ -264,6 +264,10 @@ def test_trajectory_errors_match_the_metrics_on_full_ground_truth():
     (["bench", "--particles", "0"], "argument --particles: expected a positive integer, got 0"),
     (["search", "--n", "0"], "argument --n: expected a positive integer, got 0"),
     (["compare", "--particles", "-5"], "argument --particles: expected a positive integer"),
+    (["compare", "--tile-size", "-1"], "argument --tile-size: expected a finite positive number"),
+    (["tune", "--lr", "nan"], "argument --lr: expected a finite positive number, got nan"),
+    (["tune", "--lr", "-1"], "argument --lr: expected a finite positive number, got -1"),
+    (["tune", "--lr", "inf"], "argument --lr: expected a finite positive number, got inf"),
 ])
 def test_counts_and_seeds_are_usage_errors(argv, message, capsys):
     """Seeds and counts are checked by argparse, before any work (they were tracebacks from

@@ -17,6 +17,7 @@ import gslam_jax.datasets.kitti as kitti
 from gslam_jax.datasets.euroc import EurocParams, euroc_frontend, euroc_rig, read_sensor_yaml
 from gslam_jax.datasets.kitti import KittiParams, kitti_frontend, read_kitti_poses
 from gslam_jax.vo.calib import CalibrationError, ImageError, RectifiedRig
+from gslam_jax.vo.frontend import FrontEndParams
 
 EUROC = Path(__file__).resolve().parents[2] / "shared" / "data" / "euroc-v1_01-static-20"
 
@@ -463,3 +464,32 @@ def test_from_raw_rejects_unusable_rigs():
     bad[1, 1] = -60.0
     with pytest.raises(CalibrationError, match=r"rig.yaml: k1: focal lengths must be positive"):
         RectifiedRig.from_raw(k, d, bad, d, r, [-0.11, 0.0, 0.0], (80, 60), "rig.yaml")
+
+
+def test_euroc_sensor_yaml_that_is_not_yaml_is_named(mav: Path, captured: dict):
+    (mav / "cam1" / "sensor.yaml").write_text("intrinsics: [60, 60\n  {{ not: yaml\n")
+    with pytest.raises(CalibrationError, match=r"cam1/sensor.yaml: not a readable YAML file"):
+        euroc_frontend(mav.parent)
+    assert not captured
+
+
+def test_euroc_cameras_at_one_place_are_named(mav: Path, captured: dict):
+    (mav / "cam1" / "sensor.yaml").write_text(_sensor_yaml(0.0))  # cam1's T_BS = cam0's
+    with pytest.raises(CalibrationError, match=r"sensor.yaml: the two cameras are at the same "
+                       r"place \(zero baseline"):
+        euroc_frontend(mav.parent)
+
+
+def test_euroc_run_keeps_the_nanosecond_clock(mav: Path, captured: dict):
+    euroc_frontend(mav.parent)
+    assert captured["time_origin_ns"] == T0  # the TUM outputs add it back to the 0-based times
+    np.testing.assert_allclose(captured["times"], np.arange(N_EUROC) * 0.05)
+
+
+def test_frontend_reports_progress(kitti_seq: Path):
+    calls = []
+    res = kitti_frontend(kitti_seq, KittiParams(frontend=FrontEndParams(dense=False)),
+                         progress=lambda done, total: calls.append((done, total)))
+    assert res.run.num_frames == N_KITTI
+    assert calls[-1] == (N_KITTI, N_KITTI) and len(calls) >= 2
+    assert all(a[0] < b[0] for a, b in zip(calls, calls[1:]))

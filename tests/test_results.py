@@ -1,0 +1,201 @@
+"""Results folders: complete or absent, never mixed; failures and interrupts leave nothing.
+
+The filter is replaced by a stand-in that returns the VO path (``fake_slam``): these tests are
+about the files around it, and run in a second or two.
+"""
+
+import errno
+import json
+
+import numpy as np
+import pytest
+from synthetic import make_run
+
+from gslam_jax import slam
+from gslam_jax.cli import main
+from gslam_jax.io import read_tum, write_tum
+from gslam_jax.run import load_run, save_run
+
+MARKER = "COMPLETE"  # the documented name of the completeness marker
+
+
+@pytest.fixture(scope="module")
+def run_file(tmp_path_factory):
+    run, _ = make_run(steps=20)
+    path = tmp_path_factory.mktemp("run") / "r.npz"
+    save_run(path, run)
+    return run, path
+
+
+@pytest.fixture
+def fake_slam(monkeypatch):
+    """``slam.run_slam`` returning the VO path; ``calls`` lists the runs it was given."""
+    calls = []
+
+    def fake(run, config, progress=None, **kwargs):
+        calls.append(run)
+        T, vo = run.num_frames, run.vo_poses()
+        return slam.SlamResult(
+            best_path=vo, best_pose=vo, mean_pose=vo, vo_path=vo, ess=np.full(T, 8.0),
+            resampled=np.zeros(T, bool), updated=np.asarray(run.obs_index) >= 0,
+            log_lik=np.zeros(T), kmap=np.ones((24, 24), np.float32),
+            smap=np.ones((24, 24), np.float32), map_origin=(-2.0, -2.0), resolution=0.16,
+            extent_violations=0, empty_observations=0, seconds=0.0, compile_seconds=0.0)
+    monkeypatch.setattr(slam, "run_slam", fake)
+    return calls
+
+
+def _leftovers(folder):
+    """Hidden staging / old folders left beside a results folder."""
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+def test_results_appear_complete_with_a_marker(tmp_path, run_file, fake_slam, monkeypatch):
+    run, path = run_file
+    out = tmp_path / "out"
+    seen = []
+    real = slam.run_slam
+
+    def spy(*args, **kwargs):
+        seen.append(out.exists())  # during the run, --out does not exist yet
+        return real(*args, **kwargs)
+    monkeypatch.setattr(slam, "run_slam", spy)
+    assert main(["run", str(path), "--out", str(out)]) == 0
+    assert seen == [False]
+    marker = json.loads((out / MARKER).read_text())
+    files = {p.name: p.stat().st_size for p in out.iterdir() if p.name != MARKER}
+    assert marker["files"] == files and "summary.json" in files and "map.png" in files
+    assert _leftovers(tmp_path) == []
+
+
+def test_existing_results_are_refused_without_overwrite(tmp_path, run_file, fake_slam, capsys):
+    _, path = run_file
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out)]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    capsys.readouterr()
+    assert main(["run", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out}: is a finished results folder" in err and "--overwrite" in err
+    assert len(fake_slam) == 1  # refused before the second run
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_overwrite_replaces_the_folder_as_a_whole(tmp_path, run_file, fake_slam):
+    _, path = run_file
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--gps", "sim", "--out", str(out)]) == 0
+    assert (out / "trajectory_utm.txt").exists() and (out / "gps_alignment.npz").exists()
+    assert main(["run", str(path), "--out", str(out), "--overwrite"]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert not {"trajectory_utm.txt", "map_utm.png", "gps_alignment.npz"} & names
+    assert json.loads((out / MARKER).read_text())["files"].keys() == names - {MARKER}
+    assert "gps" not in json.loads((out / "summary.json").read_text())
+    assert _leftovers(tmp_path) == []
+
+
+def test_overwrite_never_replaces_a_folder_of_other_files(tmp_path, run_file, fake_slam, capsys):
+    _, path = run_file
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    assert main(["run", str(path), "--out", str(mine), "--overwrite"]) == 2
+    assert "holds files gslam does not write (notes.txt)" in capsys.readouterr().err
+    assert (mine / "notes.txt").read_text() == "keep me" and not fake_slam
+
+
+def test_a_failed_write_leaves_no_results(tmp_path, run_file, fake_slam, capsys, monkeypatch):
+    from gslam_jax import plots
+
+    _, path = run_file
+    out = tmp_path / "deep" / "out"
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(plots, "save_ess_png", full)
+    assert main(["run", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "cannot write the results" in err and "No space left on device" in err
+    assert not (tmp_path / "deep").exists()  # created for this run, removed again
+
+
+def test_an_unwritable_place_is_found_before_the_run(tmp_path, run_file, fake_slam, capsys,
+                                                      monkeypatch):
+    import tempfile
+
+    _, path = run_file
+    real = tempfile.mkdtemp
+
+    def read_only(*args, dir=None, **kwargs):
+        if dir is not None and str(dir).startswith(str(tmp_path / "ro")):
+            raise PermissionError(errno.EACCES, "Permission denied", str(dir))
+        return real(*args, dir=dir, **kwargs)
+    monkeypatch.setattr(tempfile, "mkdtemp", read_only)
+    (tmp_path / "ro").mkdir()
+    assert main(["run", str(path), "--out", str(tmp_path / "ro" / "out")]) == 2
+    assert "cannot write there (Permission denied); nothing was run" in capsys.readouterr().err
+    assert not fake_slam
+
+
+def test_save_run_place_is_checked_before_the_run(tmp_path, run_file, fake_slam, capsys):
+    _, path = run_file
+    (tmp_path / "adir").mkdir()
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--save-run", str(tmp_path / "adir"), "--out", str(out)]) == 2
+    assert "--save-run" in capsys.readouterr().err and not fake_slam
+    assert main(["run", str(path), "--save-run", str(tmp_path / "no" / "r.npz"),
+                 "--out", str(out)]) == 2
+    assert "does not exist" in capsys.readouterr().err and not fake_slam and not out.exists()
+
+
+def test_ctrl_c_is_a_short_message_and_exit_130(tmp_path, run_file, monkeypatch, capsys):
+    _, path = run_file
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(slam, "run_slam", interrupted)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip() == "gslam: interrupted; no results were written"
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+def test_jax_out_of_memory_is_a_message(tmp_path, run_file, monkeypatch, capsys):
+    import jax
+
+    _, path = run_file
+
+    def exhausted(*args, **kwargs):
+        raise jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory while trying to "
+                                         "allocate 25769803776 bytes.")
+    monkeypatch.setattr(slam, "run_slam", exhausted)
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 3
+    err = capsys.readouterr().err
+    assert err.startswith("gslam: error: out of memory (RESOURCE_EXHAUSTED") and "ulimit" in err
+    assert "Traceback" not in err
+
+
+def test_ground_truth_is_written_beside_the_estimate(tmp_path, run_file, fake_slam):
+    run, _ = run_file
+    gt = np.array(run.ground_truth)
+    gt[3:6] = np.nan
+    save_run(tmp_path / "r.npz", run._replace(ground_truth=gt))
+    out = tmp_path / "out"
+    assert main(["run", str(tmp_path / "r.npz"), "--out", str(out)]) == 0
+    t, poses = read_tum(out / "ground_truth_tum.txt")
+    known = np.isfinite(gt).all(axis=1)
+    np.testing.assert_allclose(t, np.asarray(run.timestamps)[known], atol=1e-9)
+    np.testing.assert_allclose(poses[:, :2], gt[known, :2], atol=1e-8)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (poses[:, 2] - gt[known, 2]))), 0, atol=1e-8)
+    t_est, _ = read_tum(out / "trajectory_tum.txt")
+    assert set(t) <= set(t_est)  # the same clock: evo associates them
+
+
+def test_tum_files_keep_the_dataset_clock(tmp_path, run_file):
+    # EuRoC stamps in ns: float64 seconds since 1970 cannot hold all nine decimals.
+    origin = 1403636579763555584
+    write_tum(tmp_path / "t.txt", np.array([0.0, 0.05, 1.25]), np.zeros((3, 3)), origin_ns=origin)
+    stamps = [line.split()[0] for line in (tmp_path / "t.txt").read_text().splitlines()[1:]]
+    assert stamps == ["1403636579.763555584", "1403636579.813555584", "1403636581.013555584"]
+    save_run(tmp_path / "r.npz", run_file[0]._replace(time_origin_ns=origin))
+    assert load_run(tmp_path / "r.npz").time_origin_ns == origin
