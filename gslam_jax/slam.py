@@ -101,8 +101,8 @@ def map_memory() -> tuple[int, str]:
         return int(limit), f"{jax.devices()[0].device_kind} memory"
     physical, process = physical_memory(), process_memory_limit()
     if process is not None and process < physical:
-        return process, "address space allowed to this process (ulimit -v)"
-    return physical, "physical memory"
+        return process, "address space this process may use (ulimit -v)"
+    return physical, "this machine's physical memory"
 
 
 def _gib(n: int) -> str:
@@ -123,16 +123,16 @@ def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None,
     """ConfigError, before anything is allocated, when the particle maps alone would exceed
     ``available`` bytes (default: ``map_memory()``); ``extent`` says what sized the map."""
     need = particle_map_bytes(cfg)
-    what = "memory"
+    what = "memory available"
     if available is None:
         available, what = map_memory()
     if need > available:
         H, W = cfg.map_shape
         raise ConfigError(
             f"the particle maps need {_gib(need)} GiB ({cfg.num_particles} particles x "
-            f"{_large(H)} x {_large(W)} cells of {cfg.resolution:g} m x 2 float32), more than this machine's "
-            f"{available / 2**30:.1f} GiB of {what}{extent}; use fewer [filter] particles, a "
-            f"coarser [map] resolution or a smaller [map] margin")
+            f"{_large(H)} x {_large(W)} cells of {cfg.resolution:g} m x 2 float32), more than "
+            f"the {available / 2**30:.1f} GiB of {what}{extent}; use fewer [filter] particles, "
+            f"a coarser [map] resolution or a smaller [map] margin")
 
 
 def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:

@@ -31,11 +31,10 @@ PAPER_TABLE1 = {
 
 def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
     """Simulate one course and run Gamma-SLAM on it; returns the Table I row for this seed."""
-    from gslam_jax.datasets.sim import simulate_run
+    from gslam_jax.pipeline import Source, load_source  # the source step of ``gslam run``
 
-    params = slam.localmap_params(config)
     t0 = time.perf_counter()
-    run, _ = simulate_run(course, seed=seed, params=params)
+    run = load_source(Source(course=course, seed=seed), config).run
     sim_s = time.perf_counter() - t0
     res = slam.run_slam(run, config, progress=progress)
     gt = run.ground_truth
