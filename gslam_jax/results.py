@@ -69,6 +69,8 @@ def _check_target(target: Path, name: str, overwrite: bool) -> None:
         return
     if not target.is_dir():
         raise ResultsError(f"{name}: exists and is not a directory")
+    if not os.access(target, os.W_OK):  # an existing folder the user may not write to
+        raise ResultsError(f"{name}: is read-only (no write permission); nothing was run")
     entries = sorted(p.name for p in target.iterdir())
     if not entries:
         return

@@ -13,6 +13,7 @@ from synthetic import make_run
 
 from gslam_jax import slam
 from gslam_jax.cli import main
+from gslam_jax.gps import GpsLogError
 from gslam_jax.io import read_tum, write_tum
 from gslam_jax.run import load_run, save_run
 
@@ -199,3 +200,53 @@ def test_tum_files_keep_the_dataset_clock(tmp_path, run_file):
     assert stamps == ["1403636579.763555584", "1403636579.813555584", "1403636581.013555584"]
     save_run(tmp_path / "r.npz", run_file[0]._replace(time_origin_ns=origin))
     assert load_run(tmp_path / "r.npz").time_origin_ns == origin
+
+
+def test_a_second_command_on_the_same_out_never_mixes(tmp_path, run_file, fake_slam, monkeypatch,
+                                                      capsys):
+    _, path = run_file
+    out = tmp_path / "out"
+    real = slam.run_slam
+
+    def other_finishes_first(*args, **kwargs):
+        out.mkdir()  # another gslam command on the same --out finishes while this one runs
+        (out / "summary.json").write_text("{}")
+        (out / MARKER).write_text("{}")
+        return real(*args, **kwargs)
+    monkeypatch.setattr(slam, "run_slam", other_finishes_first)
+    assert main(["run", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "another command wrote there while this one ran" in err
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "summary.json"]  # untouched
+    kept = tmp_path / err.split("kept in ")[1].strip().split("/")[-1]
+    assert (kept / MARKER).is_file() and (kept / "trajectory_tum.txt").is_file()
+
+
+def test_a_failing_gps_output_leaves_no_folder_that_looks_complete(tmp_path, run_file, fake_slam,
+                                                                   monkeypatch, capsys):
+    from gslam_jax import georeference
+
+    _, path = run_file
+
+    def crash(*args, **kwargs):
+        raise GpsLogError("simulated GPS: the fit failed")
+    monkeypatch.setattr(georeference, "write_gps_outputs", crash)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--gps", "sim", "--out", str(out)]) == 2
+    assert "the fit failed" in capsys.readouterr().err
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+def test_an_existing_read_only_out_is_refused_before_the_run(tmp_path, run_file, fake_slam,
+                                                              monkeypatch, capsys):
+    import os
+
+    _, path = run_file
+    out = tmp_path / "ro"
+    out.mkdir()
+    real = os.access
+    # root may write anywhere, so the permission bits are simulated: --out is read-only
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if str(p) == str(out) and
+                        mode == os.W_OK else real(p, mode, **kw))
+    assert main(["run", str(path), "--out", str(out)]) == 2
+    assert f"--out {out}: is read-only" in capsys.readouterr().err and not fake_slam
