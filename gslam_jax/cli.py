@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from gslam_jax.progress import ProgressBar
 from gslam_jax.results import results_folder
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
 
-__all__ = ["main"]
+__all__ = ["main", "console"]
 
 
 def _positive_int(text: str) -> int:
@@ -327,5 +328,16 @@ def main(argv: list[str] | None = None) -> int:
         return 3
 
 
+def console() -> None:
+    """The ``gslam`` script: ``main``, then exit. After Ctrl-C the process ends without
+    Python's teardown, which can crash (SIGSEGV) while XLA threads are still compiling."""
+    code = main()
+    if code == 130:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console()
