@@ -138,7 +138,8 @@ def test_an_unwritable_place_is_found_before_the_run(tmp_path, run_file, fake_sl
     assert not fake_slam
 
 
-def test_save_run_place_is_checked_before_the_run(tmp_path, run_file, fake_slam, capsys):
+def test_save_run_place_is_checked_before_the_run(tmp_path, run_file, fake_slam, capsys,
+                                                   monkeypatch):
     _, path = run_file
     (tmp_path / "adir").mkdir()
     out = tmp_path / "out"
@@ -147,6 +148,15 @@ def test_save_run_place_is_checked_before_the_run(tmp_path, run_file, fake_slam,
     assert main(["run", str(path), "--save-run", str(tmp_path / "no" / "r.npz"),
                  "--out", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err and not fake_slam and not out.exists()
+
+    import tempfile
+
+    def read_only(*args, dir=None, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(dir))
+    monkeypatch.setattr(tempfile, "mkstemp", read_only)  # root may write anywhere: simulated
+    assert main(["run", str(path), "--save-run", str(tmp_path / "r2.npz"), "--out", str(out)]) == 2
+    assert f"--save-run {tmp_path / 'r2.npz'}: cannot write in {tmp_path} (Permission denied)" \
+        in capsys.readouterr().err and not fake_slam and not out.exists()
 
 
 def test_ctrl_c_is_a_short_message_and_exit_130(tmp_path, run_file, monkeypatch, capsys):
