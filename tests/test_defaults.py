@@ -56,7 +56,7 @@ def test_readme_settings_table_shows_the_defaults():
         for (section, key), value in zip(keys, values):
             assert getattr(getattr(Config(), section), key) == value, f"{section}.{key}"
             seen.add((section, key))
-    every = {(s, k) for s in ("filter", "motion", "map", "localmap")
+    every = {(s, k) for s in ("filter", "motion", "map", "localmap", "stereo")
              for k in dataclasses.asdict(getattr(Config(), s))}
     assert seen == every
 
