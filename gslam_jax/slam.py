@@ -101,8 +101,8 @@ def map_memory() -> tuple[int, str]:
         return int(limit), f"{jax.devices()[0].device_kind} memory"
     physical, process = physical_memory(), process_memory_limit()
     if process is not None and process < physical:
-        return process, "address space this process may use (ulimit -v)"
-    return physical, "this machine's physical memory"
+        return process, "memory this process may use (ulimit -v)"
+    return physical, "physical memory"
 
 
 def _gib(n: int) -> str:
@@ -123,7 +123,7 @@ def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None,
     """ConfigError, before anything is allocated, when the particle maps alone would exceed
     ``available`` bytes (default: ``map_memory()``); ``extent`` says what sized the map."""
     need = particle_map_bytes(cfg)
-    what = "memory available"
+    what = "memory"
     if available is None:
         available, what = map_memory()
     if need > available:
@@ -131,8 +131,8 @@ def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None,
         raise ConfigError(
             f"the particle maps need {_gib(need)} GiB ({cfg.num_particles} particles x "
             f"{_large(H)} x {_large(W)} cells of {cfg.resolution:g} m x 2 float32), more than "
-            f"the {available / 2**30:.1f} GiB of {what}{extent}; use fewer [filter] particles, "
-            f"a coarser [map] resolution or a smaller [map] margin")
+            f"this machine's {available / 2**30:.1f} GiB of {what}{extent}; use fewer [filter] "
+            f"particles, a coarser [map] resolution or a smaller [map] margin")
 
 
 def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
