@@ -55,7 +55,7 @@ __all__ = ["PARAM_NAMES", "FILTER_PARAM_NAMES", "OBS_PARAM_NAMES", "DESIGNS", "O
            "load_space", "design_points", "unit_points", "params_from_values",
            "observations_from_values", "base_values", "obs_settings", "config_with_values",
            "search_inputs", "rigid_rms", "objective_value", "evaluate", "search", "auto_batch",
-           "chunk_size", "default_inner", "rank"]
+           "chunk_size", "default_inner", "rank", "design_values", "finish"]
 
 FILTER_PARAM_NAMES = ("alpha_d", "alpha_theta_d", "alpha_theta", "beta_prev", "beta_new")
 OBS_PARAM_NAMES = ("min_variance", "obs_weight", "min_points")  # [map], via cells.refine_obs
@@ -533,6 +533,26 @@ def rank(values: np.ndarray, objective: np.ndarray, maximize: bool
     return values[order], f[order]
 
 
+def design_values(run: Run, space: SearchSpace, design: str, n: int, objective: str,
+                  path: str, seed: int, values: np.ndarray | None) -> np.ndarray:
+    """Check a search request (objective, path, ground truth for "rms") and return its
+    parameter values [P, d]: ``values`` if given, else the design's points."""
+    if objective not in OBJECTIVES:
+        raise SearchError(f"objective '{objective}' unknown; choose one of "
+                          f"{', '.join(OBJECTIVES)}")
+    if path not in PATHS:
+        raise SearchError(f"path '{path}' unknown; choose one of {', '.join(PATHS)}")
+    if objective == "rms" and run.ground_truth is None:
+        raise SearchError("objective 'rms' needs the run's ground_truth, which is missing; "
+                          "use objective 'loglik'")
+    if values is None:
+        values = design_points(space, design, n, seed)
+    values = np.asarray(values, np.float64)
+    if values.ndim != 2 or values.shape[1] != space.dim:
+        raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
+    return values
+
+
 def search(run: Run, config: Config, space: SearchSpace, design: str = "halton", n: int = 64,
            objective: str = "rms", *, path: str = "mean", key: Array | None = None,
            crn: bool = True, seed: int = 0, batch: int | None = None,
@@ -553,19 +573,7 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     """
     import time
 
-    if objective not in OBJECTIVES:
-        raise SearchError(f"objective '{objective}' unknown; choose one of "
-                          f"{', '.join(OBJECTIVES)}")
-    if path not in PATHS:
-        raise SearchError(f"path '{path}' unknown; choose one of {', '.join(PATHS)}")
-    if objective == "rms" and run.ground_truth is None:
-        raise SearchError("objective 'rms' needs the run's ground_truth, which is missing; "
-                          "use objective 'loglik'")
-    if values is None:
-        values = design_points(space, design, n, seed)
-    values = np.asarray(values, np.float64)
-    if values.ndim != 2 or values.shape[1] != space.dim:
-        raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
+    values = design_values(run, space, design, n, objective, path, seed, values)
     inputs, cfg = search_inputs(run, config, space.names)  # evaluate() checks "rms"'s truth
     base = slam.filter_params(config)
     key = jax.random.key(config.filter.seed) if key is None else key
@@ -594,7 +602,14 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     f = evaluate(values, key, inputs, base, tuple(space.names), cfg, objective, path,
                  batch=batch, devices=devices, progress=timed_progress, inner=inner,
                  obs_base=obs_settings(config))
-    total_s = time.perf_counter() - t0
+    return finish(space, values, f, objective, time.perf_counter() - t0, first_chunk_s)
+
+
+def finish(space: SearchSpace, values: np.ndarray, f: np.ndarray, objective: str,
+           total_s: float, first_chunk_s: float) -> SearchResult:
+    """Rank evaluated sets into a SearchResult: a SearchError when every objective is NaN, a
+    RuntimeWarning naming one when some are (shared by ``search`` and
+    ``distributed.distributed_search``)."""
     bad = ~np.isfinite(f)
     if bad.all():
         raise SearchError(f"objective '{objective}' is NaN or infinite for every one of the "
