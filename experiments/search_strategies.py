@@ -75,13 +75,17 @@ def evaluator(run: Run, config: Config, names: tuple[str, ...], keys: list[int],
     inputs, cfg = S.search_inputs(run, config, names)
     base, obs_base = slam.filter_params(config), S.obs_settings(config)
 
-    def f(values: np.ndarray) -> np.ndarray:
+    def per_key(values: np.ndarray) -> np.ndarray:
         P = len(values)
         pad = (-P) % batch
         v = np.concatenate([values, np.repeat(values[-1:], pad, 0)]) if pad else values
-        return np.mean([S.evaluate(v, jax.random.key(k), inputs, base, names, cfg, "rms",
-                                   batch=batch, obs_base=obs_base)[:P] for k in keys], axis=0)
+        return np.stack([S.evaluate(v, jax.random.key(k), inputs, base, names, cfg, "rms",
+                                    batch=batch, obs_base=obs_base)[:P] for k in keys])
 
+    def f(values: np.ndarray) -> np.ndarray:
+        return per_key(values).mean(axis=0)
+
+    f.per_key = per_key  # [K, P]: the fresh-key spread
     return f
 
 
@@ -143,22 +147,27 @@ def one_problem(name: str, run: Run, config: Config, space_key: str, args) -> di
     fresh_keys = list(range(1000, 1000 + args.fresh_keys))
     rescore = evaluator(run, config, names, fresh_keys, args.batch)
     rows = [v for tr in traces.values() for v in tr.incumbents]
-    fresh_all = rescore(np.array(rows))
+    per_key = rescore.per_key(np.array(rows))  # [K, rows]
+    fresh_all = per_key.mean(axis=0)
     fresh, i = {}, 0
     for k, tr in traces.items():
         fresh[k] = list(map(float, fresh_all[i:i + len(tr.incumbents)]))
         i += len(tr.incumbents)
     ref = fresh["sobol"][-1]
+    ref_sem = float(per_key[:, len(traces["sobol"].incumbents) - 1].std(ddof=1)
+                    / math.sqrt(len(fresh_keys))) if len(fresh_keys) > 1 else float("nan")
     target = 1.05 * ref
     sobol_s = traces["sobol"].seconds[-1]
     out = {"problem": name, "space": len(names), "frames": run.num_frames,
            "compile_s": round(compile_s, 1), "sobol_s": round(sobol_s, 2),
-           "reference_rms_m": ref, "target_rms_m": target, "strategies": {}}
+           "reference_rms_m": ref, "reference_sem_m": ref_sem, "target_rms_m": target,
+           "strategies": {}}
     for k, tr in traces.items():
         t = time_to_band(tr, fresh[k], target)
         out["strategies"][k] = {
             "sets": tr.evaluated[-1], "wall_s": round(tr.seconds[-1], 2),
             "to_band_s": None if t is None else round(t, 2),
+            "sets_to_band": None if t is None else tr.evaluated[tr.seconds.index(t)],
             "to_band_over_sobol": None if t is None else round(t / sobol_s, 3),
             "final_fresh_rms_m": round(fresh[k][-1], 4),
             "best_fresh_over_ref": round(min(fresh[k]) / ref, 3),
@@ -169,14 +178,16 @@ def one_problem(name: str, run: Run, config: Config, space_key: str, args) -> di
 
 def print_table(o: dict) -> None:
     print(f"\n{o['problem']} ({o['frames']} frames), {o['space']} parameters: Sobol "
-          f"{o['sobol_s']} s, reference RMS {o['reference_rms_m']:.4f} m (fresh keys), "
+          f"{o['sobol_s']} s, reference RMS {o['reference_rms_m']:.4f} "
+          f"+- {o['reference_sem_m']:.4f} m (fresh keys, standard error), "
           f"target {o['target_rms_m']:.4f} m", flush=True)
-    print(f"  {'strategy':<9} {'sets':>5} {'wall s':>8} {'to 5% s':>8} {'/ sobol':>8} "
-          f"{'final m':>8} {'best/ref':>8}")
+    print(f"  {'strategy':<9} {'sets':>5} {'wall s':>8} {'to 5% s':>8} {'n@5%':>5} "
+          f"{'/ sobol':>8} {'final m':>8} {'best/ref':>8}")
     for k, s in o["strategies"].items():
         tb = "-" if s["to_band_s"] is None else f"{s['to_band_s']:.2f}"
         rt = "-" if s["to_band_over_sobol"] is None else f"{s['to_band_over_sobol']:.3f}"
-        print(f"  {k:<9} {s['sets']:>5} {s['wall_s']:>8.2f} {tb:>8} {rt:>8} "
+        sb = "-" if s["sets_to_band"] is None else str(s["sets_to_band"])
+        print(f"  {k:<9} {s['sets']:>5} {s['wall_s']:>8.2f} {tb:>8} {sb:>5} {rt:>8} "
               f"{s['final_fresh_rms_m']:>8.4f} {s['best_fresh_over_ref']:>8.3f}", flush=True)
 
 
@@ -189,7 +200,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--spaces", nargs="+", default=["4", "8"], choices=sorted(SPACES))
     ap.add_argument("--batch", type=int, default=16, help="sets per evaluator call")
     ap.add_argument("--select-keys", type=int, default=2)
-    ap.add_argument("--fresh-keys", type=int, default=4)
+    ap.add_argument("--fresh-keys", type=int, default=8)
     ap.add_argument("--sobol", type=int, default=256, help="reference Sobol points")
     ap.add_argument("--halton", type=int, default=128)
     ap.add_argument("--tpe", type=int, default=128)
