@@ -24,8 +24,8 @@ from gslam_jax.motion import MotionParams
 from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
 __all__ = ["MapExtent", "map_extent", "localmap_params", "observed_cells", "filter_config",
-           "filter_params", "local_observations", "map_observations", "particle_map_bytes", "map_memory",
-           "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
+           "filter_params", "local_observations", "map_observations", "particle_map_bytes",
+           "map_memory", "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
            "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError"]
 
 
