@@ -17,7 +17,7 @@ import numpy as np
 from jax import Array
 from jax.scipy.special import gammaln
 
-__all__ = ["stats_from_points", "obs_from_stats", "merge_stats", "conjugate_update",
+__all__ = ["stats_from_points", "obs_from_stats", "refine_obs", "merge_stats", "conjugate_update",
            "log_predictive", "log_predictive_integer", "log_v_obs", "lgamma_half",
            "log_likelihood_given_precision", "expected_std", "LGAMMA_TABLE_SIZE"]
 
@@ -33,24 +33,44 @@ def merge_stats(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.asarray(a, dtype=np.float64) + np.asarray(b, dtype=np.float64)
 
 
-def obs_from_stats(stats: np.ndarray, min_variance: float = 1e-6) -> np.ndarray:
+def obs_from_stats(stats: np.ndarray, min_variance: float = 1e-6, weight: float = 1.0,
+                   min_points: int = 2) -> np.ndarray:
     """(n, sum z, sum z^2)[..., 3] -> observation (k, S)[..., 2], float64 (paper 5.2).
 
-    k = n - 1 and S = sum (z - mean)^2 for cells with n >= 2; cells with fewer points carry no
-    information and get (0, 0). S comes from the one-pass formula sum z^2 - (sum z)^2 / n in
-    float64 (no shift: heights far from 0 lose digits to cancellation), clipped at 0 against
-    rounding, then floored at ``k * min_variance`` so that a cell of identical heights still has
-    finite log S. ``min_variance`` must be positive for that (default 1e-6 m^2, the paper
-    config's ``[map] min_variance``); with 0 such a cell gets S = 0 and NaN log weights.
+    k = n - 1 and S = sum (z - mean)^2 for cells with n >= ``min_points`` (at least 2); cells
+    with fewer points carry no information and get (0, 0). S comes from the one-pass formula
+    sum z^2 - (sum z)^2 / n in float64 (no shift: heights far from 0 lose digits to
+    cancellation), clipped at 0 against rounding, then floored at ``k * min_variance`` so that a
+    cell of identical heights still has finite log S. ``min_variance`` must be positive for that
+    (default 1e-6 m^2, the paper config's ``[map] min_variance``); with 0 such a cell gets S = 0
+    and NaN log weights. ``weight`` scales both k and S (the variance S / k is kept): the
+    degrees of freedom a cell's heights count for, as a fraction of n - 1 (1: the paper's
+    independent heights; below 1 discounts heights that are correlated within a cell).
+    ``refine_obs`` is the device twin of the last three steps.
     """
+    if min_points < 2:
+        raise ValueError(f"min_points must be at least 2 (one height has no variance), "
+                         f"got {min_points}")
     stats = np.asarray(stats, dtype=np.float64)
     n, sz, szz = stats[..., 0], stats[..., 1], stats[..., 2]
-    informative = n >= 2
+    informative = n >= max(2, math.ceil(min_points))
     safe_n = np.where(informative, n, 1.0)
     S = np.maximum(szz - sz * sz / safe_n, 0.0)
     k = np.where(informative, n - 1.0, 0.0)
     S = np.where(informative, np.maximum(S, k * min_variance), 0.0)
-    return np.stack([k, S], axis=-1)
+    return np.stack([weight * k, weight * S], axis=-1)
+
+
+def refine_obs(raw: Array, min_variance: Array | float, weight: Array | float = 1.0,
+               min_points: Array | float = 2.0) -> Array:
+    """Device twin of ``obs_from_stats``'s floor, weight and point threshold, applied to raw
+    observations ``obs_from_stats(stats, min_variance=0)`` [..., 2]: traced (searchable,
+    differentiable in ``min_variance`` and ``weight``) versions of the same settings. A cell
+    keeps its observation when n = k + 1 >= ``min_points`` (a real threshold: n >= ceil)."""
+    k, S = raw[..., 0], raw[..., 1]
+    keep = (k > 0) & (k + 1.0 >= min_points)
+    S = jnp.maximum(S, k * min_variance)
+    return jnp.stack([jnp.where(keep, weight * k, 0.0), jnp.where(keep, weight * S, 0.0)], -1)
 
 
 def conjugate_update(k_prior: Array, S_prior: Array, k_obs: Array, S_obs: Array) -> tuple[Array, Array]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import os
@@ -98,8 +97,13 @@ def _config_and_run(args: argparse.Namespace):
     return config, run
 
 
+def _values_text(values: dict[str, float]) -> str:
+    return ", ".join(f"{k} = {v:.5g}" for k, v in values.items())
+
+
 def cmd_search(args: argparse.Namespace) -> int:
-    from gslam_jax.search import SearchError, load_space, search
+    from gslam_jax.config import config_to_toml
+    from gslam_jax.search import SearchError, config_with_values, load_space, search
 
     try:
         space, options = load_space(args.space)
@@ -113,36 +117,51 @@ def cmd_search(args: argparse.Namespace) -> int:
                             path=args.score_path or options.get("path", "mean"),
                             seed=options.get("seed", 0), batch=args.batch,
                             progress=ProgressBar("search"))
+            best = result.best()
+            best_config = config_with_values(config, best)
             result.to_csv(folder.staging / "results.csv")
             result.to_json(folder.staging / "results.json")
+            (folder.staging / "best.toml").write_text(config_to_toml(best_config))
     except SearchError as err:
         raise ConfigError(str(err)) from err
-    print(f"best: {result.best()}")
-    print(f"results: {folder.target}")
+    unit = " m" if result.objective_name == "rms" else ""
+    print(f"best: {result.objective_name} = {result.objective[0]:.5g}{unit} at "
+          f"{_values_text(best)}")
+    print(f"results: {folder.target} (best.toml: the config with the best values, for --config)")
     return 0
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
+    from gslam_jax.config import config_to_toml
+    from gslam_jax.search import SearchError, config_with_values
     from gslam_jax.tuning import TuneError, tune
+
+    every = max(1, args.steps // 10)
+
+    def on_step(step: int, loss: float, values: dict[str, float]) -> None:
+        if step % every == 0 or step == 1 or step == args.steps:
+            print(f"step {step}/{args.steps}: loss {loss:.6g} (at the step's start), then "
+                  f"{_values_text(values)}", flush=True)
 
     try:
         names = args.params.split(",") if args.params else None
-        with (results_folder(args.out, "tune", overwrite=args.overwrite, command="gslam tune")
-              if args.out else contextlib.nullcontext()) as folder:
+        with results_folder(args.out, "tune", overwrite=args.overwrite,
+                            command="gslam tune") as folder:
             config, run = _config_and_run(args)
             result = tune(run, config, objective=args.objective, optimizer=args.optimizer,
                           lr=args.lr, steps=args.steps, names=names,
-                          runs_per_step=args.runs_per_step, crn=args.crn,
-                          progress=ProgressBar("tune"))
-            if folder is not None:
-                (folder.staging / "tuned.json").write_text(json.dumps(json_ready({
-                    "objective": result.objective, "values": result.values,
-                    "history": np.asarray(result.history).tolist(),
-                    "losses": np.asarray(result.losses).tolist(),
-                    "seconds": result.seconds}), indent=2, allow_nan=False))
-    except TuneError as err:
+                          runs_per_step=args.runs_per_step, crn=args.crn, on_step=on_step)
+            tuned_config = config_with_values(config, result.values)
+            (folder.staging / "tuned.toml").write_text(config_to_toml(tuned_config))
+            (folder.staging / "tuned.json").write_text(json.dumps(json_ready({
+                "objective": result.objective, "values": result.values,
+                "history": np.asarray(result.history).tolist(),
+                "losses": np.asarray(result.losses).tolist(),
+                "seconds": result.seconds}), indent=2, allow_nan=False))
+    except (TuneError, SearchError) as err:
         raise ConfigError(str(err)) from err
-    print("tuned: " + ", ".join(f"{k} = {v:.5g}" for k, v in result.values.items()))
+    print("tuned: " + _values_text(result.values))
+    print(f"results: {folder.target} (tuned.toml: the config with the tuned values, for --config)")
     return 0
 
 
@@ -212,8 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--score-path", choices=choices.SCORE_PATHS,
                    help="path scored by rms: weighted mean or final best particle")
     p.add_argument("--batch", type=int, help="parameter sets per chunk")
-    p.add_argument("--out", type=Path, help="write results.csv and results.json here "
-                   "(when complete)")
+    p.add_argument("--out", type=Path, help="write results.csv, results.json and best.toml here "
+                   "when complete (default results/search-<time>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=cmd_search)
 
@@ -227,7 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="comma-separated names (default: the objective's)")
     p.add_argument("--runs-per-step", type=int, default=4)
     p.add_argument("--crn", action="store_true", help="common random numbers across steps")
-    p.add_argument("--out", type=Path, help="write tuned.json here (when complete)")
+    p.add_argument("--out", type=Path, help="write tuned.toml (a config for --config) and "
+                   "tuned.json here when complete (default results/tune-<time>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=cmd_tune)
     _build_rest(sub)

@@ -65,6 +65,9 @@ class MapSection:
     resolution: float = 0.16
     margin: float = 10.0
     min_variance: float = 1e-6
+    # degrees of freedom per local-map cell as a fraction of n - 1 (cells.obs_from_stats)
+    obs_weight: float = 1.0
+    min_points: int = 2  # heights a local-map cell needs to be used (at least 2)
 
 
 @dataclass(frozen=True)
@@ -130,6 +133,8 @@ class Config:
             (m.margin >= 0, "map", "margin", "must be non-negative"),
             # S = 0 with k > 0 would make log S = -inf and every log weight NaN
             (m.min_variance > 0, "map", "min_variance", "must be positive (a floor of S / k)"),
+            (m.obs_weight > 0, "map", "obs_weight", "must be positive"),
+            (m.min_points >= 2, "map", "min_points", "must be at least 2"),
             (lm.max_range > 0, "localmap", "max_range", "must be positive"),
             (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
             (lm.travel > 0, "localmap", "travel", "must be positive"),

@@ -14,6 +14,13 @@ Objectives, computed inside JAX:
   (the log mean weight increment, ``StepInfo.log_lik``). Note: with tempering (beta != 1) this is
   not a normalised likelihood in the betas; compare it across alphas only.
 
+Searchable: the filter's continuous parameters (``FILTER_PARAM_NAMES``: the alphas of eqs. 2-3,
+the betas of eqs. 29-31) and the local-map observation settings of ``[map]``
+(``OBS_PARAM_NAMES``: min_variance, obs_weight, min_points), applied inside the evaluated
+function by ``cells.refine_obs`` to raw observations. Other config values are shapes or
+discrete choices (static: a recompilation per value) or belong to the front-end (they change
+the Run); they are not searched.
+
 Common random numbers: every parameter set uses the same PRNG key (the only mode the batched
 search supports), so differences in the objective reflect the parameters, not the draws.
 """
@@ -35,18 +42,25 @@ import numpy as np
 from jax import Array, lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from gslam_jax import choices, rbpf, slam
-from gslam_jax.config import Config
+from scipy.stats import qmc
+
+from gslam_jax import cells, choices, rbpf, slam
+from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.machine import device_memory_limit, physical_memory
 from gslam_jax.run import Run
 
-__all__ = ["PARAM_NAMES", "DESIGNS", "OBJECTIVES", "SearchError", "SearchSpace", "SearchResult",
-           "parse_space", "load_space", "design_points", "halton", "sobol", "params_from_values",
-           "rigid_rms", "objective_value", "evaluate", "search", "auto_batch", "chunk_size",
-           "default_inner", "rank"]
+__all__ = ["PARAM_NAMES", "FILTER_PARAM_NAMES", "OBS_PARAM_NAMES", "DESIGNS", "OBJECTIVES",
+           "SearchError", "SearchSpace", "SearchResult", "ObsSettings", "parse_space",
+           "load_space", "design_points", "unit_points", "params_from_values",
+           "observations_from_values", "base_values", "obs_settings", "config_with_values",
+           "search_inputs", "rigid_rms", "objective_value", "evaluate", "search", "auto_batch",
+           "chunk_size", "default_inner", "rank", "design_values", "finish"]
 
-PARAM_NAMES = ("alpha_d", "alpha_theta_d", "alpha_theta", "beta_prev", "beta_new")
+FILTER_PARAM_NAMES = ("alpha_d", "alpha_theta_d", "alpha_theta", "beta_prev", "beta_new")
+OBS_PARAM_NAMES = ("min_variance", "obs_weight", "min_points")  # [map], via cells.refine_obs
+PARAM_NAMES = FILTER_PARAM_NAMES + OBS_PARAM_NAMES
+_POSITIVE = ("beta_prev", "beta_new", "min_variance", "obs_weight")
 DESIGNS = choices.SEARCH_DESIGNS
 OBJECTIVES = choices.SEARCH_OBJECTIVES
 PATHS = choices.SCORE_PATHS
@@ -93,9 +107,12 @@ def _check_range(name: str, lo: Any, hi: Any, log: bool, source: str) -> tuple[f
     if lo == hi:
         raise SearchError(f"{where}: empty range [{lo}, {hi}]; fix the value in the config "
                           f"instead of searching it")
-    if lo < 0 or (name.startswith("beta") and lo <= 0):
+    if name == "min_points" and lo < 2:
+        raise SearchError(f"{where}: range [{lo}, {hi}] must start at 2 or above (a cell "
+                          f"needs two heights for a variance)")
+    if lo < 0 or (name in _POSITIVE and lo <= 0):
         raise SearchError(f"{where}: range [{lo}, {hi}] must be "
-                          f"{'positive' if name.startswith('beta') else 'non-negative'}")
+                          f"{'positive' if name in _POSITIVE else 'non-negative'}")
     if log and lo <= 0:
         raise SearchError(f"{where}: a log-scale range needs a positive lower bound, got {lo}")
     return lo, hi
@@ -160,62 +177,25 @@ def load_space(path: str | Path) -> tuple[SearchSpace, dict[str, Any]]:
 
 # ----------------------------------------------------------------------------- designs
 
-_PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29)
-
-
-def halton(n: int, dim: int, skip: int = 1) -> np.ndarray:
-    """The first ``n`` Halton points in [0, 1)^dim (radical inverses in the first primes),
-    starting at index ``skip`` (1 drops the all-zeros point)."""
-    if dim > len(_PRIMES):
-        raise SearchError(f"halton: at most {len(_PRIMES)} dimensions, got {dim}")
-    idx = np.arange(skip, skip + n, dtype=np.int64)
-    out = np.zeros((n, dim))
-    for d, base in enumerate(_PRIMES[:dim]):
-        i = idx.copy()
-        f = 1.0
-        r = np.zeros(n)
-        while np.any(i > 0):
-            f /= base
-            r += f * (i % base)
-            i //= base
-        out[:, d] = r
-    return out
-
-
-# Joe & Kuo (2008) direction numbers (new-joe-kuo-6.21201) for dimensions 2-5: (s, a, m_1..m_s).
-_SOBOL_DIRECTIONS = ((1, 0, (1,)), (2, 1, (1, 3)), (3, 1, (1, 3, 1)), (3, 2, (1, 1, 1)))
-
-
-def sobol(n: int, dim: int, bits: int = 30) -> np.ndarray:
-    """The first ``n`` points of the unscrambled Sobol sequence in [0, 1)^dim (Gray-code order,
-    as scipy.stats.qmc.Sobol(scramble=False)); up to 5 dimensions."""
-    if dim > 1 + len(_SOBOL_DIRECTIONS):
-        raise SearchError(f"sobol: at most {1 + len(_SOBOL_DIRECTIONS)} dimensions, got {dim}")
-    V = np.zeros((dim, bits), np.int64)
-    V[0] = [1 << (bits - 1 - k) for k in range(bits)]
-    for d in range(1, dim):
-        s, a, m = _SOBOL_DIRECTIONS[d - 1]
-        v = [m[k] << (bits - 1 - k) for k in range(s)]
-        for k in range(s, bits):
-            x = v[k - s] ^ (v[k - s] >> s)
-            for j in range(1, s):
-                if (a >> (s - 1 - j)) & 1:
-                    x ^= v[k - j]
-            v.append(x)
-        V[d] = v
-    out = np.zeros((n, dim))
-    x = np.zeros(dim, np.int64)
-    for i in range(n):
-        out[i] = x / float(1 << bits)
-        c = (~i & (i + 1)).bit_length() - 1  # index of the lowest zero bit of i
-        x ^= V[:, c]
-    return out
+def unit_points(design: str, n: int, dim: int, seed: int = 0) -> np.ndarray:
+    """``n`` points in [0, 1)^dim: ``sobol`` and ``halton`` from ``scipy.stats.qmc``, scrambled
+    with ``seed`` (Owen scrambling / random permutations: no point on the cube's corner, and a
+    reproducible design per seed), or ``random`` (uniform). Sobol's balance needs n = 2^m; other
+    n take the first n points of the next power of two."""
+    if design == "random":
+        return np.random.default_rng(seed).uniform(size=(n, dim))
+    if design == "sobol":
+        m = max(0, math.ceil(math.log2(n)))
+        return qmc.Sobol(dim, scramble=True, seed=seed).random_base2(m)[:n]
+    if design == "halton":
+        return qmc.Halton(dim, scramble=True, seed=seed).random(n)
+    raise SearchError(f"design '{design}' has no unit points; choose sobol, halton or random")
 
 
 def design_points(space: SearchSpace, design: str, n: int, seed: int = 0) -> np.ndarray:
     """Parameter values [P, d] of a design: ``grid`` (m points per axis with m^d <= n,
     axis end points included), ``random`` (uniform, or log-uniform on log axes), ``halton`` or
-    ``sobol`` (quasi-random)."""
+    ``sobol`` (scrambled quasi-random, ``unit_points``); ``seed`` picks the draw."""
     if design not in DESIGNS:
         raise SearchError(f"design '{design}' unknown; choose one of {', '.join(DESIGNS)}")
     if not isinstance(n, (int, np.integer)) or n < 1:
@@ -225,12 +205,8 @@ def design_points(space: SearchSpace, design: str, n: int, seed: int = 0) -> np.
         m = max(1, int(math.floor(n ** (1.0 / d) + 1e-9)))
         axis = np.linspace(0.0, 1.0, m) if m > 1 else np.array([0.5])
         unit = np.stack(np.meshgrid(*([axis] * d), indexing="ij"), -1).reshape(-1, d)
-    elif design == "random":
-        unit = np.random.default_rng(seed).uniform(size=(n, d))
-    elif design == "halton":
-        unit = halton(n, d)
     else:
-        unit = sobol(n, d)
+        unit = unit_points(design, n, d, seed)
     return space.scale(unit)
 
 
@@ -255,6 +231,76 @@ def params_from_values(values: Array, names: Sequence[str], base: rbpf.FilterPar
                           alpha_theta_d=pick("alpha_theta_d", m.alpha_theta_d),
                           alpha_theta=pick("alpha_theta", m.alpha_theta)),
         beta_prev=pick("beta_prev", base.beta_prev), beta_new=pick("beta_new", base.beta_new))
+
+
+class ObsSettings(NamedTuple):
+    """The ``[map]`` observation settings that the search applies on the device."""
+
+    min_variance: Array | float = 1e-6
+    obs_weight: Array | float = 1.0
+    min_points: Array | float = 2.0
+
+
+def obs_settings(config: Config) -> ObsSettings:
+    m = config.map
+    return ObsSettings(jnp.float32(m.min_variance), jnp.float32(m.obs_weight),
+                       jnp.float32(m.min_points))
+
+
+def observations_from_values(values: Array, names: Sequence[str], base: ObsSettings,
+                             raw: Array) -> Array:
+    """Local-map observations [M, L, L, 2] for one parameter row ``values`` [d]: the raw
+    observations (``search_inputs``) refined by ``cells.refine_obs`` with the named
+    ``OBS_PARAM_NAMES`` columns, the others from ``base``."""
+    col = {n: values[i] for i, n in enumerate(names)}
+    s = ObsSettings(*(col.get(f, getattr(base, f)) for f in ObsSettings._fields))
+    return cells.refine_obs(raw, s.min_variance, s.obs_weight, s.min_points)
+
+
+def refines_obs(names: Sequence[str]) -> bool:
+    """True when ``names`` include an observation setting (raw observations needed)."""
+    return any(n in OBS_PARAM_NAMES for n in names)
+
+
+def search_inputs(run: Run, config: Config, names: Sequence[str]
+                  ) -> tuple[slam.RunArrays, rbpf.FilterConfig]:
+    """``slam.run_arrays``; when ``names`` include an observation setting, the local maps are
+    raw observations (min_variance 0, weight 1, 2 points) that ``observations_from_values``
+    refines on the device."""
+    inputs, cfg = slam.run_arrays(run, config)
+    if refines_obs(names):
+        inputs = inputs._replace(local_obs=jnp.asarray(slam.local_observations(run, 0.0)))
+    return inputs, cfg
+
+
+def base_values(config: Config) -> dict[str, float]:
+    """Every searchable parameter's value in ``config``."""
+    m, f, mp = config.motion, config.filter, config.map
+    return {"alpha_d": m.alpha_d, "alpha_theta_d": m.alpha_theta_d, "alpha_theta": m.alpha_theta,
+            "beta_prev": f.beta_prev, "beta_new": f.beta_new, "min_variance": mp.min_variance,
+            "obs_weight": mp.obs_weight, "min_points": float(mp.min_points)}
+
+
+def config_with_values(config: Config, values: dict[str, float]) -> Config:
+    """``config`` with searched/tuned values set (min_points: the threshold n >= ceil(value)
+    that the search applied), checked by ``Config.validate``."""
+    import dataclasses
+
+    section = {"alpha_d": "motion", "alpha_theta_d": "motion", "alpha_theta": "motion",
+               "beta_prev": "filter", "beta_new": "filter", "min_variance": "map",
+               "obs_weight": "map", "min_points": "map"}
+    changes: dict[str, dict[str, Any]] = {}
+    for name, value in values.items():
+        if name not in section:
+            raise SearchError(f"unknown parameter '{name}'; searchable: {', '.join(PARAM_NAMES)}")
+        v = int(math.ceil(value - 1e-9)) if name == "min_points" else float(value)
+        changes.setdefault(section[name], {})[name] = v
+    out = dataclasses.replace(config, **{sec: dataclasses.replace(getattr(config, sec), **kv)
+                                         for sec, kv in changes.items()})
+    try:
+        return out.validate("<searched values>")
+    except ConfigError as err:
+        raise SearchError(str(err)) from err
 
 
 def rigid_rms(estimate: Array, reference: Array, mask: Array) -> Array:
@@ -288,16 +334,18 @@ def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask:
 _Inputs = slam.RunArrays
 
 
-def _batch_fn(key: Array, inputs: _Inputs, base: rbpf.FilterParams, names: tuple[str, ...],
-              cfg: rbpf.FilterConfig, objective: str, path: str, inner: int
-              ) -> Callable[[Array], Array]:
+def _batch_fn(key: Array, inputs: _Inputs, base: rbpf.FilterParams, obs_base: ObsSettings,
+              names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str, path: str,
+              inner: int) -> Callable[[Array], Array]:
     """Objectives of a block of parameter sets [B, d] on one device: ``lax.map`` over the sets
     in vmapped groups of ``inner`` (inner = B: a plain vmap)."""
 
     def one(v: Array) -> Array:
         p = params_from_values(v, names, base)
-        out = rbpf.run_filter(key, p, inputs.controls, inputs.obs_index, inputs.local_obs, cfg,
-                              inputs.start)
+        obs = (observations_from_values(v, names, obs_base, inputs.local_obs)
+               if refines_obs(names) else inputs.local_obs)
+        out = rbpf.run_filter(key, p, inputs.controls, inputs.obs_index, obs, cfg,
+                            inputs.start)
         return objective_value(out, objective, inputs.reference, inputs.mask, path)
 
     def block(values: Array) -> Array:
@@ -312,23 +360,24 @@ def _batch_fn(key: Array, inputs: _Inputs, base: rbpf.FilterParams, names: tuple
 
 @partial(jax.jit, static_argnames=("names", "cfg", "objective", "path", "inner", "mesh"))
 def _evaluate_batch(values: Array, key: Array, inputs: _Inputs, base: rbpf.FilterParams,
-                    names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str, path: str,
-                    inner: int, mesh: Mesh) -> Array:
+                    obs_base: ObsSettings, names: tuple[str, ...], cfg: rbpf.FilterConfig,
+                    objective: str, path: str, inner: int, mesh: Mesh) -> Array:
     """shard_map over the 1-D device mesh: each device evaluates its block of sets."""
     spec, rep = PartitionSpec("p"), PartitionSpec()
 
-    def per_device(values, key, inputs, base):
-        return _batch_fn(key, inputs, base, names, cfg, objective, path, inner)(values)
+    def per_device(values, key, inputs, base, obs_base):
+        return _batch_fn(key, inputs, base, obs_base, names, cfg, objective, path,
+                         inner)(values)
 
-    return jax.shard_map(per_device, mesh=mesh, in_specs=(spec, rep, rep, rep),
-                         out_specs=spec, check_vma=False)(values, key, inputs, base)
+    return jax.shard_map(per_device, mesh=mesh, in_specs=(spec, rep, rep, rep, rep),
+                         out_specs=spec, check_vma=False)(values, key, inputs, base, obs_base)
 
 
 def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: rbpf.FilterParams,
              names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str, path: str = "mean",
              batch: int | None = None, devices: Sequence[jax.Device] | None = None,
-             progress: Callable[[int, int], None] | None = None, inner: int | None = None
-             ) -> np.ndarray:
+             progress: Callable[[int, int], None] | None = None, inner: int | None = None,
+             obs_base: ObsSettings = ObsSettings()) -> np.ndarray:
     """Objective for every row of ``values`` [P, d]: balanced chunks of at most about ``batch``
     rows (``chunk_size``: a multiple of the device count; the last chunk padded), each sharded
     over a 1-D mesh on the parameter axis (``NamedSharding``, ``shard_map``). One compilation
@@ -338,6 +387,9 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: rbpf.FilterP
     ``lax.cond`` (resample or not) into a select over every map, so on CPU the sets of a device
     run one after another in ``lax.map`` (inner=1, the default there); accelerators default to
     vmapping the whole per-device block (``default_inner``).
+
+    obs_base: the observation settings not in ``names`` (``obs_settings(config)``); with an
+    observation setting in ``names``, ``inputs.local_obs`` must be raw (``search_inputs``).
 
     Objective "rms" needs a frame with a ground-truth position (``inputs.mask``; headings are
     not used); a SearchError otherwise (``slam.require_ground_truth``).
@@ -356,6 +408,7 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: rbpf.FilterP
     replicated = NamedSharding(mesh, PartitionSpec())
     inputs = jax.device_put(inputs, replicated)
     base = jax.device_put(base, replicated)
+    obs_base = jax.device_put(ObsSettings(*(jnp.float32(v) for v in obs_base)), replicated)
     key = jax.device_put(key, replicated)
     out = np.empty(P, np.float64)
     for start in range(0, P, batch):
@@ -364,7 +417,7 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: rbpf.FilterP
         if n < batch:  # pad with copies of the last row (discarded) to keep one shape
             chunk = np.concatenate([chunk, np.repeat(chunk[-1:], batch - n, axis=0)])
         vals = jax.device_put(chunk, sharded)
-        res = _evaluate_batch(vals, key, inputs, base, names, cfg, objective, path,
+        res = _evaluate_batch(vals, key, inputs, base, obs_base, names, cfg, objective, path,
                               inner_, mesh)
         out[start:start + n] = np.asarray(jax.device_get(res), np.float64)[:n]
         if progress is not None:
@@ -480,6 +533,26 @@ def rank(values: np.ndarray, objective: np.ndarray, maximize: bool
     return values[order], f[order]
 
 
+def design_values(run: Run, space: SearchSpace, design: str, n: int, objective: str,
+                  path: str, seed: int, values: np.ndarray | None) -> np.ndarray:
+    """Check a search request (objective, path, ground truth for "rms") and return its
+    parameter values [P, d]: ``values`` if given, else the design's points."""
+    if objective not in OBJECTIVES:
+        raise SearchError(f"objective '{objective}' unknown; choose one of "
+                          f"{', '.join(OBJECTIVES)}")
+    if path not in PATHS:
+        raise SearchError(f"path '{path}' unknown; choose one of {', '.join(PATHS)}")
+    if objective == "rms" and run.ground_truth is None:
+        raise SearchError("objective 'rms' needs the run's ground_truth, which is missing; "
+                          "use objective 'loglik'")
+    if values is None:
+        values = design_points(space, design, n, seed)
+    values = np.asarray(values, np.float64)
+    if values.ndim != 2 or values.shape[1] != space.dim:
+        raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
+    return values
+
+
 def search(run: Run, config: Config, space: SearchSpace, design: str = "halton", n: int = 64,
            objective: str = "rms", *, path: str = "mean", key: Array | None = None,
            crn: bool = True, seed: int = 0, batch: int | None = None,
@@ -500,20 +573,8 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     """
     import time
 
-    if objective not in OBJECTIVES:
-        raise SearchError(f"objective '{objective}' unknown; choose one of "
-                          f"{', '.join(OBJECTIVES)}")
-    if path not in PATHS:
-        raise SearchError(f"path '{path}' unknown; choose one of {', '.join(PATHS)}")
-    if objective == "rms" and run.ground_truth is None:
-        raise SearchError("objective 'rms' needs the run's ground_truth, which is missing; "
-                          "use objective 'loglik'")
-    if values is None:
-        values = design_points(space, design, n, seed)
-    values = np.asarray(values, np.float64)
-    if values.ndim != 2 or values.shape[1] != space.dim:
-        raise SearchError(f"values must be [P, {space.dim}], got {values.shape}")
-    inputs, cfg = slam.run_arrays(run, config)  # evaluate() checks the ground truth for "rms"
+    values = design_values(run, space, design, n, objective, path, seed, values)
+    inputs, cfg = search_inputs(run, config, space.names)  # evaluate() checks "rms"'s truth
     base = slam.filter_params(config)
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:
@@ -539,8 +600,16 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
             progress(done, total)
 
     f = evaluate(values, key, inputs, base, tuple(space.names), cfg, objective, path,
-                 batch=batch, devices=devices, progress=timed_progress, inner=inner)
-    total_s = time.perf_counter() - t0
+                 batch=batch, devices=devices, progress=timed_progress, inner=inner,
+                 obs_base=obs_settings(config))
+    return finish(space, values, f, objective, time.perf_counter() - t0, first_chunk_s)
+
+
+def finish(space: SearchSpace, values: np.ndarray, f: np.ndarray, objective: str,
+           total_s: float, first_chunk_s: float) -> SearchResult:
+    """Rank evaluated sets into a SearchResult: a SearchError when every objective is NaN, a
+    RuntimeWarning naming one when some are (shared by ``search`` and
+    ``distributed.distributed_search``)."""
     bad = ~np.isfinite(f)
     if bad.all():
         raise SearchError(f"objective '{objective}' is NaN or infinite for every one of the "

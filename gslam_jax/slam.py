@@ -24,8 +24,8 @@ from gslam_jax.motion import MotionParams
 from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
 __all__ = ["MapExtent", "map_extent", "localmap_params", "observed_cells", "filter_config",
-           "filter_params", "local_observations", "particle_map_bytes", "map_memory",
-           "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
+           "filter_params", "local_observations", "map_observations", "particle_map_bytes",
+           "map_memory", "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
            "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError"]
 
 
@@ -190,15 +190,18 @@ def filter_params(config: Config) -> rbpf.FilterParams:
         beta_new=jnp.float32(config.filter.beta_new))
 
 
-def local_observations(run: Run, min_variance: float) -> np.ndarray:
-    """[max(M, 1), L, L, 2] float32 observations (k, S); float64 on the host, then cast.
+def local_observations(run: Run, min_variance: float, weight: float = 1.0,
+                       min_points: int = 2) -> np.ndarray:
+    """[max(M, 1), L, L, 2] float32 observations (k, S) (``cells.obs_from_stats`` with the
+    ``[map]`` settings min_variance, obs_weight and min_points); float64 on the host, then cast.
 
     A RunError, naming the local map and a frame that uses it, when a value is not finite in
     float32 (statistics finite in float64 may overflow float32's range, about 3.4e38)."""
     if run.num_local_maps == 0:
         return np.zeros((1, 8, 8, 2), np.float32)
     with np.errstate(over="ignore", invalid="ignore"):
-        obs = cells.obs_from_stats(run.local_maps, min_variance).astype(np.float32)
+        obs = cells.obs_from_stats(run.local_maps, min_variance, weight,
+                                   min_points).astype(np.float32)
     bad = ~np.isfinite(obs).all(axis=-1)
     if bad.any():
         m, i, j = (int(v) for v in np.argwhere(bad)[0])
@@ -208,6 +211,13 @@ def local_observations(run: Run, min_variance: float) -> np.ndarray:
             f"(k, S) = {obs[m, i, j].tolist()} beyond float32, which the filter computes in; "
             f"check that local map's statistics")
     return obs
+
+
+def map_observations(run: Run, config: Config) -> np.ndarray:
+    """``local_observations`` with the config's ``[map]`` min_variance, obs_weight and
+    min_points."""
+    m = config.map
+    return local_observations(run, m.min_variance, m.obs_weight, m.min_points)
 
 
 class RunArrays(NamedTuple):
@@ -246,7 +256,7 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
     arrays = RunArrays(
         controls=jnp.asarray(run.controls, jnp.float32),
         obs_index=jnp.asarray(run.obs_index, jnp.int32),
-        local_obs=jnp.asarray(local_observations(run, config.map.min_variance)),
+        local_obs=jnp.asarray(map_observations(run, config)),
         reference=jnp.asarray(np.nan_to_num(gt), jnp.float32),
         mask=jnp.asarray(ground_truth_mask(run)),
         start=jnp.asarray(run.start_pose(), jnp.float32))
@@ -307,7 +317,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     """
     cfg = filter_config(config, run)
     params = filter_params(config)
-    obs = jnp.asarray(local_observations(run, config.map.min_variance))
+    obs = jnp.asarray(map_observations(run, config))
     T = run.num_frames
     key = jax.random.key(config.filter.seed) if key is None else key
     keys = rbpf.frame_keys(key, T)

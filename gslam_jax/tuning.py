@@ -46,7 +46,9 @@ from gslam_jax.config import Config
 from gslam_jax.errors import InputError
 from gslam_jax.motion import MotionParams, motion_stds
 from gslam_jax.run import Run
-from gslam_jax.search import PARAM_NAMES, params_from_values
+from gslam_jax.search import (FILTER_PARAM_NAMES, PARAM_NAMES, ObsSettings, base_values,
+                              obs_settings, observations_from_values, params_from_values,
+                              refines_obs, search_inputs)
 
 __all__ = ["TUNE_OBJECTIVES", "TuneError", "TuneInputs", "TuneResult", "transition_score",
            "sw_propose", "sw_resample", "sw_objectives", "objective_fn", "make_inputs", "tune", "default_names"]
@@ -140,10 +142,16 @@ def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, rbpf.FilterConfig
 
 
 def objective_fn(log_values: Array, keys: Array, base: rbpf.FilterParams, inputs: TuneInputs,
-                 names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str) -> Array:
+                 names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str,
+                 obs_base: ObsSettings = ObsSettings()) -> Array:
     """Loss to minimise at log parameter values [d], averaged over independent runs ``keys``
-    [K]: ``-loglik / updates`` or the mean expected squared error (m^2)."""
-    params = params_from_values(jnp.exp(log_values), names, base)
+    [K]: ``-loglik / updates`` or the mean expected squared error (m^2). With an observation
+    setting in ``names``, ``inputs.local_obs`` are raw (``search.search_inputs``)."""
+    values = jnp.exp(log_values)
+    params = params_from_values(values, names, base)
+    if refines_obs(names):
+        inputs = inputs._replace(local_obs=observations_from_values(values, names, obs_base,
+                                                                    inputs.local_obs))
     # lax.map, not vmap: under vmap the data-dependent resampling cond would become a select
     # over every map (both branches run, the copy loop over the whole batch).
     obj = lax.map(lambda k: sw_objectives(k, params, inputs, cfg), keys)
@@ -198,16 +206,17 @@ class TuneResult(NamedTuple):
 
 
 def default_names(objective: str) -> tuple[str, ...]:
-    """The alphas for "loglik" (the tempered likelihood is not normalised in the betas), all
-    five parameters for "supervised"."""
-    return PARAM_NAMES[:3] if objective == "loglik" else PARAM_NAMES
+    """The alphas for "loglik" (the tempered likelihood is not normalised in the betas), the
+    five filter parameters for "supervised"."""
+    return FILTER_PARAM_NAMES[:3] if objective == "loglik" else FILTER_PARAM_NAMES
 
 
 def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "adam",
          lr: float = 0.05, steps: int = 100, *, names: Sequence[str] | None = None,
          start: dict[str, float] | None = None, runs_per_step: int = 4, key: Array | None = None,
          crn: bool = False, optimizer_kwargs: dict | None = None,
-         progress: Callable[[int, int], None] | None = None) -> TuneResult:
+         progress: Callable[[int, int], None] | None = None,
+         on_step: Callable[[int, float, dict[str, float]], None] | None = None) -> TuneResult:
     """Tune ``names`` by ``optimizer`` (``getattr(optax, optimizer)(lr, **optimizer_kwargs)``,
     an optimiser whose update takes the gradient alone: those needing extra update arguments,
     e.g. ``lbfgs``, are a TuneError before any filter run).
@@ -218,7 +227,9 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     averaged per gradient. crn: reuse the same keys every step (common random numbers);
     otherwise step s uses keys derived from fold_in(key, s). "supervised" needs a frame with a
     finite ground-truth position (x, y; headings are not used), a TuneError otherwise (the loss
-    would be 0 for every parameter value).
+    would be 0 for every parameter value). on_step(step, loss, values) is called after every
+    step with the loss at the step's parameters and the updated values. Tunable: every
+    search parameter but min_points (a threshold: no gradient).
     """
     if objective not in TUNE_OBJECTIVES:
         raise TuneError(f"objective '{objective}' unknown; choose one of "
@@ -226,24 +237,28 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     names = tuple(names) if names is not None else default_names(objective)
     for n in names:
         if n not in PARAM_NAMES:
-            raise TuneError(f"unknown parameter '{n}'; tunable: {', '.join(PARAM_NAMES)}")
-    if objective == "loglik" and any(n.startswith("beta") for n in names):
-        raise TuneError("objective 'loglik' cannot tune beta_prev/beta_new: the tempered "
-                        "likelihood (eqs. 29-31) is not normalised in them; use 'supervised'")
+            raise TuneError(f"unknown parameter '{n}'; tunable: "
+                            f"{', '.join(p for p in PARAM_NAMES if p != 'min_points')}")
+    if "min_points" in names:
+        raise TuneError("min_points is a threshold (the loss is flat between integers, no "
+                        "gradient); search it with gslam search instead")
+    if objective == "loglik" and any(n not in FILTER_PARAM_NAMES[:3] for n in names):
+        raise TuneError("objective 'loglik' tunes the alphas only: the tempered likelihood "
+                        "(eqs. 29-31) is not normalised in beta_prev/beta_new, nor across "
+                        "observation settings (they change the data); use 'supervised'")
     if objective == "supervised" and run.ground_truth is None:
         raise TuneError("objective 'supervised' needs the run's ground_truth, which is missing")
     if not hasattr(optax, optimizer) or not callable(getattr(optax, optimizer)):
         raise TuneError(f"optimizer '{optimizer}' is not an optax optimiser")
     if steps < 1 or runs_per_step < 1:
         raise TuneError("steps and runs_per_step must be at least 1")
-    inputs, cfg = make_inputs(run, config)
+    inputs, cfg = search_inputs(run, config, names)
     if objective == "supervised":
         slam.require_ground_truth(inputs.mask, objective, TuneError)
     base = slam.filter_params(config)
-    cur = dict(zip(PARAM_NAMES, (config.motion.alpha_d, config.motion.alpha_theta_d,
-                                 config.motion.alpha_theta, config.filter.beta_prev,
-                                 config.filter.beta_new)))
+    cur = base_values(config)
     cur.update(start or {})
+    obs_base = obs_settings(config)
     for n in names:
         if not (math.isfinite(cur[n]) and cur[n] > 0):
             raise TuneError(f"start value of '{n}' must be positive and finite, got {cur[n]}")
@@ -254,7 +269,7 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     t0 = time.perf_counter()
     for s in range(steps):
         keys = jax.random.split(key if crn else jax.random.fold_in(key, s), runs_per_step)
-        loss, g = _value_and_grad(x, keys, base, inputs, names, cfg, objective)
+        loss, g = _value_and_grad(x, keys, base, inputs, names, cfg, objective, obs_base)
         if not np.all(np.isfinite(np.asarray(g))):
             raise TuneError(f"non-finite gradient at step {s} for "
                             f"{dict(zip(names, np.exp(np.asarray(x)).round(6)))}")
@@ -264,6 +279,8 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
         history.append(np.exp(np.asarray(x, np.float64)))
         if progress is not None:
             progress(s + 1, steps)
+        if on_step is not None:
+            on_step(s + 1, float(loss), dict(zip(names, map(float, history[-1]))))
     values = {n: float(v) for n, v in zip(names, history[-1])}
     return TuneResult(names, values, np.stack(history), np.asarray(losses), objective,
                       time.perf_counter() - t0)

@@ -1,5 +1,6 @@
 """Cell statistics against independent references (SciPy, quadrature, Monte Carlo)."""
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax import enable_x64
@@ -75,6 +76,23 @@ def test_obs_from_stats_needs_two_points_and_floors_variance():
     np.testing.assert_array_equal(obs[0], [0, 0])
     np.testing.assert_allclose(obs[1], [2, 2e-4])  # identical heights: S floored at k * 1e-4
     np.testing.assert_array_equal(obs[2], [0, 0])
+
+
+def test_refine_obs_on_device_matches_obs_from_stats():
+    """Floor, weight and point threshold applied on the device to raw observations equal the
+    host's float64 observations with the same settings (float32 tolerance)."""
+    rng = np.random.default_rng(5)
+    n = rng.integers(0, 9, 400).astype(float)
+    z = [rng.normal(1.0, rng.choice([0.0, 1e-4, 0.1]), int(k)) for k in n]
+    stats_ = np.stack([cells.stats_from_points(v) for v in z])
+    raw = jnp.asarray(cells.obs_from_stats(stats_, 0.0), jnp.float32)
+    for mv, w, mp in [(1e-6, 1.0, 2), (1e-3, 0.4, 3), (1e-2, 2.0, 5)]:
+        want = cells.obs_from_stats(stats_, mv, w, mp)
+        got = np.asarray(cells.refine_obs(raw, mv, w, float(mp)))
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-9)
+        assert np.all((want[:, 0] > 0) == (n >= mp))
+    with pytest.raises(ValueError, match="min_points"):
+        cells.obs_from_stats(stats_, 1e-6, 1.0, 1)
 
 
 def test_lgamma_table_and_stirling_match_scipy():

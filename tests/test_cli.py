@@ -85,3 +85,44 @@ def test_run_config_applies_the_course_section_of_a_table1_config(tmp_path):
     assert (other.filter.beta_prev, other.motion.alpha_d) == (0.05, 0.04)
     from_file = _load_config(ns(course="maze", run_file=tmp_path / "log.npz"))
     assert from_file.filter.beta_prev == 0.05  # a Run file is not a simulated course
+
+
+def test_search_prints_the_best_score_and_writes_a_config(tmp_path, capsys):
+    from gslam_jax.config import load_config
+
+    run, _ = make_run(steps=20)
+    save_run(tmp_path / "r.npz", run)
+    (tmp_path / "space.toml").write_text("[space]\nalpha_d = [0.01, 0.1]\nobs_weight = [0.3, 1.0]\n")
+    rc = main(["search", str(tmp_path / "r.npz"), "--space", str(tmp_path / "space.toml"), "--n", "4",
+               "--set", "filter.particles=8", "--set", "map.margin=1.0", "--out", str(tmp_path / "s")])
+    assert rc == 0
+    doc = json.loads((tmp_path / "s" / "results.json").read_text())
+    top = doc["results"][0]
+    printed = capsys.readouterr().out
+    assert f"best: rms = {top['rms']:.5g} m at alpha_d = {top['alpha_d']:.5g}" in printed
+    cfg = load_config(tmp_path / "s" / "best.toml")
+    assert cfg.motion.alpha_d == top["alpha_d"] and cfg.map.obs_weight == top["obs_weight"]
+    assert cfg.filter.particles == 8
+
+
+def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
+    from gslam_jax.config import load_config
+
+    run, _ = make_run(steps=20)
+    save_run(tmp_path / "r.npz", run)
+    rc = main(["tune", str(tmp_path / "r.npz"), "--objective", "supervised", "--steps", "2",
+               "--params", "alpha_d,beta_new,min_variance", "--runs-per-step", "1",
+               "--set", "filter.particles=8", "--set", "map.margin=1.0", "--out", str(tmp_path / "t")])
+    assert rc == 0
+    tuned = json.loads((tmp_path / "t" / "tuned.json").read_text())
+    printed = capsys.readouterr().out
+    assert f"step 2/2: loss {tuned['losses'][1]:.6g}" in printed
+    cfg = load_config(tmp_path / "t" / "tuned.toml")
+    v = tuned["values"]
+    assert (cfg.motion.alpha_d, cfg.filter.beta_new, cfg.map.min_variance) == \
+        (v["alpha_d"], v["beta_new"], v["min_variance"])
+    assert v["alpha_d"] != 0.05 and cfg.filter.particles == 8
+    rc = main(["run", str(tmp_path / "r.npz"), "--config", str(tmp_path / "t" / "tuned.toml"),
+               "--out", str(tmp_path / "run")])
+    assert rc == 0
+    assert (tmp_path / "run" / "config.toml").read_text() == (tmp_path / "t" / "tuned.toml").read_text()

@@ -68,10 +68,19 @@ def test_designs_cover_the_ranges():
         S.design_points(space, "lhs", 4)
 
 
-def test_sobol_and_halton_match_scipy():
-    qmc = pytest.importorskip("scipy.stats.qmc")
-    np.testing.assert_allclose(S.sobol(32, 5), qmc.Sobol(5, scramble=False).random(32))
-    np.testing.assert_allclose(S.halton(32, 4), qmc.Halton(4, scramble=False).random(33)[1:])
+def test_sobol_points_are_stratified_and_seeded():
+    """A scrambled Sobol net of 2^m points puts exactly one point in each of the 2^m equal
+    intervals of every coordinate (a (0, m, 1)-net per axis), here in 8 dimensions; the seed
+    picks the scrambling."""
+    u = S.unit_points("sobol", 64, 8, seed=3)
+    assert u.shape == (64, 8) and np.all((u >= 0) & (u < 1))
+    for d in range(8):
+        assert sorted(np.floor(u[:, d] * 64).astype(int)) == list(range(64))
+    np.testing.assert_array_equal(u, S.unit_points("sobol", 64, 8, seed=3))
+    assert not np.allclose(u, S.unit_points("sobol", 64, 8, seed=4))
+    assert S.unit_points("sobol", 48, 8, seed=3).shape == (48, 8)  # a prefix of 64
+    h = S.unit_points("halton", 30, 8, seed=1)
+    assert h.shape == (30, 8) and len(np.unique(h[:, 0])) == 30
 
 
 def test_nan_is_never_ranked_best():
@@ -234,3 +243,37 @@ def test_sharded_on_two_cpu_devices(tmp_path):
                           env=env, timeout=300, cwd=Path(__file__).parents[1])
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "OK" in proc.stdout
+
+
+def test_observation_settings_match_the_config_path(small_run):
+    """Searching min_variance, obs_weight and min_points (refined on the device from raw
+    observations) scores each set as a run whose [map] config holds those values (observations
+    built on the host by cells.obs_from_stats)."""
+    import dataclasses
+
+    from gslam_jax import slam
+
+    space = S.parse_space({"min_variance": {"range": [1e-6, 1e-2], "log": True},
+                           "obs_weight": [0.2, 1.0], "min_points": [2.0, 6.0],
+                           "alpha_d": [0.01, 0.1]})
+    values = np.array([[1e-3, 0.5, 3.2, 0.05], [1e-5, 1.0, 2.0, 0.02]])
+    res = S.search(small_run, CONFIG, space, values=values, objective="rms")
+    for row, f in zip(res.values, res.objective):
+        cfg = S.config_with_values(CONFIG, dict(zip(space.names, row)))
+        assert cfg.map.min_points == (4 if row[2] > 3 else 2)
+        out = slam.run_slam(small_run, cfg)
+        assert abs(metrics.rms_after_fit(out.mean_pose, small_run.ground_truth) - f) < 1e-3
+    assert not np.isclose(res.objective[0], res.objective[1])
+
+
+def test_config_with_values_sets_every_section():
+    vals = {"alpha_d": 0.02, "beta_new": 0.3, "min_variance": 1e-4, "obs_weight": 0.5,
+            "min_points": 2.5}
+    cfg = S.config_with_values(CONFIG, vals)
+    assert (cfg.motion.alpha_d, cfg.filter.beta_new, cfg.map.min_variance, cfg.map.obs_weight,
+            cfg.map.min_points) == (0.02, 0.3, 1e-4, 0.5, 3)
+    assert S.base_values(cfg)["obs_weight"] == 0.5
+    with pytest.raises(S.SearchError, match="obs_weight must be positive"):
+        S.config_with_values(CONFIG, {"obs_weight": 0.0})
+    with pytest.raises(S.SearchError, match="min_points: range"):
+        S.parse_space({"min_points": [1.0, 4.0]})
