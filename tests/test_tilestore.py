@@ -1,0 +1,170 @@
+"""Shared-tile map store against a brute-force NumPy model of dense per-particle maps."""
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gslam_jax import tilestore as ts
+
+H, W, T = 40, 56, 16          # the map is not a whole number of tiles: pages stick out
+REACH = 9                     # written cells lie within REACH cells of a centre
+WINDOW = ts.window_tiles(REACH, T)
+
+
+def np_bits(k: np.ndarray) -> np.ndarray:
+    """[J, H, W] -> [J, H/8, W/8, 2] uint32 known-cell bits, bit r * 8 + c of each 8 x 8 block."""
+    J, h, w = k.shape
+    out = np.zeros((J, h // 8, w // 8, 2), np.uint64)
+    for r in range(8):
+        for c in range(8):
+            p = r * 8 + c
+            known = (k[:, r::8, c::8] > 0).astype(np.uint64)
+            out[..., p // 32] |= known << np.uint64(p % 32)
+    return out.astype(np.uint32)
+
+
+def footprints(rng, n: int, M: int):
+    """Flat cells [n, M] within REACH of random centres (some off the map), values with zeros."""
+    ci = rng.integers(-3, H + 3, n)
+    cj = rng.integers(-3, W + 3, n)
+    gi = ci[:, None] + rng.integers(-REACH, REACH + 1, (n, M))
+    gj = cj[:, None] + rng.integers(-REACH, REACH + 1, (n, M))
+    on_map = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
+    cells = np.where(on_map, gi * W + gj, H * W)
+    k = np.where(rng.random(M) < 0.2, 0.0, rng.integers(1, 5, M)).astype(np.float32)
+    S = np.where(k > 0, rng.random(M), 0.0).astype(np.float32)
+    return cells.astype(np.int32), on_map, k, S
+
+
+def np_add(kmap, smap, parts, cells, on_map, k, S):
+    for i, j in enumerate(parts):
+        for m in range(cells.shape[1]):  # in order, as the scatter
+            if on_map[i, m]:
+                kmap[j].reshape(-1)[cells[i, m]] += k[m]
+                smap[j].reshape(-1)[cells[i, m]] += S[m]
+
+
+write = jax.jit(ts.write, static_argnames=("width", "window"))
+resample = jax.jit(ts.resample)
+to_dense = jax.jit(ts.to_dense, static_argnames="map_shape")
+read = jax.jit(ts.read, static_argnames="width")
+
+
+def check_invariants(store: ts.TileStore) -> None:
+    P = store.refcount.shape[0]
+    page = np.asarray(store.page)
+    counts = np.bincount(page.reshape(-1), minlength=P + 1)[:P]
+    np.testing.assert_array_equal(np.asarray(store.refcount), counts)
+    n_free = int(store.n_free)
+    free = np.asarray(store.free)[:n_free]
+    assert sorted(free.tolist()) == np.flatnonzero(counts == 0).tolist()
+    for j in range(page.shape[0]):  # a particle never holds one tile in two pages
+        held = page[j][page[j] < P]
+        assert len(np.unique(held)) == len(held)
+    assert not np.asarray(store.kpool[P]).any() and not np.asarray(store.spool[P]).any()
+
+
+@pytest.mark.parametrize("bits", [False, True])
+def test_writes_and_resampling_match_dense_model(bits):
+    rng = np.random.default_rng(0)
+    J, M, block, P = 7, 60, 3, 300
+    store = ts.init(J, (H, W), T, P, bits)
+    kmap = np.zeros((J, H, W), np.float32)
+    smap = np.zeros((J, H, W), np.float32)
+    for it in range(12):
+        for j0 in range(0, J, block):
+            parts = np.arange(j0, min(j0 + block, J), dtype=np.int32)
+            cells, on_map, k, S = footprints(rng, len(parts), M)
+            # reads before the write see the model's maps
+            kr, sr = read(store, jnp.asarray(parts), jnp.asarray(cells), jnp.asarray(on_map), W)
+            want_k = np.where(on_map, kmap[parts].reshape(len(parts), -1)[
+                np.arange(len(parts))[:, None], np.minimum(cells, H * W - 1)], 0)
+            np.testing.assert_array_equal(np.asarray(kr), want_k)
+            store = write(store, jnp.asarray(parts), jnp.asarray(cells), jnp.asarray(on_map),
+                          jnp.asarray(k), jnp.asarray(S), width=W, window=WINDOW)
+            np_add(kmap, smap, parts, cells, on_map, k, S)
+        if it % 3 == 1:  # resampling: some particles die, others get several children
+            anc = np.sort(rng.choice(J, J, p=rng.dirichlet(np.ones(J) * 0.5))).astype(np.int32)
+            store = resample(store, jnp.asarray(anc))
+            kmap, smap = kmap[anc], smap[anc]
+        assert int(store.status) == 0
+        check_invariants(store)
+        k_d, s_d, b_d = to_dense(store, (H, W))
+        np.testing.assert_array_equal(np.asarray(k_d), kmap)
+        np.testing.assert_array_equal(np.asarray(s_d), smap)
+        if bits:
+            np.testing.assert_array_equal(np.asarray(b_d), np_bits(kmap))
+            np.testing.assert_array_equal(
+                np.asarray(ts.known_bits(store, jnp.arange(2, 5), (H, W))), np_bits(kmap)[2:5])
+    # sharing happened: fewer live tiles than pages written
+    assert int(ts.live_tiles(store)) < int(np.sum(np.asarray(store.page) < P))
+
+
+def test_copy_on_write_leaves_siblings_untouched_and_frees_dead_tiles():
+    store = ts.init(3, (H, W), T, 20, False)
+    one = lambda s, j, cell, v: write(
+        s, jnp.array([j], jnp.int32), jnp.array([[cell]], jnp.int32), jnp.array([[True]]),
+        jnp.array([v], jnp.float32), jnp.array([v], jnp.float32), width=W, window=WINDOW)
+    store = one(store, 0, 5, 1.0)
+    assert int(ts.live_tiles(store)) == 1
+    store = resample(store, jnp.array([0, 0, 0], jnp.int32))  # one tile, three holders
+    assert int(ts.live_tiles(store)) == 1 and int(store.refcount.max()) == 3
+    store = one(store, 1, 5, 2.0)                             # copy-on-write
+    k, _, _ = to_dense(store, (H, W))
+    assert np.asarray(k[:, 0, 5]).tolist() == [1.0, 3.0, 1.0]
+    assert int(ts.live_tiles(store)) == 2
+    store = resample(store, jnp.array([1, 1, 1], jnp.int32))  # the original tile has no holder
+    assert int(ts.live_tiles(store)) == 1
+    check_invariants(store)
+
+
+def test_every_holder_writing_in_one_block_keeps_one_tile():
+    store = ts.init(2, (H, W), T, 3, False)
+    parts = jnp.array([0, 1], jnp.int32)
+    cells = jnp.array([[7], [7]], jnp.int32)
+    args = dict(width=W, window=WINDOW)
+    ones = jnp.ones((1,), jnp.float32)
+    store = write(store, parts[:1], cells[:1], jnp.ones((1, 1), bool), ones, ones, **args)
+    store = resample(store, jnp.array([0, 0], jnp.int32))
+    store = write(store, parts, cells, jnp.ones((2, 1), bool), ones, ones, **args)
+    assert int(ts.live_tiles(store)) == 2  # one copy, not two
+    k, _, _ = to_dense(store, (H, W))
+    assert np.asarray(k[:, 0, 7]).tolist() == [2.0, 2.0]
+
+
+def test_pool_exhaustion_is_flagged_and_changes_nothing():
+    rng = np.random.default_rng(3)
+    J, P = 4, 5
+    store = ts.init(J, (H, W), T, P, True)
+    parts = jnp.arange(J, dtype=jnp.int32)
+    cells, on_map, k, S = footprints(rng, J, 200)  # needs more than 5 tiles
+    before = to_dense(store, (H, W))
+    store = write(store, parts, jnp.asarray(cells), jnp.asarray(on_map), jnp.asarray(k),
+                  jnp.asarray(S), width=W, window=WINDOW)
+    assert int(store.status) & ts.POOL_EXHAUSTED
+    for a, b in zip(before, to_dense(store, (H, W))):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert int(store.n_free) == P
+    with pytest.raises(ts.PoolExhaustedError, match=r"\[map\] pool_tiles = 5"):
+        ts.check_status(store.status, P)
+
+
+def test_store_vmaps_over_independent_filters():
+    """Two filters' stores stacked and written in one vmapped call agree with two calls."""
+    rng = np.random.default_rng(4)
+    parts = jnp.arange(2, dtype=jnp.int32)
+    fp = [footprints(rng, 2, 30) for _ in range(2)]
+    stores = [ts.init(2, (H, W), T, 40, True) for _ in range(2)]
+    f = jax.jit(partial(ts.write, particles=parts, width=W, window=WINDOW))
+    one = [f(s, cells=jnp.asarray(c), on_map=jnp.asarray(o), k=jnp.asarray(k), S=jnp.asarray(S))
+           for s, (c, o, k, S) in zip(stores, fp)]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *stores)
+    args = [jnp.stack([jnp.asarray(x[i]) for x in fp]) for i in range(4)]
+    both = jax.jit(jax.vmap(lambda s, c, o, k, S: f(s, cells=c, on_map=o, k=k, S=S)))(stacked, *args)
+    for i in range(2):
+        for a, b in zip(to_dense(one[i], (H, W)),
+                        to_dense(jax.tree.map(lambda x: x[i], both), (H, W))):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
