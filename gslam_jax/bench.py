@@ -63,13 +63,18 @@ def _best_seconds(fn, state, repeats: int):
 
 
 def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
-                seed: int = 0, chain: int = 10, particle_block: int = 0) -> dict:
-    """Per-update cost for J particles: best of ``repeats`` scans of ``chain`` updates."""
+                seed: int = 0, chain: int = 10, particle_block: int = 0,
+                store: str = "dense") -> dict:
+    """Per-update cost for J particles: best of ``repeats`` scans of ``chain`` updates. With
+    ``store = "shared"`` the forced resamplings ("resample_ms") include the copy-on-write of
+    every footprint's tiles at the next update."""
+    from gslam_jax.slam import particle_map_bytes
+
     rng = np.random.default_rng(seed)
     cfg = rbpf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
                             map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
                             local_size=local, unknown_cells=mode,
-                            particle_block=particle_block)
+                            particle_block=particle_block, store=store)
     k = rng.integers(0, 30, (local, local)).astype(np.float32)
     obs = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
     params = rbpf.FilterParams()
@@ -87,12 +92,12 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     resample = _chained(lambda s: rbpf.observe(s, obs, noise, params, always)[0], chain)
     sec_resample, state = _best_seconds(resample, state, repeats)
     per = 1.0 / chain
-    return {"particles": J, "local": local, "map": map_side, "mode": mode,
+    return {"particles": J, "local": local, "map": map_side, "mode": mode, "store": store,
             "particle_block": cfg.update_block,
             "ms_per_update": 1e3 * sec * per, "us_per_particle": 1e6 * sec * per / J,
             "predict_us_per_particle": 1e6 * sec_predict * per / J,
             "resample_ms": 1e3 * max(sec_resample - sec, 0.0) * per,
-            "mb_per_particle": 2 * 4 * map_side * map_side / 1e6}
+            "mb_per_particle": particle_map_bytes(cfg) / J / 1e6}
 
 
 def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0) -> dict:
@@ -129,12 +134,13 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
     from gslam_jax.plots import plt
 
     def line(r):
-        return r["mode"], r["local"], r["map"], r.get("block_setting", 0)
+        return r["mode"], r["local"], r["map"], r.get("block_setting", 0), r.get("store", "dense")
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for key in sorted({line(r) for r in rows}):
         pts = sorted((r["particles"], r["us_per_particle"]) for r in rows if line(r) == key)
         block = f", block {key[3]}" if key[3] else ""
+        block += f", {key[4]} store" if key[4] != "dense" else ""
         ax.plot(*zip(*pts), marker="o", label=f"{key[0]}, local {key[1]}, map {key[2]}{block}")
     ax.set_xscale("log")
     ax.set_xlabel("particles J")
@@ -149,7 +155,7 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
 def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int = 10,
          modes=choices.UNKNOWN_CELLS, json_path: Path | None = None, course: str | None = None,
          course_particles: int = 200, plot_path: Path | None = None,
-         particle_block=(0,)) -> int:
+         particle_block=(0,), stores=("dense",)) -> int:
     """Print (and optionally save) the update cost over every combination of the arguments.
 
     The cost should be flat in the map size (each update touches one footprint per particle) and
@@ -165,21 +171,22 @@ def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int =
     for k, v in env.items():
         print(f"  {k}: {v}")
     rows = []
-    print(f"{'mode':>7} {'J':>6} {'local':>6} {'map':>6} {'block':>6} {'ms/update':>10} {'us/particle':>12} "
+    print(f"{'mode':>7} {'store':>7} {'J':>6} {'local':>6} {'map':>6} {'block':>6} {'ms/update':>10} {'us/particle':>12} "
           f"{'predict us/p':>13} {'resample ms':>12} {'MB/particle':>12}")
     for mode in modes:
         for L in local:
             for side in map_side:
-                for J, block in itertools.product(particles, particle_block):
-                    need = 2 * 4 * J * side * side
+                for J, block, store in itertools.product(particles, particle_block, stores):
+                    need = 2 * 4 * J * side * side if store == "dense" else 0
                     if need > 0.5 * physical_memory():
-                        print(f"{mode:>7} {J:>6} {L:>6} {side:>6}   skipped: the maps need "
+                        print(f"{mode:>7} {store:>7} {J:>6} {L:>6} {side:>6}   skipped: the maps need "
                               f"{need / 1e9:.1f} GB, over half of this machine's memory")
                         continue
-                    r = time_update(J, L, side, mode, repeats, particle_block=block)
+                    r = time_update(J, L, side, mode, repeats, particle_block=block,
+                                    store=store)
                     r["block_setting"] = block
                     rows.append(r)
-                    print(f"{mode:>7} {J:>6} {L:>6} {side:>6} {r['particle_block']:>6} "
+                    print(f"{mode:>7} {store:>7} {J:>6} {L:>6} {side:>6} {r['particle_block']:>6} "
                           f"{r['ms_per_update']:>10.2f} "
                           f"{r['us_per_particle']:>12.1f} {r['predict_us_per_particle']:>13.3f} "
                           f"{r['resample_ms']:>12.1f} {r['mb_per_particle']:>12.2f}", flush=True)

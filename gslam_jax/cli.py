@@ -169,7 +169,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from gslam_jax.bench import main as bench_main
     return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json,
                       course=args.course, course_particles=args.course_particles,
-                      plot_path=args.plot, particle_block=args.particle_block)
+                      plot_path=args.plot, particle_block=args.particle_block,
+                      stores=args.store)
 
 
 def cmd_table1(args: argparse.Namespace) -> int:
@@ -196,7 +197,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     run = load_run(args.run_file) if args.run_file else None
     result = compare(run, config, particles=args.particles,
                      unknown_cells=args.unknown_cells, tile_size=args.tile_size, seed=args.seed,
-                     out_dir=args.out)
+                     out_dir=args.out, store=args.store, pool_tiles=args.pool_tiles)
     return 0 if result.get("agreement", {}).get("ok", True) else 1
 
 
@@ -295,6 +296,9 @@ def _build_rest(sub) -> None:
     p.add_argument("--particle-block", type=int, nargs="+", default=[0],
                    help="particles per pass of the update (0: automatic); several values "
                    "compare block sizes in one process")
+    p.add_argument("--store", choices=[s for s in choices.MAP_STORES if s != "auto"], nargs="+",
+                   default=["dense"], help="map stores to time ([map] store; several: side by "
+                   "side in one process)")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("table1", help="the paper's Table I on the five simulated courses")
@@ -319,6 +323,10 @@ def _build_rest(sub) -> None:
     p.add_argument("--out", type=Path, help="write compare.json and compare_fig4.png here")
     p.add_argument("--exact", action="store_true",
                    help="disable XLA's fused multiply-adds so both filters round identically")
+    p.add_argument("--store", choices=choices.MAP_STORES,
+                   help="the JAX filter's map store (default: the config's [map] store)")
+    p.add_argument("--pool-tiles", type=int, help="shared store pool size (default: the "
+                   "config's [map] pool_tiles; 0: automatic)")
     p.set_defaults(func=cmd_compare)
 
 

@@ -68,6 +68,12 @@ class MapSection:
     # degrees of freedom per local-map cell as a fraction of n - 1 (cells.obs_from_stats)
     obs_weight: float = 1.0
     min_points: int = 2  # heights a local-map cell needs to be used (at least 2)
+    # Particle map storage: "dense" (a whole map per particle), "shared" (copy-on-write tiles
+    # of tile x tile cells in a pool of pool_tiles tiles; 0: sized automatically) or "auto"
+    # (dense when it fits in memory, shared otherwise); rbpf.tilestore.
+    store: str = "dense"
+    tile: int = 32
+    pool_tiles: int = 0
 
 
 @dataclass(frozen=True)
@@ -135,6 +141,10 @@ class Config:
             (m.min_variance > 0, "map", "min_variance", "must be positive (a floor of S / k)"),
             (m.obs_weight > 0, "map", "obs_weight", "must be positive"),
             (m.min_points >= 2, "map", "min_points", "must be at least 2"),
+            (m.store in choices.MAP_STORES, "map", "store",
+             f"must be one of {', '.join(choices.MAP_STORES)}"),
+            (m.tile >= 8 and m.tile % 8 == 0, "map", "tile", "must be a positive multiple of 8"),
+            (m.pool_tiles >= 0, "map", "pool_tiles", "must be >= 0 (0: automatic)"),
             (lm.max_range > 0, "localmap", "max_range", "must be positive"),
             (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
             (lm.travel > 0, "localmap", "travel", "must be positive"),

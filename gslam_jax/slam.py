@@ -21,12 +21,18 @@ from gslam_jax.errors import InputError
 from gslam_jax.localmap import LocalMapParams
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.motion import MotionParams
+from gslam_jax.rbpf import tilestore
 from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
 __all__ = ["MapExtent", "map_extent", "localmap_params", "observed_cells", "filter_config",
+           "choose_store", "MapStoreNotice", "map_peak_bytes",
            "filter_params", "local_observations", "map_observations", "particle_map_bytes",
            "map_memory", "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
            "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError"]
+
+
+class MapStoreNotice(UserWarning):
+    """``[map] store = "auto"`` chose the shared tile store: the dense maps would not fit."""
 
 
 class ExtentWarning(UserWarning):
@@ -84,12 +90,27 @@ def observed_cells(run: Run, multiple: int = 128) -> int:
 
 def particle_map_bytes(cfg: rbpf.FilterConfig) -> int:
     """Bytes of the particles' maps: k and S [J, H, W] float32, plus the known-cell bits
-    [J, H/B, W/B, 2] uint32 in "sample" mode (resampling copies them in place)."""
+    [J, H/B, W/B, 2] uint32 in "sample" mode (resampling copies them in place); for the
+    shared store its pool (allocated up front), page tables and bookkeeping."""
     J = cfg.num_particles
     H, W = cfg.map_shape
     B = unknown.BLOCK
+    if cfg.store == "shared":  # the pool (and its zero tile), page tables, refcounts, free stack
+        T = cfg.tile
+        bits = (T // B) ** 2 * 2 * 4 if cfg.unknown_cells == "sample" else 0
+        ty, tx = tilestore.pages_per_side(cfg.map_shape, T)
+        return (cfg.pool_size + 1) * (T * T * 2 * 4 + bits) + 4 * (J * ty * tx + 2 * cfg.pool_size)
     bits = (H // B) * (W // B) * 2 * 4 if cfg.unknown_cells == "sample" else 0
     return J * (H * W * 2 * 4 + bits)
+
+
+def map_peak_bytes(state: rbpf.FilterState, cfg: rbpf.FilterConfig) -> int:
+    """Most bytes the particle maps held at once: the dense maps (fixed), or the shared
+    store's peak of live tiles plus its page tables and bookkeeping."""
+    if state.tiles is None:
+        return particle_map_bytes(cfg)
+    unused = cfg.pool_size + 1 - int(state.tiles.peak)
+    return particle_map_bytes(cfg) - unused * tilestore.tile_bytes(state.tiles)
 
 
 def map_memory() -> tuple[int, str]:
@@ -128,11 +149,17 @@ def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None,
         available, what = map_memory()
     if need > available:
         H, W = cfg.map_shape
+        if cfg.store == "shared":
+            raise ConfigError(
+                f"the shared map store's pool needs {need / 2**30:.1f} GiB ([map] pool_tiles = "
+                f"{cfg.pool_size} tiles of {cfg.tile} x {cfg.tile} cells), more than this "
+                f"machine's {available / 2**30:.1f} GiB of {what}; lower [map] pool_tiles")
         raise ConfigError(
             f"the particle maps need {_gib(need)} GiB ({cfg.num_particles} particles x "
             f"{_large(H)} x {_large(W)} cells of {cfg.resolution:g} m x 2 float32), more than "
             f"this machine's {available / 2**30:.1f} GiB of {what}{extent}; use fewer [filter] "
-            f"particles, a coarser [map] resolution or a smaller [map] margin")
+            f"particles, a coarser [map] resolution, a smaller [map] margin or [map] store = "
+            f"\"shared\"")
 
 
 def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
@@ -152,7 +179,9 @@ def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
         resolution=config.map.resolution, local_size=L, resampler=f.resampler,
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
         unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
-        particle_block=f.particle_block).validate()
+        particle_block=f.particle_block, store=config.map.store, tile=config.map.tile,
+        pool_tiles=config.map.pool_tiles)
+    cfg = choose_store(cfg).validate()
     try:
         check_map_memory(cfg, extent=_extent_cause(run, config))
     except ConfigError as err:
@@ -179,6 +208,26 @@ def _check_steps(run: Run, memory: str) -> None:
         raise RunError(f"field 'controls': frame {t} moves {steps[t]:.4g} m in one step (the "
                        f"median step is {median:.3g} m), which makes the map too large: "
                        f"{memory.split(';')[0]}; check the Run's controls (units?)")
+
+
+def choose_store(cfg: rbpf.FilterConfig, available: int | None = None) -> rbpf.FilterConfig:
+    """Resolve ``store = "auto"``: dense when the dense maps fit in ``available`` bytes
+    (default: ``map_memory()``), else shared, saying so (``MapStoreNotice``)."""
+    if cfg.store != "auto":
+        return cfg
+    dense = cfg._replace(store="dense")
+    need = particle_map_bytes(dense)
+    what = "memory"
+    if available is None:
+        available, what = map_memory()
+    if need <= available:
+        return dense
+    shared = cfg._replace(store="shared")
+    warnings.warn(f"[map] store = \"auto\": dense maps would need {need / 2**30:.1f} GiB, more "
+                  f"than the {available / 2**30:.1f} GiB of {what}; using the shared tile store "
+                  f"({shared.pool_size} tiles, {particle_map_bytes(shared) / 2**30:.2f} GiB)",
+                  MapStoreNotice, stacklevel=2)
+    return shared
 
 
 def filter_params(config: Config) -> rbpf.FilterParams:
@@ -283,6 +332,14 @@ def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.n
             f"{float(log_lik[i])}, not finite); {check}")
 
 
+def _check_map_status(info: rbpf.StepInfo, start: int, cfg: rbpf.FilterConfig) -> None:
+    """The shared store's error (``tilestore.check_status``) at the first frame it flagged."""
+    status = np.asarray(info.map_status)
+    if status.any():
+        i = int(np.argmax(status != 0))
+        tilestore.check_status(status[i], cfg.pool_size, where=f"frame {start + i}: ")
+
+
 class SlamResult(NamedTuple):
     """Host-side (NumPy) outputs of one Gamma-SLAM run."""
 
@@ -302,6 +359,9 @@ class SlamResult(NamedTuple):
     empty_observations: int    # local maps with no informative cell
     seconds: float             # filter wall time after compilation
     compile_seconds: float
+    store: str = "dense"       # the map store the filter ran on ([map] store, "auto" resolved)
+    map_bytes: int = 0         # bytes the map store allocates (dense maps, or the tile pool)
+    map_peak_bytes: int = 0    # most bytes the maps held at once (shared: live tiles + tables)
 
 
 def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | None = None,
@@ -342,6 +402,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         if start == 0:
             compile_s = time.perf_counter() - c0  # first chunk includes compilation
         _check_weights(out[0], start, min(chunk, T - start), obs_index)
+        _check_map_status(out[0], start, cfg)
         outputs.append(out)
         if progress is not None:
             progress(min(start + chunk, T), T)
@@ -350,6 +411,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     best = np.concatenate([o[1] for o in outputs])[:T]
     mean = np.concatenate([o[2] for o in outputs])[:T]
     final_best = int(state.best)
+    kmap, smap = rbpf.particle_map(state, final_best, cfg)
     path = np.asarray(rbpf.backtrack_path(jnp.asarray(infos.pose), jnp.asarray(infos.ancestors),
                                           jnp.int32(final_best)))
     dropped = int(np.sum(infos.dropped_cells))
@@ -364,7 +426,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     return SlamResult(
         best_path=path, best_pose=best, mean_pose=mean, vo_path=run.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
-        kmap=np.asarray(state.kmap[final_best]), smap=np.asarray(state.smap[final_best]),
+        kmap=np.asarray(kmap), smap=np.asarray(smap),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
         empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
-        compile_seconds=compile_s)
+        compile_seconds=compile_s, store=cfg.store, map_bytes=particle_map_bytes(cfg),
+        map_peak_bytes=map_peak_bytes(state, cfg))

@@ -109,6 +109,9 @@ def sw_resample(state: rbpf.FilterState, u: Array, cfg: rbpf.FilterConfig
     equal in value, so the ancestry's gradient survives."""
     J = cfg.num_particles
     state = state._replace(kmap=sg(state.kmap), smap=sg(state.smap))
+    if state.tiles is not None:
+        state = state._replace(tiles=state.tiles._replace(kpool=sg(state.tiles.kpool),
+                                                          spool=sg(state.tiles.spool)))
     return rbpf.resample(state, u, cfg, new_log_w=lambda lwa: -math.log(J) + (lwa - sg(lwa)))
 
 

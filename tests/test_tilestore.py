@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gslam_jax import tilestore as ts
+from gslam_jax.rbpf import tilestore as ts
 
 H, W, T = 40, 56, 16          # the map is not a whole number of tiles: pages stick out
 REACH = 9                     # written cells lie within REACH cells of a centre
@@ -168,3 +168,87 @@ def test_store_vmaps_over_independent_filters():
         for a, b in zip(to_dense(one[i], (H, W)),
                         to_dense(jax.tree.map(lambda x: x[i], both), (H, W))):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.parametrize("mode", ["ignore", "sample"])
+def test_filter_on_shared_store_equals_dense(mode):
+    """The whole filter on the shared store (small tiles, blocks of 3 and a tail, resampling
+    events) gives the dense store's maps bit for bit, its known-cell bits, resampling choices
+    and log weights (within 1e-5), on the same draws."""
+    from synthetic import make_run
+
+    from gslam_jax import rbpf as gf
+    from gslam_jax import slam
+
+    run, _ = make_run(seed=2, steps=30)
+    obs = jnp.asarray(slam.local_observations(run, 1e-6))
+    base = gf.FilterConfig(11, (160, 160), (-8.0, -12.8), 0.16, obs.shape[1], unknown_cells=mode,
+                           unknown_samples=64, observed_cells=slam.observed_cells(run),
+                           particle_block=3, resample_ratio=0.8)
+    args = (jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs)
+    dense = gf.run_filter(jax.random.key(4), gf.FilterParams(), *args, base)
+    shared_cfg = base._replace(store="shared", tile=16)
+    shared = gf.run_filter(jax.random.key(4), gf.FilterParams(), *args, shared_cfg)
+    assert int(np.sum(dense.infos.resampled)) >= 2
+    np.testing.assert_array_equal(shared.infos.resampled, dense.infos.resampled)
+    np.testing.assert_array_equal(shared.infos.ancestors, dense.infos.ancestors)
+    np.testing.assert_allclose(shared.infos.log_w, dense.infos.log_w, atol=1e-5)
+    np.testing.assert_array_equal(shared.infos.pose, dense.infos.pose)
+    assert not np.any(shared.infos.map_status)
+    tiles = shared.final_state.tiles
+    k, S, bits = to_dense(tiles, base.map_shape)
+    np.testing.assert_array_equal(k, dense.final_state.kmap)
+    np.testing.assert_array_equal(S, dense.final_state.smap)
+    np.testing.assert_array_equal(bits, dense.final_state.known_bits)
+    k5, S5 = gf.particle_map(shared.final_state, 5, shared_cfg)
+    np.testing.assert_array_equal(k5, dense.final_state.kmap[5])
+    # the pool holds less than every particle's map
+    assert int(tiles.peak) < 11 * int(np.prod(tiles.page.shape[1:]))
+
+
+def test_filter_reports_pool_exhaustion_per_frame():
+    from synthetic import make_run
+
+    from gslam_jax import rbpf as gf
+    from gslam_jax import slam
+
+    run, _ = make_run(seed=2, steps=12)
+    obs = jnp.asarray(slam.local_observations(run, 1e-6))
+    cfg = gf.FilterConfig(5, (160, 160), (-8.0, -12.8), 0.16, obs.shape[1],
+                          observed_cells=slam.observed_cells(run), store="shared", tile=16,
+                          pool_tiles=30)
+    out = gf.run_filter(jax.random.key(0), gf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
+                        jnp.asarray(run.obs_index), obs, cfg)
+    status = np.asarray(out.infos.map_status)
+    assert status[-1] & ts.POOL_EXHAUSTED
+    assert np.all(np.diff(status) >= 0)  # sticky: the frame it first happened stays findable
+
+
+def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
+    import dataclasses
+
+    from synthetic import make_run
+
+    from gslam_jax import slam
+    from gslam_jax.config import Config
+
+    run, _ = make_run(seed=2, steps=12)
+    c = Config()
+    config = dataclasses.replace(
+        c, filter=dataclasses.replace(c.filter, particles=5),
+        map=dataclasses.replace(c.map, store="shared", tile=16, pool_tiles=30))
+    with pytest.raises(ts.PoolExhaustedError, match=r"^frame \d+: .*\[map\] pool_tiles = 30"):
+        slam.run_slam(run, config)
+
+
+def test_auto_store_is_dense_when_it_fits_and_shared_with_a_notice_otherwise():
+    from gslam_jax import rbpf as gf
+    from gslam_jax import slam
+
+    cfg = gf.FilterConfig(100, (256, 256), (0.0, 0.0), 0.16, 64, store="auto")
+    need = slam.particle_map_bytes(cfg._replace(store="dense"))
+    assert slam.choose_store(cfg, available=need).store == "dense"
+    with pytest.warns(slam.MapStoreNotice, match="shared tile store"):
+        shared = slam.choose_store(cfg, available=need - 1)
+    assert shared.store == "shared"
+    assert slam.particle_map_bytes(shared) < need

@@ -6,7 +6,8 @@ Modules, one idea each:
   particles), ``UpdateNoise``, ``Observation``, ``UpdateInfo``, ``StepInfo``, ``RunOutput``;
 * ``footprint``: where a local map lands in each particle's map and what an update reads there;
 * ``importance``: the log importance factor of each particle (eqs. 26, 30 / 31);
-* ``maps``: the map store seam (allocate, read cells, scatter-add, copy on resampling);
+* ``maps``: the map store seam (allocate, read cells, scatter-add, copy on resampling), in
+  front of the dense store and the shared-tile store (``tilestore``);
 * ``kernel``: ``init``, ``predict``, ``update`` (weigh, write, normalise), ``resample``
   (ESS-gated), ``step`` (one frame), ``scan_frames`` and ``run_filter``.
 """
@@ -18,20 +19,20 @@ from gslam_jax.rbpf.kernel import (Proposal, Resampler, ancestors, backtrack_pat
                                    frame_keys, init, motion_noise, observe, predict, propagate,
                                    resample, run_filter, scan_frames, step, update,
                                    update_noise)
-from gslam_jax.rbpf.maps import ROW_BAND, gather_particles
-from gslam_jax.rbpf.types import (CPU_BLOCK_CELLS, UNKNOWN_MODES, FilterConfig, FilterParams,
-                                  FilterState, Observation, RunOutput, StepInfo, UpdateInfo,
-                                  UpdateNoise)
+from gslam_jax.rbpf.maps import ROW_BAND, gather_particles, map_status, particle_map
+from gslam_jax.rbpf.types import (CPU_BLOCK_CELLS, STORES, UNKNOWN_MODES, FilterConfig,
+                                  FilterParams, FilterState, Observation, RunOutput, StepInfo,
+                                  UpdateInfo, UpdateNoise)
 
 __all__ = [
     # types
     "FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "Observation", "UpdateInfo",
-    "StepInfo", "RunOutput", "UNKNOWN_MODES", "CPU_BLOCK_CELLS",
+    "StepInfo", "RunOutput", "UNKNOWN_MODES", "CPU_BLOCK_CELLS", "STORES",
     # kernel
     "Proposal", "Resampler", "init", "motion_noise", "update_noise", "predict", "propagate",
     "update", "ancestors", "resample", "observe", "step", "scan_frames", "frame_keys",
     "run_filter", "backtrack_path", "best_slot",
     # footprint, importance, map store
     "compact_observation", "observation_cells", "window_origin", "written_rows",
-    "log_importance", "gather_particles", "ROW_BAND",
+    "log_importance", "gather_particles", "ROW_BAND", "particle_map", "map_status",
 ]

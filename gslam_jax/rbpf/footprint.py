@@ -95,11 +95,11 @@ class Footprint(NamedTuple):
     can_borrow: Array  # [n]
 
 
-def read_footprints(kflat: Array, sflat: Array, bits: Array, pose: Array, rows: Array,
+def read_footprints(store, bits: Array, pose: Array, rows: Array,
                     unknown_u: Array, obs: Observation, cfg: FilterConfig) -> Footprint:
     """Everything the update reads from the maps of particles ``rows`` ([n]; ``pose``, ``bits``
-    and ``unknown_u`` are theirs). kflat, sflat: [J, H*W] maps of all particles
-    (``maps.flat_maps``)."""
+    and ``unknown_u`` are theirs). store: the maps of all particles (``maps.store_maps``:
+    dense [J, H*W] maps or the shared tile store)."""
     flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(pose)
     k_obs = jnp.where(on_map, obs.k, 0.0)
     S_obs = jnp.where(on_map, obs.S, 0.0)
@@ -110,12 +110,10 @@ def read_footprints(kflat: Array, sflat: Array, bits: Array, pose: Array, rows: 
         # cost independent of the local map). Only the draws are read from the big map.
         idx, total = jax.vmap(unknown.sample_known_cells)(bits, unknown_u)
         drawn = jnp.ones(idx.shape, bool)
-        kb = maps.read_cells(kflat, rows, idx, drawn)
-        Sb = maps.read_cells(sflat, rows, idx, drawn)
+        kb, Sb = maps.read(store, rows, idx, drawn, cfg)
         can_borrow = total > 0
     else:
-        kb = Sb = jnp.zeros((pose.shape[0], 0), kflat.dtype)
+        kb = Sb = jnp.zeros((pose.shape[0], 0), jnp.float32)
         can_borrow = jnp.zeros((pose.shape[0],), bool)
     return Footprint(flat, jnp.any(~on_map & (obs.k > 0), axis=1), k_obs, S_obs,
-                     maps.read_cells(kflat, rows, flat, on_map),
-                     maps.read_cells(sflat, rows, flat, on_map), kb, Sb, can_borrow)
+                     *maps.read(store, rows, flat, on_map, cfg), kb, Sb, can_borrow)

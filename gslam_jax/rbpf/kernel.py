@@ -31,7 +31,7 @@ from jax import Array, lax
 
 from gslam_jax import cells, resampling, unknown
 from gslam_jax.motion import apply_motion
-from gslam_jax.rbpf import maps
+from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.rbpf.footprint import (compact_observation, read_footprints, window_origin,
                                       written_rows)
 from gslam_jax.rbpf.importance import log_lambda
@@ -56,7 +56,12 @@ def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
     H, W = cfg.map_shape
     start = jnp.zeros(3, jnp.float32) if start_pose is None else jnp.asarray(start_pose, jnp.float32)
     nb = (H // unknown.BLOCK, W // unknown.BLOCK) if cfg.unknown_cells == "sample" else (0, 0)
-    kmap, smap = maps.empty_maps(J, cfg.map_shape)
+    tiles = None
+    if cfg.store == "shared":
+        tiles = tilestore.init(J, cfg.map_shape, cfg.tile, cfg.pool_size,
+                               bits=cfg.unknown_cells == "sample")
+        nb = (0, 0)
+    kmap, smap = maps.empty_maps(J, (0, 0) if tiles is not None else cfg.map_shape)
     return FilterState(
         pose=jnp.broadcast_to(start, (J, 3)),
         log_w=jnp.full((J,), -math.log(J), jnp.float32),
@@ -65,6 +70,7 @@ def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
         known_bits=jnp.zeros((J,) + nb + (2,), jnp.uint32),
         rows=jnp.array([H, 0], jnp.int32),
         best=jnp.int32(0),
+        tiles=tiles,
     )
 
 
@@ -94,8 +100,7 @@ def propagate(state: FilterState, u: Array, eps: Array, params: FilterParams) ->
 
 
 class _Weighed(NamedTuple):
-    kflat: Array     # [J, H*W] maps after eq. 14
-    sflat: Array
+    maps: maps.Maps  # maps after eq. 14 (``maps.store_maps``)
     log_lam: Array   # [J] log importance factors (eqs. 26, 30 / 31) against the old maps
     off_map: Array   # [J] some observed local cell fell outside the map
 
@@ -106,20 +111,19 @@ def _weigh_block(w: _Weighed, j0: Array, n: int, state: FilterState, obs: Observ
     """Particles j0 .. j0+n-1: read their footprints, weigh them, add the local map."""
     rows = j0 + jnp.arange(n, dtype=jnp.int32)
     take = partial(lax.dynamic_slice_in_dim, start_index=j0, slice_size=n)
-    f = read_footprints(w.kflat, w.sflat, take(state.known_bits), take(state.pose), rows,
-                        take(unknown_u), obs, cfg)
+    f = read_footprints(w.maps, maps.block_bits(state, w.maps, j0, n, cfg), take(state.pose),
+                        rows, take(unknown_u), obs, cfg)
     log_lam = log_lambda(f, log_v, params, cfg)
-    kflat, sflat = w.kflat, w.sflat
+    new = w.maps
     if cfg.update_map:
         # Write only after every read of these maps (the known-cell draws included): the
         # target cells are made to depend on the weights by a min() that never changes them
         # (cells <= H*W). Without that ordering XLA copies the whole maps before the update.
         after = (jnp.sum(log_lam) > 0).astype(jnp.int32)
-        cells_ = jnp.minimum(f.cells, kflat.shape[1] + after)
-        kflat = maps.add_to_cells(kflat, rows, cells_, obs.k)
-        sflat = maps.add_to_cells(sflat, rows, cells_, obs.S)
+        cells_ = jnp.minimum(f.cells, cfg.map_shape[0] * cfg.map_shape[1] + after)
+        new = maps.write(new, rows, cells_, obs.k, obs.S, cfg)
     put = partial(lax.dynamic_update_slice_in_dim, start_index=j0, axis=0)
-    return _Weighed(kflat, sflat, put(w.log_lam, log_lam), put(w.off_map, f.off_map))
+    return _Weighed(new, put(w.log_lam, log_lam), put(w.off_map, f.off_map))
 
 
 def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
@@ -128,8 +132,8 @@ def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
     of ``cfg.update_block`` particles at a time (see ``FilterConfig.particle_block``)."""
     J = cfg.num_particles
     B = cfg.update_block
-    w = _Weighed(maps.flat_maps(state.kmap), maps.flat_maps(state.smap),
-                 jnp.zeros((J,), state.log_w.dtype), jnp.zeros((J,), bool))
+    w = _Weighed(maps.store_maps(state, cfg), jnp.zeros((J,), state.log_w.dtype),
+                 jnp.zeros((J,), bool))
     # log v of each observed cell is shared by every particle: computed once, not J times.
     block = partial(_weigh_block, state=state, obs=obs, log_v=cells.log_v_obs(obs.k, obs.S),
                     unknown_u=unknown_u, params=params, cfg=cfg)
@@ -179,15 +183,19 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     unnorm = state.log_w + w.log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
-    kmap = maps.unflat_maps(w.kflat, cfg.map_shape)
-    smap = maps.unflat_maps(w.sflat, cfg.map_shape)
-    bits = _refresh_known_bits(kmap, state.known_bits, state.pose, cfg)
+    if isinstance(w.maps, tilestore.TileStore):  # its writes refreshed the known-cell bits
+        kmap, smap, bits, tiles = state.kmap, state.smap, state.known_bits, w.maps
+    else:
+        kmap = maps.unflat_maps(w.maps[0], cfg.map_shape)
+        smap = maps.unflat_maps(w.maps[1], cfg.map_shape)
+        bits = _refresh_known_bits(kmap, state.known_bits, state.pose, cfg)
+        tiles = None
     rows = written_rows(state.rows, state.pose, cfg)
     best = best_slot(log_w, jnp.arange(J, dtype=jnp.int32))
     info = UpdateInfo(ess=resampling.ess(log_w), log_lik=log_lik,
                       extent_violations=jnp.sum(w.off_map).astype(jnp.int32),
                       empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped)
-    return FilterState(state.pose, log_w, kmap, smap, bits, rows, best), info
+    return FilterState(state.pose, log_w, kmap, smap, bits, rows, best, tiles), info
 
 
 def ancestors(log_w: Array, u: Array, cfg: FilterConfig) -> Array:
@@ -204,8 +212,9 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
              new_log_w: Callable[[Array], Array] = _equal_weights
              ) -> tuple[FilterState, Array, Array]:
     """ESS-gated resampling (eq. 23; a ``Resampler``): when ESS < ``resample_ratio * J``,
-    particles are drawn by ``ancestors`` and their maps copied (``maps.gather_particles``,
-    over the rows written so far). Returns (state, ancestors [J], resampled []).
+    particles are drawn by ``ancestors`` and take their maps (``maps.resample_maps``: dense
+    maps copied over the rows written so far, shared page tables gathered). Returns (state,
+    ancestors [J], resampled []).
 
     The choice and the ancestors use the weights' values only (stop-gradient); the new log
     weights are ``new_log_w(log_w[ancestors])``: equal by default (the paper's filter); the
@@ -218,9 +227,9 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
 
     def yes(s: FilterState) -> tuple[FilterState, Array]:
         anc = ancestors(lw, u, cfg)
-        kmap, smap, bits = maps.gather_particles((s.kmap, s.smap, s.known_bits), anc, s.rows)
-        return s._replace(pose=jnp.take(s.pose, anc, axis=0), kmap=kmap, smap=smap,
-                          known_bits=bits, log_w=new_log_w(jnp.take(s.log_w, anc))), anc
+        s = maps.resample_maps(s, anc)
+        return s._replace(pose=jnp.take(s.pose, anc, axis=0),
+                          log_w=new_log_w(jnp.take(s.log_w, anc))), anc
 
     def keep(s: FilterState) -> tuple[FilterState, Array]:
         return s, jnp.arange(J, dtype=jnp.int32)
@@ -237,7 +246,8 @@ def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fi
     return state, StepInfo(pose=state.pose, ancestors=anc, best=state.best, log_w=state.log_w,
                            ess=upd.ess, resampled=resampled, updated=jnp.bool_(True),
                            log_lik=upd.log_lik, extent_violations=upd.extent_violations,
-                           empty_obs=upd.empty_obs, dropped_cells=upd.dropped_cells)
+                           empty_obs=upd.empty_obs, dropped_cells=upd.dropped_cells,
+                           map_status=maps.map_status(state))
 
 
 def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
@@ -247,7 +257,7 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
                     ess=resampling.ess(state.log_w), resampled=jnp.bool_(False),
                     updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
                     extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False),
-                    dropped_cells=jnp.int32(0))
+                    dropped_cells=jnp.int32(0), map_status=maps.map_status(state))
 
 
 def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,

@@ -1,9 +1,12 @@
 """The map store: the only code that allocates, reads, writes and copies the particles' maps.
 
-Today's store is dense: every particle owns whole [H, W] arrays of k and S (``FilterState.kmap``,
-``smap``) and the known-cell bits of "sample" mode (``known_bits``). The kernel touches them
-only through these functions, so another store (e.g. shared tiles behind per-particle page
-tables) can be plugged in behind exactly this seam:
+Two stores sit behind this seam (``FilterConfig.store``). "dense": every particle owns whole
+[H, W] arrays of k and S (``FilterState.kmap``, ``smap``) and the known-cell bits of "sample"
+mode (``known_bits``). "shared": a pool of tiles behind per-particle page tables with
+copy-on-write (``FilterState.tiles``, ``rbpf.tilestore``). The kernel sees a store as ``Maps``
+and touches it only through ``store_maps``, ``read``, ``write``, ``block_bits``,
+``resample_maps`` and ``particle_map``, which dispatch to the dense functions below or to
+``tilestore``:
 
 * ``empty_maps``: allocate the store of J empty maps;
 * ``flat_maps`` / ``unflat_maps``: the [J, H*W] view the update's reads and writes use;
@@ -16,12 +19,21 @@ tables) can be plugged in behind exactly this seam:
 
 from __future__ import annotations
 
+from typing import Union
+
 import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-__all__ = ["ROW_BAND", "empty_maps", "flat_maps", "unflat_maps", "read_cells", "add_to_cells",
-           "read_window", "gather_particles"]
+from gslam_jax.rbpf import tilestore
+from gslam_jax.rbpf.types import FilterConfig, FilterState
+
+__all__ = ["ROW_BAND", "Maps", "empty_maps", "flat_maps", "unflat_maps", "read_cells",
+           "add_to_cells", "read_window", "gather_particles", "store_maps", "read", "write",
+           "block_bits", "resample_maps", "particle_map", "map_status"]
+
+Maps = Union[tuple[Array, Array], tilestore.TileStore]
+"""The maps an update works on: (kflat, sflat) [J, H*W] (dense) or the shared TileStore."""
 
 ROW_BAND = 64  # map rows per copy when resampling copies only the written rows
 
@@ -118,3 +130,65 @@ def gather_particles(particles, ancestors: Array, rows: Array | None = None):
             else whole(x, src, dst), particles)
 
     return lax.fori_loop(0, jnp.sum(moved), copy_one, particles)
+
+
+def store_maps(state: FilterState, cfg: FilterConfig) -> Maps:
+    """The state's maps in the form ``read`` and ``write`` take."""
+    if state.tiles is not None:
+        return state.tiles
+    return flat_maps(state.kmap), flat_maps(state.smap)
+
+
+def read(maps: Maps, rows: Array, cells_: Array, on_map: Array, cfg: FilterConfig
+         ) -> tuple[Array, Array]:
+    """(k, S) [n, M] at flat cells cells_ [n, M] of particles rows [n]; 0 where not on_map."""
+    if isinstance(maps, tilestore.TileStore):
+        return tilestore.read(maps, rows, cells_, on_map, cfg.map_shape[1])
+    kflat, sflat = maps
+    return read_cells(kflat, rows, cells_, on_map), read_cells(sflat, rows, cells_, on_map)
+
+
+def write(maps: Maps, rows: Array, cells_: Array, k: Array, S: Array, cfg: FilterConfig) -> Maps:
+    """Eq. 14: add (k, S) [M] at cells_ [n, M] (H*W: off the map) of particles rows [n]. The
+    shared store first gives each written page a tile of its own (copy-on-write) and
+    refreshes the written tiles' known-cell bits."""
+    if isinstance(maps, tilestore.TileStore):
+        HW = cfg.map_shape[0] * cfg.map_shape[1]
+        return tilestore.write(maps, rows, jnp.minimum(cells_, HW - 1), cells_ < HW, k, S,
+                               cfg.map_shape[1], cfg.page_window)
+    kflat, sflat = maps
+    return add_to_cells(kflat, rows, cells_, k), add_to_cells(sflat, rows, cells_, S)
+
+
+def block_bits(state: FilterState, maps: Maps, j0: Array, n: int, cfg: FilterConfig) -> Array:
+    """Known-cell bits [n, H/8, W/8, 2] of particles j0 .. j0+n-1 ("sample" mode)."""
+    if cfg.unknown_cells != "sample":
+        return jnp.zeros((n, 0, 0, 2), jnp.uint32)
+    if isinstance(maps, tilestore.TileStore):
+        return tilestore.known_bits(maps, j0 + jnp.arange(n, dtype=jnp.int32), cfg.map_shape)
+    return lax.dynamic_slice_in_dim(state.known_bits, j0, n)
+
+
+def resample_maps(state: FilterState, ancestors: Array) -> FilterState:
+    """Particle i takes the maps of particle ancestors[i] (``ancestors`` keeps survivors in
+    place, ``resampling.keep_in_place``): dense maps copied over the written rows
+    (``gather_particles``), or the shared store's page tables gathered."""
+    if state.tiles is not None:
+        return state._replace(tiles=tilestore.resample(state.tiles, ancestors))
+    kmap, smap, bits = gather_particles((state.kmap, state.smap, state.known_bits), ancestors,
+                                        state.rows)
+    return state._replace(kmap=kmap, smap=smap, known_bits=bits)
+
+
+def particle_map(state: FilterState, j: Array | int, cfg: FilterConfig) -> tuple[Array, Array]:
+    """(k, S) [H, W] of particle ``j``, from either store."""
+    if state.tiles is None:
+        return state.kmap[j], state.smap[j]
+    one = state.tiles._replace(page=state.tiles.page[jnp.asarray(j)][None])
+    k, S, _ = tilestore.to_dense(one, cfg.map_shape)
+    return k[0], S[0]
+
+
+def map_status(state: FilterState) -> Array:
+    """The shared store's error bits (``tilestore.check_status``); 0 for the dense store."""
+    return jnp.int32(0) if state.tiles is None else state.tiles.status

@@ -11,12 +11,15 @@ from jax import Array
 
 from gslam_jax import choices, unknown
 from gslam_jax.motion import MotionParams
+from gslam_jax.rbpf import tilestore
 
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "UpdateInfo",
            "StepInfo", "RunOutput", "Observation", "UNKNOWN_MODES", "CPU_BLOCK_CELLS"]
 
 UNKNOWN_MODES = choices.UNKNOWN_CELLS
 CPU_BLOCK_CELLS = 102_400  # footprint cells per update pass on CPU (FilterConfig.update_block)
+STORES = tuple(s for s in choices.MAP_STORES if s != "auto")  # "auto" is resolved before
+AUTO_POOL_MAPS = 4  # FilterConfig.pool_size: whole maps of shared history an auto pool holds
 
 
 class FilterConfig(NamedTuple):
@@ -40,6 +43,26 @@ class FilterConfig(NamedTuple):
     update_map: bool = True
     observed_cells: int = 0
     particle_block: int = 0
+    store: str = "dense"
+    tile: int = 32
+    pool_tiles: int = 0
+
+    @property
+    def page_window(self) -> int:
+        """Pages per side one particle's update can write in the shared store (its reach)."""
+        return tilestore.window_tiles(self.reach, self.tile)
+
+    @property
+    def pool_size(self) -> int:
+        """Tiles in the shared store's pool (``pool_tiles``; 0: auto). Auto: four whole maps of
+        shared history plus, for every particle, the most tiles one update can give it
+        (``page_window`` squared: after a resampling each particle copies the tiles under its
+        footprint); never more than every particle's whole map (which cannot run out)."""
+        if self.pool_tiles:
+            return self.pool_tiles
+        ty, tx = tilestore.pages_per_side(self.map_shape, self.tile)
+        auto = AUTO_POOL_MAPS * ty * tx + self.num_particles * self.page_window ** 2
+        return min(auto, self.num_particles * ty * tx)
 
     @property
     def update_block(self) -> int:
@@ -106,6 +129,12 @@ class FilterConfig(NamedTuple):
             raise ValueError("num_particles must be at least 1")
         if self.particle_block < 0:
             raise ValueError(f"particle_block {self.particle_block} must be >= 0 (0: auto)")
+        if self.store not in STORES:
+            raise ValueError(f"store '{self.store}' unknown; choose one of {list(STORES)}")
+        if self.tile < unknown.BLOCK or self.tile % unknown.BLOCK:
+            raise ValueError(f"tile {self.tile} must be a positive multiple of {unknown.BLOCK}")
+        if self.pool_tiles < 0:
+            raise ValueError(f"pool_tiles {self.pool_tiles} must be >= 0 (0: auto)")
         return self
 
 
@@ -120,8 +149,9 @@ class FilterParams(NamedTuple):
 class FilterState(NamedTuple):
     """Particle set. known_bits is the unknown-cell sampler's state ([J, 0, 0, 2] if unused).
 
-    kmap, smap and known_bits are the map store: only ``rbpf.maps`` reads, writes and copies
-    them (``init`` allocates them).
+    kmap, smap and known_bits are the dense map store, ``tiles`` the shared one (then kmap,
+    smap are [J, 0, 0] and known_bits [J, 0, 0, 2]; ``store = "dense"``: tiles is None). Only
+    ``rbpf.maps`` reads, writes and copies them (``init`` allocates them).
     """
 
     pose: Array        # [J, 3]
@@ -133,6 +163,7 @@ class FilterState(NamedTuple):
     best: Array        # [] int32: slot of the highest-weight particle (``kernel.best_slot``):
                        # after a resampling, the one that was best before it (the weights are
                        # then all equal)
+    tiles: tilestore.TileStore | None = None  # the shared store's pool and page tables
 
 
 class UpdateNoise(NamedTuple):
@@ -179,6 +210,8 @@ class StepInfo(NamedTuple):
     extent_violations: Array  # particles with observed local cells outside the map extent
     empty_obs: Array     # bool: the local map had no informative cell
     dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
+    map_status: Array    # [] int32 the shared store's sticky error bits (0: fine; dense: 0),
+                         # raised on the host by ``tilestore.check_status``
 
 
 class RunOutput(NamedTuple):

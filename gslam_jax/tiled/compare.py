@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gslam_jax import rbpf
+from gslam_jax.rbpf import tilestore
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 from gslam_jax.tiled.reference import DEFAULT_TILE_SIZE, TiledOutput, draw_noise, run_tiled
@@ -50,11 +51,12 @@ def _max_isa(xla_flags: str | None = None) -> str | None:
     return isa[-1] if isa else None
 
 
-def dense_label(xla_flags: str | None = None) -> str:
-    """Column label of the dense filter: "dense (JAX)", or "dense (JAX, AVX only)" when
-    ``xla_flags`` (default: $XLA_FLAGS) caps the ISA at AVX, as ``--exact`` does."""
+def dense_label(xla_flags: str | None = None, store: str = "dense") -> str:
+    """Column label of the JAX filter: "dense (JAX)", or "dense (JAX, AVX only)" when
+    ``xla_flags`` (default: $XLA_FLAGS) caps the ISA at AVX, as ``--exact`` does; "shared"
+    for the shared-tile store."""
     isa = _max_isa(xla_flags)
-    return f"dense (JAX, {isa} only)" if isa else "dense (JAX)"
+    return f"{store} (JAX, {isa} only)" if isa else f"{store} (JAX)"
 
 
 class DenseOutput(NamedTuple):
@@ -70,6 +72,8 @@ class DenseOutput(NamedTuple):
     update_seconds: float     # one local-map update (median of repeats, jitted, donated state)
     run_update_seconds: np.ndarray = np.zeros(0)  # [M] each update as the run executes it
     run_resampled: np.ndarray = np.zeros(0, bool)  # [M] whether each of those updates resampled
+    live_bytes: int = 0       # shared store: most bytes its live tiles held at once (with the
+    #                           page tables); dense: state_bytes
 
 
 def _mean(x: np.ndarray) -> float:
@@ -77,7 +81,17 @@ def _mean(x: np.ndarray) -> float:
 
 
 def _state_bytes(state: rbpf.FilterState) -> int:
-    return int(sum(np.asarray(x).nbytes for x in state))
+    return int(sum(np.asarray(x).nbytes for x in jax.tree.leaves(state)))
+
+
+def _live_bytes(state: rbpf.FilterState) -> int:
+    """Shared store: the peak of its live tiles' bytes plus its page tables and bookkeeping
+    (what the tiled reference's ledger counts, and the indices); dense: the whole state."""
+    t = state.tiles
+    if t is None:
+        return _state_bytes(state)
+    fixed = _state_bytes(state) - sum(np.asarray(x).nbytes for x in (t.kpool, t.spool, t.bpool))
+    return int(t.peak) * tilestore.tile_bytes(t) + fixed
 
 
 def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarray,
@@ -125,8 +139,13 @@ def run_dense(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarr
     out = jax.block_until_ready(rbpf.run_filter(*args))
     seconds = time.perf_counter() - t0
     i = jax.device_get(out.infos)
-    kmap, smap, nbytes = np.asarray(out.final_state.kmap), np.asarray(out.final_state.smap), \
-        _state_bytes(out.final_state)
+    tilestore.check_status(int(np.max(i.map_status)), cfg.pool_size)
+    if out.final_state.tiles is None:
+        kmap, smap = np.asarray(out.final_state.kmap), np.asarray(out.final_state.smap)
+    else:
+        kmap, smap, _ = (np.asarray(x) for x in tilestore.to_dense(out.final_state.tiles,
+                                                                   cfg.map_shape))
+    nbytes, live = _state_bytes(out.final_state), _live_bytes(out.final_state)
     # One update on the final maps, state donated as in the scan; ``update`` does not
     # resample, so every repeat does the same work (as gslam bench).
     upd = jax.jit(partial(rbpf.update, cfg=cfg), donate_argnums=0)
@@ -143,7 +162,7 @@ def run_dense(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarr
     del state
     run_times, resampled = time_dense_updates(key, params, run, obs, cfg)
     return DenseOutput(i.pose, i.log_w, i.ess, i.resampled, kmap, smap, nbytes, seconds,
-                       float(np.median(times)), run_times, resampled)
+                       float(np.median(times)), run_times, resampled, live)
 
 
 def check_agreement(dense: DenseOutput, tiled: TiledOutput, cfg: rbpf.FilterConfig) -> dict:
@@ -213,7 +232,8 @@ def _default_run() -> Run:
 
 def compare(run: Run | None = None, config: Config | None = None, *, particles: int = 200,
             unknown_cells: str | None = None, tile_size: float | None = None, seed: int = 0,
-            out_dir: str | Path | None = None, verbose: bool = True) -> dict:
+            out_dir: str | Path | None = None, verbose: bool = True, store: str | None = None,
+            pool_tiles: int | None = None) -> dict:
     """Run the dense and the tiled filter on ``run`` (default: a simulated course) with the same
     random numbers; check agreement; print time and memory side by side.
 
@@ -230,7 +250,10 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
         config,
         filter=dataclasses.replace(config.filter, particles=particles,
                                    unknown_cells=unknown_cells or config.filter.unknown_cells),
-        map=dataclasses.replace(config.map, resolution=run.resolution))
+        map=dataclasses.replace(config.map, resolution=run.resolution,
+                                store=store or config.map.store,
+                                pool_tiles=config.map.pool_tiles if pool_tiles is None
+                                else pool_tiles))
     cfg = filter_config(config, run)
     params = filter_params(config)
     obs = local_observations(run, config.map.min_variance)
@@ -260,7 +283,7 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
     dense_rs = _mean(dense.run_update_seconds[dense.run_resampled])
     dense_kept = _mean(dense.run_update_seconds[~dense.run_resampled])
     n_resampled = int(np.sum(dense.run_resampled))
-    label = dense_label()
+    label = dense_label(store=cfg.store)
     MB = 2 ** 20
     res = {
         "environment": env, "particles": cfg.num_particles, "unknown_cells": cfg.unknown_cells,
@@ -273,7 +296,10 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
                   "seconds_per_update_without_resampling": dense_kept,
                   "total_seconds": dense.seconds,
                   # fixed-shape arrays allocated once: the same bytes at every frame
-                  "state_MB": dense.state_bytes / MB},
+                  "state_MB": dense.state_bytes / MB, "store": cfg.store,
+                  # shared store: the most its live tiles (and page tables) held at once
+                  "peak_live_MB": dense.live_bytes / MB,
+                  "pool_tiles": cfg.pool_size if cfg.store == "shared" else None},
         "tiled": {"seconds_per_update": upd_t,
                   "seconds_per_update_that_resampled": tiled_rs,
                   "seconds_per_update_without_resampling": tiled_kept,
@@ -302,6 +328,11 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
         f"{'':16}   (dense: final maps, median of repeats, as gslam bench)")
     say(f"{'total time':30}{dense.seconds:>{w - 2}.2f} s{tiled_s:>14.2f} s"
         f"   (both after compilation; tiled draws made beforehand, {draw_s:.2f} s, not counted)")
+    if cfg.store == "shared":
+        say(f"{'map memory: peak live tiles':30}{dense.live_bytes / MB:>{w - 3}.1f} MB"
+            f"{tiled.peak_bytes / MB:>13.1f} MB   (shared: most bytes held by live pool tiles, "
+            f"page tables and bookkeeping; its pool of {cfg.pool_size} tiles allocates "
+            f"{dense.state_bytes / MB:.1f} MB up front)")
     say(f"{'map memory: fixed / peak':30}{dense.state_bytes / MB:>{w - 3}.1f} MB"
         f"{tiled.peak_bytes / MB:>13.1f} MB"
         f"   (dense: fixed state arrays, the same at every frame; tiled: peak held by tiles"
