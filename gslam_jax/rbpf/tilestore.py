@@ -104,7 +104,7 @@ def _tile(store: TileStore) -> int:
     return store.kpool.shape[1]
 
 
-def _pages(store: TileStore, particles: Array, cells: Array, width: int) -> tuple[Array, Array]:
+def _pages(store: TileStore, cells: Array, width: int) -> tuple[Array, Array]:
     """Flat page index (within a page table) and offset in the tile of flat map cells
     ``cells`` [n, M] of a map ``width`` cells wide."""
     T, tx = _tile(store), store.page.shape[2]
@@ -118,7 +118,7 @@ def pool_index(store: TileStore, particles: Array, cells: Array, on_map: Array,
     ``particles[i]`` (the page lookup and the cell's offset in one index); cells not on_map
     point at the zero sentinel's first cell."""
     T2 = _tile(store) ** 2
-    pg, off = _pages(store, particles, jnp.where(on_map, cells, 0), width)
+    pg, off = _pages(store, jnp.where(on_map, cells, 0), width)
     tiles = store.page.reshape(store.page.shape[0], -1)[particles[:, None], pg]
     P = store.refcount.shape[0]
     return jnp.where(on_map, tiles * T2 + off, P * T2)
