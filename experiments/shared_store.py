@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -109,8 +110,11 @@ def _spawn(out_dir: Path, *args) -> dict:
     cached = out_dir / "points" / ("_".join(map(str, args)) + ".json")
     if cached.exists():
         return json.loads(cached.read_text())
+    root = str(Path(__file__).resolve().parents[1])  # this checkout's gslam_jax, not another
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        p for p in (root, os.environ.get("PYTHONPATH")) if p)}
     out = subprocess.run([sys.executable, __file__, "--point", *map(str, args)],
-                         capture_output=True, text=True)
+                         capture_output=True, text=True, env=env)
     if out.returncode:
         return {"args": list(map(str, args)), "error": out.stderr.strip().splitlines()[-1:]}
     cached.parent.mkdir(parents=True, exist_ok=True)

@@ -339,8 +339,9 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
         + (f" and their known-cell caches ({tiled.final.ledger.cache_bytes / MB:.1f} MB of caches"
            f" at the end)" if cfg.unknown_cells == "sample" else "")
         + "; paper Fig. 4: 40-160 MB for 200 particles)")
-    say(f"speed ratio (tiled / dense time per update): {res['speed_ratio_tiled_over_dense']:.1f}x "
-        f"(tiled updates without resampling / dense update alone: "
+    say(f"speed ratio (tiled / {cfg.store} time per update): "
+        f"{res['speed_ratio_tiled_over_dense']:.1f}x (tiled updates without resampling / "
+        f"{cfg.store} update alone: "
         f"{res['speed_ratio_update_alone']:.1f}x)")
     step = max(1, run.num_frames // 10)
     say("memory over frames (tiled MB / distinct tiles / tiles shared per particle):")
