@@ -105,11 +105,13 @@ def _course_run(course: str, frames: int, config):
     return run
 
 
-def _spawn(out_dir: Path, *args) -> dict:
+def _spawn(out_dir: Path, *args, cached_only: bool = False) -> dict:
     """One point in its own process; its JSON is kept in ``out_dir/points`` and reused."""
     cached = out_dir / "points" / ("_".join(map(str, args)) + ".json")
     if cached.exists():
         return json.loads(cached.read_text())
+    if cached_only:
+        return {"args": list(map(str, args)), "error": ["not measured (--cached-only)"]}
     root = str(Path(__file__).resolve().parents[1])  # this checkout's gslam_jax, not another
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(
         p for p in (root, os.environ.get("PYTHONPATH")) if p)}
@@ -164,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ab", type=int, metavar="ROUNDS",
                     help="only the A/B of time per update as run, dense vs shared (J = 200)")
     ap.add_argument("--unknown-cells", choices=("ignore", "sample"), default="ignore")
+    ap.add_argument("--cached-only", action="store_true",
+                    help="table and plot from the points already measured; run none")
     args = ap.parse_args(argv)
     if args.ab:
         from gslam_jax.bench import environment
@@ -192,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'course':>12} {'J':>6} {'store':>7} {'frames':>7} {'ms/update':>10} {'map alloc MB':>13} "
           f"{'map peak MB':>12} {'peak RSS MB':>12}")
     for c, J, store, n in plan:
-        r = _spawn(args.out, c, J, store, n)
+        r = _spawn(args.out, c, J, store, n, cached_only=args.cached_only)
         r["frames_setting"] = n
         rows.append(r)
         if "error" in r:
