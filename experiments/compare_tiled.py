@@ -26,6 +26,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--exact", action="store_true",
                     help="compile the dense filter without fused multiply-adds (XLA_FLAGS); "
                          "its timings are then labelled 'AVX only'")
+    ap.add_argument("--store", choices=choices.MAP_STORES, default=None,
+                    help="the JAX filter's map store (default: [map] store, dense)")
     args = ap.parse_args(argv)
     if args.exact:  # must be set before JAX starts its backend
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_max_isa=AVX").strip()
@@ -34,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
 
     run = load_run(args.run) if args.run else None
     res = compare(run, particles=args.particles, unknown_cells=args.unknown_cells,
-                  tile_size=args.tile_size, seed=args.seed, out_dir=args.out)
+                  tile_size=args.tile_size, seed=args.seed, out_dir=args.out, store=args.store)
     return 0 if res["agreement"]["ok"] else 1
 
 
