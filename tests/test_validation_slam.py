@@ -54,7 +54,8 @@ def test_maps_larger_than_memory_are_a_config_error_before_allocating(monkeypatc
     with pytest.raises(ConfigError, match=r"the particle maps need [\d.]+ GiB \(10000000 "
                                           r"particles x \d+ x \d+ cells .* more than this "
                                           r"machine's .*fewer \[filter\] particles, a coarser "
-                                          r"\[map\] resolution or a smaller \[map\] margin"):
+                                          r"\[map\] resolution, a smaller \[map\] margin or "
+                                          r"\[map\] store = \"shared\""):
         slam.run_slam(run, config)
 
 
