@@ -324,11 +324,14 @@ def rigid_rms(estimate: Array, reference: Array, mask: Array) -> Array:
 
 def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask: Array,
                     path: str = "mean") -> Array:
-    """Scalar objective of one filter run (see the module docstring)."""
+    """Scalar objective of one filter run (see the module docstring); NaN when the shared map
+    store ran out of tiles (its maps, and so the run, are then not the filter's)."""
     if objective == "loglik":
-        return jnp.sum(out.infos.log_lik)
-    est = out.mean_pose if path == "mean" else out.best_path
-    return rigid_rms(est, reference, mask)
+        value = jnp.sum(out.infos.log_lik)
+    else:
+        est = out.mean_pose if path == "mean" else out.best_path
+        value = rigid_rms(est, reference, mask)
+    return jnp.where(jnp.max(out.infos.map_status) > 0, jnp.nan, value)
 
 
 _Inputs = slam.RunArrays
@@ -605,6 +608,10 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     return finish(space, values, f, objective, time.perf_counter() - t0, first_chunk_s)
 
 
+POOL_NOTE = ('with [map] store = "shared", a run whose tile pool ran out scores NaN too: raise '
+             '[map] pool_tiles')
+
+
 def finish(space: SearchSpace, values: np.ndarray, f: np.ndarray, objective: str,
            total_s: float, first_chunk_s: float) -> SearchResult:
     """Rank evaluated sets into a SearchResult: a SearchError when every objective is NaN, a
@@ -615,12 +622,12 @@ def finish(space: SearchSpace, values: np.ndarray, f: np.ndarray, objective: str
         raise SearchError(f"objective '{objective}' is NaN or infinite for every one of the "
                           f"{len(f)} parameter sets (first: "
                           f"{dict(zip(space.names, values[0].round(6)))}); check the run and "
-                          f"the ranges")
+                          f"the ranges ({POOL_NOTE})")
     if bad.any():
         first_bad = dict(zip(space.names, values[np.argmax(bad)].round(6)))
         warnings.warn(f"objective '{objective}' is NaN for {int(bad.sum())} of {len(f)} "
                       f"parameter sets (e.g. {first_bad}); they are reported last, never "
-                      f"ranked best", RuntimeWarning)
+                      f"ranked best ({POOL_NOTE})", RuntimeWarning)
     maximize = objective == "loglik"
     vals, obj = rank(values, f, maximize)
     return SearchResult(tuple(space.names), vals, obj, objective, maximize, total_s,

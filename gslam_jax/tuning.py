@@ -45,6 +45,7 @@ from gslam_jax import choices, rbpf, slam
 from gslam_jax.config import Config
 from gslam_jax.errors import InputError
 from gslam_jax.motion import MotionParams, motion_stds
+from gslam_jax.rbpf import tilestore
 from gslam_jax.run import Run
 from gslam_jax.search import (FILTER_PARAM_NAMES, PARAM_NAMES, ObsSettings, base_values,
                               obs_settings, observations_from_values, params_from_values,
@@ -67,6 +68,7 @@ TuneInputs = slam.RunArrays  # the Run's device arrays (``slam.run_arrays``)
 class Objectives(NamedTuple):
     loglik: Array      # sum over updates of log sum_j w_j lambda_j (value as the filter's)
     sq_error: Array    # mean over frames of E_w ||x - x_true||^2 (m^2)
+    map_status: Array  # [] int32 the map store's sticky error bits at the end (0: fine)
 
 
 def transition_score(eps: Array, u: Array, params: MotionParams) -> Array:
@@ -133,10 +135,10 @@ def sw_objectives(key: Array, params: rbpf.FilterParams, inputs: TuneInputs,
         d2 = jnp.sum((state.pose[:, :2] - ref[:2]) ** 2, axis=-1)
         return state, (info.log_lik, jnp.where(m, w @ d2, 0.0))
 
-    _, (ll, err) = lax.scan(frame, state, (keys, inputs.controls, inputs.obs_index,
-                                           inputs.reference, inputs.mask))
+    state, (ll, err) = lax.scan(frame, state, (keys, inputs.controls, inputs.obs_index,
+                                               inputs.reference, inputs.mask))
     n = jnp.maximum(jnp.sum(inputs.mask), 1)
-    return Objectives(jnp.sum(ll), jnp.sum(err) / n)
+    return Objectives(jnp.sum(ll), jnp.sum(err) / n, rbpf.map_status(state))
 
 
 def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, rbpf.FilterConfig]:
@@ -146,10 +148,11 @@ def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, rbpf.FilterConfig
 
 def objective_fn(log_values: Array, keys: Array, base: rbpf.FilterParams, inputs: TuneInputs,
                  names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str,
-                 obs_base: ObsSettings = ObsSettings()) -> Array:
+                 obs_base: ObsSettings = ObsSettings()) -> tuple[Array, Array]:
     """Loss to minimise at log parameter values [d], averaged over independent runs ``keys``
-    [K]: ``-loglik / updates`` or the mean expected squared error (m^2). With an observation
-    setting in ``names``, ``inputs.local_obs`` are raw (``search.search_inputs``)."""
+    [K]: ``-loglik / updates`` or the mean expected squared error (m^2); and, as the auxiliary
+    output, the map store's error bits over the runs (0: fine). With an observation setting in
+    ``names``, ``inputs.local_obs`` are raw (``search.search_inputs``)."""
     values = jnp.exp(log_values)
     params = params_from_values(values, names, base)
     if refines_obs(names):
@@ -160,11 +163,11 @@ def objective_fn(log_values: Array, keys: Array, base: rbpf.FilterParams, inputs
     obj = lax.map(lambda k: sw_objectives(k, params, inputs, cfg), keys)
     if objective == "loglik":
         n_upd = jnp.maximum(jnp.sum(inputs.obs_index >= 0), 1)
-        return -jnp.mean(obj.loglik) / n_upd
-    return jnp.mean(obj.sq_error)
+        return -jnp.mean(obj.loglik) / n_upd, jnp.max(obj.map_status)
+    return jnp.mean(obj.sq_error), jnp.max(obj.map_status)
 
 
-_value_and_grad = jax.jit(jax.value_and_grad(objective_fn),
+_value_and_grad = jax.jit(jax.value_and_grad(objective_fn, has_aux=True),
                           static_argnames=("names", "cfg", "objective"))
 
 
@@ -272,7 +275,9 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     t0 = time.perf_counter()
     for s in range(steps):
         keys = jax.random.split(key if crn else jax.random.fold_in(key, s), runs_per_step)
-        loss, g = _value_and_grad(x, keys, base, inputs, names, cfg, objective, obs_base)
+        (loss, status), g = _value_and_grad(x, keys, base, inputs, names, cfg, objective,
+                                            obs_base)
+        tilestore.check_status(status, cfg.pool_size, f"tune step {s}: ")
         if not np.all(np.isfinite(np.asarray(g))):
             raise TuneError(f"non-finite gradient at step {s} for "
                             f"{dict(zip(names, np.exp(np.asarray(x)).round(6)))}")

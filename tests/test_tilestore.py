@@ -252,3 +252,25 @@ def test_auto_store_is_dense_when_it_fits_and_shared_with_a_notice_otherwise():
         shared = slam.choose_store(cfg, available=need - 1)
     assert shared.store == "shared"
     assert slam.particle_map_bytes(shared) < need
+
+
+def test_search_and_tune_do_not_score_a_run_whose_pool_ran_out():
+    """A search scores such a run NaN (never best, with a warning naming the setting); a tuning
+    step stops with the store's error."""
+    import dataclasses
+
+    from synthetic import make_run
+
+    from gslam_jax import search, tuning
+    from gslam_jax.config import Config
+
+    run, _ = make_run(seed=2, steps=12)
+    c = Config()
+    config = dataclasses.replace(
+        c, filter=dataclasses.replace(c.filter, particles=5),
+        map=dataclasses.replace(c.map, store="shared", tile=16, pool_tiles=30))
+    space = search.parse_space({"alpha_d": [0.05, 0.2]})
+    with pytest.raises(search.SearchError, match=r"\[map\] pool_tiles"):
+        search.search(run, config, space, design="sobol", n=2)
+    with pytest.raises(ts.PoolExhaustedError, match=r"^tune step 0: .*\[map\] pool_tiles = 30"):
+        tuning.tune(run, config, "supervised", names=["alpha_d"], steps=1, runs_per_step=1)

@@ -74,7 +74,7 @@ def test_gradient_matches_central_differences(short_run):
     _, g = TU._value_and_grad(x, keys, base, inputs, names, cfg, "supervised")
     f = jax.jit(TU.objective_fn, static_argnames=("names", "cfg", "objective"))
     d = len(names)
-    vals = np.array([float(f(x + s, keys, base, inputs, names, cfg, "supervised"))
+    vals = np.array([float(f(x + s, keys, base, inputs, names, cfg, "supervised")[0])
                      for s in np.concatenate([h * np.eye(d), -h * np.eye(d)])])
     fd = (vals[:d] - vals[d:]) / (2 * h)
     g = np.asarray(g)
