@@ -152,7 +152,8 @@ def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
         resolution=config.map.resolution, local_size=L, resampler=f.resampler,
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
         unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
-        particle_block=f.particle_block).validate()
+        particle_block=f.particle_block, tempering=f.tempering,
+        ess_target=f.ess_target).validate()
     try:
         check_map_memory(cfg, extent=_extent_cause(run, config))
     except ConfigError as err:

@@ -40,6 +40,8 @@ class FilterConfig(NamedTuple):
     update_map: bool = True
     observed_cells: int = 0
     particle_block: int = 0
+    tempering: str = "fixed"   # "fixed": the paper's beta; "adaptive": see ``gslam_jax.tempering``
+    ess_target: float = 0.5    # "adaptive": conditional ESS fraction each update keeps
 
     @property
     def update_block(self) -> int:
@@ -106,6 +108,11 @@ class FilterConfig(NamedTuple):
             raise ValueError("num_particles must be at least 1")
         if self.particle_block < 0:
             raise ValueError(f"particle_block {self.particle_block} must be >= 0 (0: auto)")
+        if self.tempering not in choices.TEMPERING:
+            raise ValueError(f"tempering '{self.tempering}' unknown; choose one of "
+                             f"{list(choices.TEMPERING)}")
+        if not 0.0 < self.ess_target <= 1.0:
+            raise ValueError(f"ess_target {self.ess_target} must lie in (0, 1]")
         return self
 
 
@@ -163,6 +170,7 @@ class UpdateInfo(NamedTuple):
     extent_violations: Array  # particles with observed local cells outside the map extent
     empty_obs: Array     # bool: the local map had no informative cell
     dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
+    exponent: Array      # exponent applied to the log importance factors (1: the paper's beta)
 
 
 class StepInfo(NamedTuple):
@@ -179,6 +187,8 @@ class StepInfo(NamedTuple):
     extent_violations: Array  # particles with observed local cells outside the map extent
     empty_obs: Array     # bool: the local map had no informative cell
     dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
+    exponent: Array      # exponent applied to the update's log importance factors (1: the
+                         # paper's fixed beta or no update; < 1: adaptive tempering flattened them)
 
 
 class RunOutput(NamedTuple):
