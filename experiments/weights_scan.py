@@ -36,7 +36,7 @@ def main() -> int:
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | {args.run_file} | "
           f"--set {' '.join(args.set) or '(none)'}")
     print(f"{'seed':>4} {'VO RMS':>7} {'SLAM RMS':>8} {'ratio':>6} {'ESS min':>7} {'ESS med':>7} "
-          f"{'<0.1J':>6} {'resamp':>6}")
+          f"{'<0.1J':>6} {'resamp':>6} {'phi med':>7}")
     rows = []
     for seed in args.seeds:
         cfg = dataclasses.replace(config, filter=dataclasses.replace(config.filter, seed=seed))
@@ -47,12 +47,13 @@ def main() -> int:
                "slam_rms_m": metrics.rms_after_fit(res.best_path, run.ground_truth),
                "ess_min_frac": float(ess.min()), "ess_median_frac": float(np.median(ess)),
                "updates_below_0.1J": int(np.sum(ess < 0.1)), "updates": int(ess.size),
-               "resamples": int(np.sum(res.resampled))}
+               "resamples": int(np.sum(res.resampled)),
+               "exponent_median": float(np.median(res.exponent[np.asarray(res.updated)]))}
         rows.append(row)
         print(f"{seed:4d} {row['vo_rms_m']:7.3f} {row['slam_rms_m']:8.3f} "
               f"{row['slam_rms_m'] / row['vo_rms_m']:6.2f} {row['ess_min_frac']:7.3f} "
               f"{row['ess_median_frac']:7.3f} {row['updates_below_0.1J']:3d}/{row['updates']:<2d} "
-              f"{row['resamples']:6d}")
+              f"{row['resamples']:6d} {row['exponent_median']:7.3f}")
     slam_rms = [r["slam_rms_m"] for r in rows]
     print(f"mean SLAM RMS {np.mean(slam_rms):.3f} m, worst {np.max(slam_rms):.3f} m")
     if args.json:
