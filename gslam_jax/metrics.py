@@ -16,7 +16,8 @@ from .run import Run, known_positions
 
 __all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
            "drift_per_distance", "path_length", "trajectory_metrics", "errors_over_known_frames",
-           "drift_over_known_frames", "ground_truth_in_map_frame", "ess_summary", "GridMap", "pose_map", "vo_only_map"]
+           "drift_over_known_frames", "ground_truth_in_map_frame", "ess_summary", "GridMap",
+           "pose_map", "vo_only_map"]
 
 
 class RigidFit(NamedTuple):

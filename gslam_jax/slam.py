@@ -366,7 +366,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     return SlamResult(
         best_path=path, best_pose=best, mean_pose=mean, vo_path=run.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
-        exponent=infos.exponent, kmap=np.asarray(state.kmap[final_best]), smap=np.asarray(state.smap[final_best]),
+        exponent=infos.exponent, kmap=np.asarray(state.kmap[final_best]),
+        smap=np.asarray(state.smap[final_best]),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
         empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
         compile_seconds=compile_s)
