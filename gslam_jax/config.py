@@ -43,6 +43,11 @@ class FilterSection:
     unknown_samples: int = 1024
     beta_prev: float = 0.05
     beta_new: float = 0.05
+    # "fixed": every update's log importance factors tempered by beta alone, as in the paper;
+    # "adaptive": also by the largest exponent <= 1 that keeps the conditional ESS of the
+    # update at ess_target * J (adaptive SMC; issue 16, see gslam_jax/tempering.py)
+    tempering: str = "fixed"
+    ess_target: float = 0.5
     seed: int = 0
     # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
     # a CPU, all particles on an accelerator; FilterConfig.update_block)
@@ -131,6 +136,10 @@ class Config:
             (f.unknown_samples >= 1, "filter", "unknown_samples", "must be at least 1"),
             (f.beta_prev > 0, "filter", "beta_prev", "must be positive"),
             (f.beta_new > 0, "filter", "beta_new", "must be positive"),
+            (f.tempering in choices.TEMPERING, "filter", "tempering",
+             f"must be one of {', '.join(choices.TEMPERING)} (the paper's beta, or an "
+             "ESS-targeted exponent on it)"),
+            (0.0 < f.ess_target <= 1.0, "filter", "ess_target", "must be in (0, 1]"),
             (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             (all(getattr(self.motion, k) >= 0 for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),

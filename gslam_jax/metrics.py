@@ -16,7 +16,8 @@ from .run import Run, known_positions
 
 __all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
            "drift_per_distance", "path_length", "trajectory_metrics", "errors_over_known_frames",
-           "ess_summary", "GridMap", "pose_map", "vo_only_map"]
+           "drift_over_known_frames", "ground_truth_in_map_frame", "ess_summary", "GridMap",
+           "pose_map", "vo_only_map"]
 
 
 class RigidFit(NamedTuple):
@@ -126,6 +127,45 @@ def drift_per_distance(estimate: np.ndarray, reference: np.ndarray) -> float:
     if dist <= 0:
         raise ValueError("reference trajectory does not move; drift per distance is undefined")
     return final_position_error(estimate, reference, align="start") / dist
+
+
+def drift_over_known_frames(paths: dict[str, np.ndarray], reference: np.ndarray) -> dict:
+    """``gt_distance_m``: the ground-truth distance travelled over the frames with a known
+    position (NaN rows skipped, a gap bridged by a straight line), and ``{name}_drift_pct``
+    per path: its final position error, anchored at the first known frame (which needs a
+    finite heading), as a percentage of that distance. Empty with fewer than 2 known frames;
+    no drift figures when the ground truth does not move or its first heading is unknown."""
+    reference = np.asarray(reference, np.float64)
+    frames = np.flatnonzero(known_positions(reference))
+    if frames.size < 2:
+        return {}
+    ref = reference[frames]
+    out: dict = {"gt_distance_m": path_length(ref)}
+    if out["gt_distance_m"] > 0 and np.isfinite(ref[0, 2]):
+        for name, path in paths.items():
+            err = final_position_error(np.asarray(path, np.float64)[frames], ref, align="start")
+            out[f"{name}_drift_pct"] = 100.0 * err / out["gt_distance_m"]
+    return out
+
+
+def ground_truth_in_map_frame(reference: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """The ground truth [T, 3] moved rigidly so that its first known pose (finite position
+    and heading) lies on ``path`` at that frame: drawn over a map built from ``path``'s start,
+    it shows the drift. NaN rows stay NaN; all NaN when no frame has a known pose."""
+    reference = np.asarray(reference, np.float64)
+    known = np.flatnonzero(np.all(np.isfinite(reference), axis=1))
+    out = np.full_like(reference, np.nan)
+    if known.size == 0:
+        return out
+    f = known[0]
+    path = np.asarray(path, np.float64)
+    dth = path[f, 2] - reference[f, 2]
+    c, sn = math.cos(dth), math.sin(dth)
+    R = np.array([[c, -sn], [sn, c]])
+    t = path[f, :2] - R @ reference[f, :2]
+    rows = np.all(np.isfinite(reference[:, :2]), axis=1)
+    out[rows] = apply_rigid(reference[rows], RigidFit(R, t, dth, float("nan")))
+    return out
 
 
 def trajectory_metrics(estimate: np.ndarray, reference: np.ndarray,

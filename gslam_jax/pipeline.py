@@ -249,6 +249,12 @@ def write_figures(out: Path, run, result, num_particles: int,
                                   slam_path=result.best_path)
     plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled,
                        threshold=threshold)
+    if run.ground_truth is not None:
+        gt = metrics.ground_truth_in_map_frame(run.ground_truth, result.vo_path)
+        if np.isfinite(gt).any():
+            plots.save_ground_truth_png(out / "ground_truth.png", vo_std, vo_map.origin,
+                                        slam_std, result.map_origin, result.resolution, gt,
+                                        result.vo_path, result.best_path)
     return slam_std
 
 
@@ -270,8 +276,9 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "compile_seconds": result.compile_seconds,
     }
     if run.ground_truth is not None:
-        summary.update(metrics.errors_over_known_frames(
-            {"vo": result.vo_path, "slam": result.best_path}, run.ground_truth))
+        paths = {"vo": result.vo_path, "slam": result.best_path}
+        summary.update(metrics.errors_over_known_frames(paths, run.ground_truth))
+        summary.update(metrics.drift_over_known_frames(paths, run.ground_truth))
     return summary
 
 
@@ -301,7 +308,8 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
             write_tum(out / "ground_truth_tum.txt", np.asarray(run.timestamps)[known], gt[known],
                       origin_ns=origin)
     save_map(out / "map.npz", result.kmap, result.smap, result.map_origin, result.resolution)
-    np.savez_compressed(out / "trace.npz", ess=result.ess, resampled=result.resampled,
+    np.savez_compressed(out / "trace.npz", ess=result.ess, exponent=result.exponent,
+                        resampled=result.resampled,
                         updated=result.updated, log_lik=result.log_lik,
                         best_pose=result.best_pose, mean_pose=result.mean_pose)
     summary = summarise(run, result, config, loaded.description)
@@ -324,6 +332,9 @@ def print_summary(summary: dict, run, result) -> None:
         if "vo_rms_m" in summary:
             print(f"VO-only RMS: {summary['vo_rms_m']:.3f} m{over}")
             print(f"Gamma-SLAM RMS: {summary['slam_rms_m']:.3f} m{over}")
+        if "slam_drift_pct" in summary:
+            print(f"ground-truth distance: {summary['gt_distance_m']:.1f} m, final drift: VO-only "
+                  f"{summary['vo_drift_pct']:.2f} %, Gamma-SLAM {summary['slam_drift_pct']:.2f} %")
         else:
             print(f"ground truth: only {scored} of {run.num_frames} frames have a finite pose; "
                   "no RMS")

@@ -18,7 +18,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 
-__all__ = ["draw_map", "save_map_png", "save_map_comparison_png", "save_ess_png"]
+__all__ = ["draw_map", "save_map_png", "save_map_comparison_png", "save_ground_truth_png",
+           "save_ess_png"]
 
 _UNKNOWN = (0.16, 0.19, 0.24)
 _STD_RANGE = (0.01, 1.0)  # metres: sand .. walls
@@ -93,6 +94,39 @@ def save_map_comparison_png(out: str | Path, vo_std: np.ndarray, vo_origin: Sequ
     fig.colorbar(im, ax=list(axes), label="expected std of heights (m)", shrink=0.8)
     if suptitle:
         fig.suptitle(suptitle)
+    fig.savefig(out, dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return out
+
+
+def save_ground_truth_png(out: str | Path, vo_std: np.ndarray, vo_origin: Sequence[float],
+                          slam_std: np.ndarray, slam_origin: Sequence[float], resolution: float,
+                          ground_truth: np.ndarray, vo_path: np.ndarray, slam_path: np.ndarray,
+                          dpi: int = 120) -> Path:
+    """The VO-only and Gamma-SLAM maps with their paths (white) and the ground truth (cyan,
+    dashed) over both, in the maps' frame (``metrics.ground_truth_in_map_frame``): where a
+    path leaves the truth, the map built along it is displaced as much."""
+    out = Path(out)
+    gt = np.asarray(ground_truth, np.float64)
+    if gt.ndim != 2 or gt.shape[1] < 2:
+        raise ValueError(f"ground_truth must be [T, >=2], got shape {gt.shape}")
+    shape = (max(vo_std.shape[0], slam_std.shape[0]), max(vo_std.shape[1], slam_std.shape[1]))
+    w, h = _figsize(shape, 2)
+    fig, axes = plt.subplots(1, 2, figsize=(w, h))
+    draw_map(axes[0], vo_std, vo_origin, resolution, vo_path, "VO only")
+    im = draw_map(axes[1], slam_std, slam_origin, resolution, slam_path, "Gamma-SLAM")
+    windows = [w for w in (_data_window(vo_std, vo_origin, resolution),
+                           _data_window(slam_std, slam_origin, resolution)) if w is not None]
+    for ax in axes:
+        ax.plot(gt[:, 0], gt[:, 1], color="cyan", ls="--", lw=1.0, label="ground truth")
+        ax.plot([], [], color="white", lw=0.8, label="estimate")
+        ax.legend(loc="best", fontsize=8, facecolor=_UNKNOWN, labelcolor="white")
+        if windows:
+            box = np.array(windows)
+            ax.set_xlim(box[:, 0].min(), box[:, 1].max())
+            ax.set_ylim(box[:, 2].min(), box[:, 3].max())
+    fig.colorbar(im, ax=list(axes), label="expected std of heights (m)", shrink=0.8)
+    fig.suptitle("Ground truth over the maps and paths")
     fig.savefig(out, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return out

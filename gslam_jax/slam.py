@@ -179,8 +179,8 @@ def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
         resolution=config.map.resolution, local_size=L, resampler=f.resampler,
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
         unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
-        particle_block=f.particle_block, store=config.map.store, tile=config.map.tile,
-        pool_tiles=config.map.pool_tiles)
+        particle_block=f.particle_block, tempering=f.tempering, ess_target=f.ess_target,
+        store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles)
     cfg = choose_store(cfg).validate()
     try:
         check_map_memory(cfg, extent=_extent_cause(run, config))
@@ -351,6 +351,7 @@ class SlamResult(NamedTuple):
     resampled: np.ndarray      # [T] bool
     updated: np.ndarray        # [T] bool
     log_lik: np.ndarray        # [T] log mean weight increments
+    exponent: np.ndarray       # [T] tempering exponent of each update (1: the paper's beta)
     kmap: np.ndarray           # [H, W] best particle's map
     smap: np.ndarray           # [H, W]
     map_origin: tuple[float, float]
@@ -426,7 +427,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     return SlamResult(
         best_path=path, best_pose=best, mean_pose=mean, vo_path=run.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
-        kmap=np.asarray(kmap), smap=np.asarray(smap),
+        exponent=infos.exponent, kmap=np.asarray(kmap), smap=np.asarray(smap),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
         empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
         compile_seconds=compile_s, store=cfg.store, map_bytes=particle_map_bytes(cfg),

@@ -25,7 +25,10 @@ def test_run_on_npz_writes_results(tmp_path, capsys):
     assert rc == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["frames"] == 25 and summary["particles"] == 8
-    for name in ("trajectory_tum.txt", "trajectory_kitti.txt", "map.npz", "config.toml"):
+    assert summary["gt_distance_m"] > 0 and summary["slam_drift_pct"] >= 0
+    assert summary["vo_drift_pct"] >= 0
+    for name in ("trajectory_tum.txt", "trajectory_kitti.txt", "map.npz", "config.toml",
+                 "ground_truth.png"):
         assert (tmp_path / "out" / name).exists()
     assert len((tmp_path / "out" / "trajectory_kitti.txt").read_text().splitlines()) == 25
 

@@ -24,7 +24,8 @@ def test_filter_config_defaults_are_the_config_defaults():
     for name, section_key in [("resampler", "resampler"), ("resample_ratio", "resample_ratio"),
                               ("unknown_cells", "unknown_cells"),
                               ("unknown_samples", "unknown_samples"),
-                              ("particle_block", "particle_block")]:
+                              ("particle_block", "particle_block"),
+                              ("tempering", "tempering"), ("ess_target", "ess_target")]:
         assert getattr(cfg, name) == getattr(f, section_key), name
     params = rbpf.FilterParams()
     assert (params.beta_prev, params.beta_new) == (f.beta_prev, f.beta_new)

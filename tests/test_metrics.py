@@ -142,3 +142,39 @@ def test_vo_only_map_uses_the_integrated_controls() -> None:
     b = pose_map(run, run.vo_poses())
     np.testing.assert_array_equal(a.k, b.k)
     assert a.origin == b.origin
+
+
+def test_drift_over_known_frames_by_hand():
+    from gslam_jax.metrics import drift_over_known_frames
+
+    # Truth: 10 m east then 10 m north (20 m); the estimate ends 0.5 m off (3-4-5 x 0.1).
+    gt = np.array([[0, 0, 0], [10, 0, np.pi / 2], [10, 10, np.pi / 2]], float)
+    est = gt.copy()
+    est[-1, :2] += [0.3, 0.4]
+    out = drift_over_known_frames({"vo": est, "same": gt}, gt)
+    assert out["gt_distance_m"] == pytest.approx(20.0)
+    assert out["vo_drift_pct"] == pytest.approx(2.5)  # 0.5 m / 20 m
+    assert out["same_drift_pct"] == pytest.approx(0.0, abs=1e-12)
+    # Anchored at the first pose: an estimate in another frame (rotated 90 deg, shifted)
+    # with the same shape has no drift.
+    c, s = 0.0, 1.0
+    moved = np.c_[gt[:, 0] * c - gt[:, 1] * s + 5, gt[:, 0] * s + gt[:, 1] * c - 2,
+                  gt[:, 2] + np.pi / 2]
+    assert drift_over_known_frames({"m": moved}, gt)["m_drift_pct"] == pytest.approx(0, abs=1e-9)
+    # NaN rows are skipped: the distance is bridged over the gap (0,0) -> (10,10).
+    gap = gt.copy()
+    gap[1] = np.nan
+    out = drift_over_known_frames({"vo": est}, gap)
+    assert out["gt_distance_m"] == pytest.approx(np.hypot(10, 10))
+    assert out["vo_drift_pct"] == pytest.approx(100 * 0.5 / np.hypot(10, 10))
+    assert drift_over_known_frames({"vo": est}, np.full((3, 3), np.nan)) == {}
+
+
+def test_ground_truth_in_map_frame_starts_on_the_path():
+    from gslam_jax.metrics import ground_truth_in_map_frame
+
+    gt = np.array([[np.nan] * 3, [1, 1, 0], [2, 1, 0]], float)
+    path = np.array([[0, 0, 0], [5, 5, np.pi / 2], [5, 6, np.pi / 2]], float)
+    moved = ground_truth_in_map_frame(gt, path)
+    assert np.all(np.isnan(moved[0]))
+    np.testing.assert_allclose(moved[1:], path[1:], atol=1e-12)  # same shape: on the path

@@ -42,3 +42,20 @@ def test_bad_inputs(tmp_path) -> None:
         save_map_png(tmp_path / "x.png", np.zeros((5, 5)), (0, 0), 0.0)
     with pytest.raises(ValueError, match="frames"):
         save_ess_png(tmp_path / "x.png", np.ones(5), 10, frames=np.arange(4))
+
+
+def test_ground_truth_png(tmp_path) -> None:
+    from gslam_jax.plots import save_ground_truth_png
+
+    gt = np.stack([np.linspace(1, 10, 20), np.linspace(1, 5, 20), np.zeros(20)], axis=1)
+    gt[3] = np.nan  # a frame without ground truth is a gap in the line, not an error
+    out = save_ground_truth_png(tmp_path / "gt.png", _std_map(1), (0.0, 0.0), _std_map(2),
+                                (0.0, 0.0), 0.16, gt, gt + 0.2, gt - 0.2)
+    img = imread(out)
+    assert img.shape[1] > img.shape[0]
+    # the ground truth's cyan is drawn: pixels with little red, much green and blue
+    rgb = img[..., :3]
+    assert np.sum((rgb[..., 0] < 0.2) & (rgb[..., 1] > 0.8) & (rgb[..., 2] > 0.8)) > 20
+    with pytest.raises(ValueError, match="ground_truth"):
+        save_ground_truth_png(tmp_path / "x.png", _std_map(1), (0, 0), _std_map(1), (0, 0),
+                              0.16, np.zeros(5), gt, gt)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import gslam_jax
 from gslam_jax.tiled import Ledger, TileMap, tile_cells
 
 
@@ -70,12 +71,15 @@ def _equivalence() -> dict:
     L = obs.shape[1]
     out = {}
     # "ignore" in one pass over the particles; "sample" in blocks of 5 (3 blocks and a tail of 1).
-    for mode, block in (("ignore", 16), ("sample", 5)):
+    # and "ignore" with adaptive tempering (issue 16), which the reference solves on its own.
+    for mode, block, temper in (("ignore", 16, "fixed"), ("sample", 5, "fixed"),
+                                ("ignore", 16, "adaptive")):
         probe = rbpf.FilterConfig(16, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
         ext = map_extent(run.vo_poses(), L, 0.16, -2.5, probe.window)  # footprints reach the edge
         cfg = rbpf.FilterConfig(16, ext.shape, ext.origin, 0.16, L, unknown_cells=mode,
                                 unknown_samples=64, observed_cells=observed_cells(run),
-                                particle_block=block).validate()
+                                particle_block=block, tempering=temper,
+                                ess_target=0.6).validate()
         assert cfg.max_observed < L * L  # the compacted update is what is compared
         key = jax.random.key(3)
         params = rbpf.FilterParams()
@@ -85,15 +89,20 @@ def _equivalence() -> dict:
         dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.kmap),
                             np.asarray(d.final_state.smap), 0, 0.0, 0.0)
         tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile_size=16 * 0.16)
-        out[mode] = check_agreement(dense, tiled, cfg)
-        out[mode]["off_map_updates"] = int(np.sum(i.extent_violations))
-        out[mode]["max_shared"] = float(tiled.shared_mean.max())
-        out[mode]["mem_drops"] = int(np.sum(np.diff(tiled.memory_bytes) < 0))
+        name = f"{mode}-{temper}"
+        out[name] = check_agreement(dense, tiled, cfg)
+        out[name]["off_map_updates"] = int(np.sum(i.extent_violations))
+        out[name]["max_shared"] = float(tiled.shared_mean.max())
+        out[name]["mem_drops"] = int(np.sum(np.diff(tiled.memory_bytes) < 0))
+        out[name]["tempered_updates"] = int(np.sum(np.asarray(i.exponent) < 1.0))
     return out
 
 
 def test_tiled_reference_reproduces_dense_filter():
-    env = dict(os.environ, XLA_FLAGS="--xla_cpu_max_isa=AVX", JAX_PLATFORMS="cpu")
+    # the package this test imports, not whichever one is installed (a worktree beside main)
+    root = str(Path(gslam_jax.__file__).parent.parent)
+    env = dict(os.environ, XLA_FLAGS="--xla_cpu_max_isa=AVX", JAX_PLATFORMS="cpu",
+               PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
     proc = subprocess.run([sys.executable, __file__], env=env, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -105,6 +114,8 @@ def test_tiled_reference_reproduces_dense_filter():
         assert r["k"] == 0.0 and r["S_rel"] <= 1e-6, (mode, r)
         assert r["max_shared"] > 0 and r["mem_drops"] > 0, (mode, r)  # copies share tiles
     assert max(r["off_map_updates"] for r in res.values()) > 0  # the off-map rule is exercised
+    assert res["ignore-fixed"]["tempered_updates"] == 0
+    assert res["ignore-adaptive"]["tempered_updates"] >= 3  # the tempering rule is exercised
 
 
 def test_dense_update_timing_replays_the_run():

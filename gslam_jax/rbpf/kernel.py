@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from gslam_jax import cells, resampling, unknown
+from gslam_jax import cells, resampling, tempering, unknown
 from gslam_jax.motion import apply_motion
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.rbpf.footprint import (compact_observation, read_footprints, window_origin,
@@ -172,7 +172,9 @@ def best_slot(log_w: Array, ancestors: Array) -> Array:
 def update(state: FilterState, local_obs: Array, unknown_u: Array, params: FilterParams,
            cfg: FilterConfig) -> tuple[FilterState, UpdateInfo]:
     """Weigh, write, normalise: eq. 26 with eq. 30 / 31 against each particle's map, eq. 14
-    into it, the weights multiplied (eq. 27) and normalised. No resampling (``resample``).
+    into it, the weights multiplied (eq. 27; with ``cfg.tempering == "adaptive"`` the log
+    factors are first scaled by ``tempering.adaptive_exponent``) and normalised. No resampling
+    (``resample``).
 
     local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred; unknown_u:
     ``UpdateNoise.unknown_u``. The state's ``best`` becomes the highest-weight particle.
@@ -180,7 +182,9 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     J = cfg.num_particles
     obs = compact_observation(local_obs, cfg)
     w = _weigh_and_write(state, obs, unknown_u, params, cfg)
-    unnorm = state.log_w + w.log_lam
+    phi = (tempering.adaptive_exponent(state.log_w, w.log_lam, cfg.ess_target)
+           if cfg.tempering == "adaptive" else jnp.ones((), w.log_lam.dtype))
+    unnorm = state.log_w + phi * w.log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
     if isinstance(w.maps, tilestore.TileStore):  # its writes refreshed the known-cell bits
@@ -194,7 +198,8 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     best = best_slot(log_w, jnp.arange(J, dtype=jnp.int32))
     info = UpdateInfo(ess=resampling.ess(log_w), log_lik=log_lik,
                       extent_violations=jnp.sum(w.off_map).astype(jnp.int32),
-                      empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped)
+                      empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped,
+                      exponent=phi)
     return FilterState(state.pose, log_w, kmap, smap, bits, rows, best, tiles), info
 
 
@@ -247,7 +252,7 @@ def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fi
                            ess=upd.ess, resampled=resampled, updated=jnp.bool_(True),
                            log_lik=upd.log_lik, extent_violations=upd.extent_violations,
                            empty_obs=upd.empty_obs, dropped_cells=upd.dropped_cells,
-                           map_status=maps.map_status(state))
+                           map_status=maps.map_status(state), exponent=upd.exponent)
 
 
 def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
@@ -257,7 +262,8 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
                     ess=resampling.ess(state.log_w), resampled=jnp.bool_(False),
                     updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
                     extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False),
-                    dropped_cells=jnp.int32(0), map_status=maps.map_status(state))
+                    dropped_cells=jnp.int32(0), map_status=maps.map_status(state),
+                    exponent=jnp.float32(1.0))
 
 
 def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,

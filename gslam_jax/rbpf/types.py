@@ -43,6 +43,8 @@ class FilterConfig(NamedTuple):
     update_map: bool = True
     observed_cells: int = 0
     particle_block: int = 0
+    tempering: str = "fixed"   # "fixed": the paper's beta; "adaptive": see ``gslam_jax.tempering``
+    ess_target: float = 0.5    # "adaptive": conditional ESS fraction each update keeps
     store: str = "dense"
     tile: int = 32
     pool_tiles: int = 0
@@ -135,6 +137,11 @@ class FilterConfig(NamedTuple):
             raise ValueError(f"tile {self.tile} must be a positive multiple of {unknown.BLOCK}")
         if self.pool_tiles < 0:
             raise ValueError(f"pool_tiles {self.pool_tiles} must be >= 0 (0: auto)")
+        if self.tempering not in choices.TEMPERING:
+            raise ValueError(f"tempering '{self.tempering}' unknown; choose one of "
+                             f"{list(choices.TEMPERING)}")
+        if not 0.0 < self.ess_target <= 1.0:
+            raise ValueError(f"ess_target {self.ess_target} must lie in (0, 1]")
         return self
 
 
@@ -194,6 +201,7 @@ class UpdateInfo(NamedTuple):
     extent_violations: Array  # particles with observed local cells outside the map extent
     empty_obs: Array     # bool: the local map had no informative cell
     dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
+    exponent: Array      # exponent applied to the log importance factors (1: the paper's beta)
 
 
 class StepInfo(NamedTuple):
@@ -212,6 +220,8 @@ class StepInfo(NamedTuple):
     dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
     map_status: Array    # [] int32 the shared store's sticky error bits (0: fine; dense: 0),
                          # raised on the host by ``tilestore.check_status``
+    exponent: Array      # exponent applied to the update's log importance factors (1: the
+                         # paper's fixed beta or no update; < 1: adaptive tempering flattened them)
 
 
 class RunOutput(NamedTuple):

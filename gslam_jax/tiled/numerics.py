@@ -113,6 +113,46 @@ def combine(sum_prev: float, n_prev: int, sum_new: float, n_obs: int, beta_prev:
     return (sum_prev / beta_prev + sum_new / beta_new) / max(n_obs, 1)
 
 
+def tempering_exponent(log_w: np.ndarray, log_lam: np.ndarray, target: float,
+                       tol: float = 1e-10) -> float:
+    """Adaptive tempering (issue 16), written apart from ``gslam_jax.tempering``: the largest
+    exponent phi in [0, 1] of the increments ``log_lam`` whose conditional ESS fraction
+    ``(sum W e^{phi l})^2 / sum W e^{2 phi l}`` under the weights W = exp(log_w) is at least
+    ``target``; 1 when phi = 1 meets it. In float64, by the Illinois (modified regula falsi)
+    method on g(phi) = log CESS(phi) - log target, which falls monotonically from g(0) >= 0."""
+    w = np.exp(np.asarray(log_w, np.float64))
+    lam = np.where(w > 0, np.asarray(log_lam, np.float64), 0.0)
+
+    def g(phi: float) -> float:
+        x = phi * lam
+        a, b = x.max(), (2.0 * x).max()
+        return (2.0 * (a + np.log(np.sum(w * np.exp(x - a))))
+                - (b + np.log(np.sum(w * np.exp(2.0 * x - b)))) - math.log(target))
+
+    g1 = g(1.0)
+    if g1 >= 0.0:
+        return 1.0
+    lo, hi, g_lo, g_hi, side = 0.0, 1.0, g(0.0), g1, 0
+    while hi - lo > tol:
+        phi = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
+        if not lo < phi < hi:
+            phi = 0.5 * (lo + hi)
+        gp = g(phi)
+        if gp >= 0.0:
+            lo, g_lo = phi, gp
+            if side == -1:
+                g_hi *= 0.5
+            side = -1
+        else:
+            hi, g_hi = phi, gp
+            if side == 1:
+                g_lo *= 0.5
+            side = 1
+        if gp == 0.0:
+            break
+    return lo
+
+
 def ess(log_w: np.ndarray) -> float:
     """Effective sample size 1 / sum w^2 of normalised log weights (eq. 23)."""
     return float(1.0 / np.sum(np.exp(2.0 * np.asarray(log_w, np.float64))))

@@ -162,7 +162,9 @@ def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: Filte
         log_lam[j], off_map = _particle(state.maps[j], state.pose[j], (c[j], s[j]), obs,
                                         unknown_u[j] if unknown_u.size else unknown_u, params, cfg)
         violations += int(off_map)
-    unnorm = state.log_w + log_lam
+    phi = (nm.tempering_exponent(state.log_w, log_lam, cfg.ess_target)
+           if cfg.tempering == "adaptive" else 1.0)
+    unnorm = state.log_w + phi * log_lam
     top = unnorm.max()
     log_w = unnorm - (top + math.log(np.sum(np.exp(unnorm - top))))
     e = nm.ess(log_w)
