@@ -9,7 +9,7 @@ these tuples; a test checks that the implementations behind them match.
 from __future__ import annotations
 
 __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJECTIVES",
-           "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "SCORE_PATHS", "SOURCES", "BAD_FRAME_POLICIES",
+           "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "SOURCES", "BAD_FRAME_POLICIES",
            "STEREO_ALGORITHMS"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
@@ -19,7 +19,11 @@ TEMPERING = ("fixed", "adaptive")  # ``[filter] tempering`` (paper's beta / ``te
 TUNE_OBJECTIVES = ("loglik", "supervised")  # ``gslam tune --objective``
 SEARCH_OBJECTIVES = ("rms", "loglik")  # ``gslam search --objective``
 SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --design``
-SCORE_PATHS = ("mean", "best")  # ``gslam search --score-path``
+# ``[filter] estimate``: the trajectory a run reports, the final best particle's ancestral path
+# (the paper), the per-frame weighted posterior mean, or the smoother's mean over every final
+# particle's ancestral path
+ESTIMATES = ("best", "mean", "smoothed")
+SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] estimate``)
 SOURCES = ("sim", "sim-stereo", "kitti", "euroc")  # ``gslam run --source``
 BAD_FRAME_POLICIES = ("error", "fallback")  # ``gslam run --on-bad-frame``
 STEREO_ALGORITHMS = ("sgbm", "bm")  # ``[stereo] algorithm`` (vo.stereo.DenseStereoParams)

@@ -114,7 +114,7 @@ def cmd_search(args: argparse.Namespace) -> int:
                             design=args.design or options.get("design", "halton"),
                             n=args.n if args.n is not None else options.get("n", 64),
                             objective=args.objective or options.get("objective", "rms"),
-                            path=args.score_path or options.get("path", "mean"),
+                            path=args.score_path or options.get("path", config.filter.estimate),
                             seed=options.get("seed", 0), batch=args.batch,
                             progress=ProgressBar("search"))
             best = result.best()
@@ -230,7 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", type=_positive_int, help="number of parameter sets")
     p.add_argument("--objective", choices=choices.SEARCH_OBJECTIVES)
     p.add_argument("--score-path", choices=choices.SCORE_PATHS,
-                   help="path scored by rms: weighted mean or final best particle")
+                   help="path scored by rms: final best particle or weighted mean "
+                   "(default: [filter] estimate)")
     p.add_argument("--batch", type=int, help="parameter sets per chunk")
     p.add_argument("--out", type=Path, help="write results.csv, results.json and best.toml here "
                    "when complete (default results/search-<time>)")

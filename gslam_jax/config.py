@@ -48,6 +48,10 @@ class FilterSection:
     # update at ess_target * J (adaptive SMC; issue 16, see gslam_jax/tempering.py)
     tempering: str = "fixed"
     ess_target: float = 0.5
+    # the reported trajectory (slam.SlamResult.path): "best", the final best particle's path
+    # through its ancestry (the paper); "mean", each frame's weighted mean pose (filtering);
+    # "smoothed", the final weights' mean over every final particle's ancestral path
+    estimate: str = "best"
     seed: int = 0
     # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
     # a CPU, all particles on an accelerator; FilterConfig.update_block)
@@ -140,6 +144,9 @@ class Config:
              f"must be one of {', '.join(choices.TEMPERING)} (the paper's beta, or an "
              "ESS-targeted exponent on it)"),
             (0.0 < f.ess_target <= 1.0, "filter", "ess_target", "must be in (0, 1]"),
+            (f.estimate in choices.ESTIMATES, "filter", "estimate",
+             f"must be one of {', '.join(choices.ESTIMATES)} (final best particle's path, "
+             "each frame's weighted mean pose, or the smoother's mean path)"),
             (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             (all(getattr(self.motion, k) >= 0 for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),

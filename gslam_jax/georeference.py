@@ -1,7 +1,7 @@
 """A finished run placed on the Earth: its GPS readings checked, aligned, written in UTM.
 
 ``gslam run --gps`` reads the log (or simulates one) and checks it against the run *before*
-the filter runs (``gps_input``), then fits the best path to it and writes the georeferenced
+the filter runs (``gps_input``), then fits the reported path ([filter] estimate) to it and writes the georeferenced
 outputs (``write_gps_outputs``; paper section 8 and appendix). The fit itself, the UTM
 conversion and the log format live in ``gps``; this module is the workflow around them.
 """
@@ -81,17 +81,17 @@ def gps_input(name: str, run, seed: int = 0, log: GpsLog | None = None) -> GpsIn
 
 def write_gps_outputs(out: Path, readings: GpsInput, run, result,
                       std: np.ndarray | None = None) -> dict:
-    """Align the best path of ``result`` to the readings (weighted Procrustes, paper appendix)
-    and write ``trajectory_utm.txt``, ``map_utm.png`` (+ world file) and ``gps_alignment.npz``
+    """Align the reported path of ``result`` (``SlamResult.path``) to the readings (weighted
+    Procrustes, paper appendix) and write ``trajectory_utm.txt``, ``map_utm.png`` (+ world file) and ``gps_alignment.npz``
     to ``out``; returns the summary's "gps" figures (readings used, residuals, map corners).
     ``std``: the map's expected std when the caller has it already (else computed here)."""
     log, truth_xy = readings.log, readings.truth_xy
     try:
-        al, aligned = gps.align_to_gps(run.timestamps, result.best_path[:, :2], log.time, log.xy,
+        al, aligned = gps.align_to_gps(run.timestamps, result.path[:, :2], log.time, log.xy,
                                        log.epe)
     except ValueError as err:
         raise GpsLogError(f"{readings.name}: {err}") from err
-    path_gps = np.asarray(gps.transform_poses(al, result.best_path), np.float64)
+    path_gps = np.asarray(gps.transform_poses(al, result.path), np.float64)
     path_gps[:, :2] += np.asarray(log.origin, np.float64)
     np.savetxt(out / "trajectory_utm.txt", np.column_stack([run.timestamps, path_gps]),
                fmt="%.4f", header=f"time easting northing heading (UTM zone {log.zone}"

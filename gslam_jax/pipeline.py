@@ -243,10 +243,10 @@ def write_figures(out: Path, run, result, num_particles: int,
     vo_map = metrics.vo_only_map(run)
     vo_std = np.asarray(cells.expected_std(vo_map.k, vo_map.S))
     plots.save_map_png(out / "map.png", slam_std, result.map_origin, result.resolution,
-                       path=result.best_path, title="Gamma-SLAM")
+                       path=result.path, title="Gamma-SLAM")
     plots.save_map_comparison_png(out / "maps_vo_vs_slam.png", vo_std, vo_map.origin, slam_std,
                                   result.map_origin, result.resolution, vo_path=result.vo_path,
-                                  slam_path=result.best_path)
+                                  slam_path=result.path)
     plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled,
                        threshold=threshold)
     if run.ground_truth is not None:
@@ -254,7 +254,7 @@ def write_figures(out: Path, run, result, num_particles: int,
         if np.isfinite(gt).any():
             plots.save_ground_truth_png(out / "ground_truth.png", vo_std, vo_map.origin,
                                         slam_std, result.map_origin, result.resolution, gt,
-                                        result.vo_path, result.best_path)
+                                        result.vo_path, result.path)
     return slam_std
 
 
@@ -268,6 +268,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "local_maps": run.num_local_maps,
         "distance_m": run.distance(),
         "particles": config.filter.particles,
+        "estimate": config.filter.estimate,
         "resampling_events": int(np.sum(result.resampled)),
         "extent_violations": result.extent_violations,
         "empty_observations": result.empty_observations,
@@ -276,7 +277,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "compile_seconds": result.compile_seconds,
     }
     if run.ground_truth is not None:
-        paths = {"vo": result.vo_path, "slam": result.best_path}
+        paths = {"vo": result.vo_path, "slam": result.path}
         summary.update(metrics.errors_over_known_frames(paths, run.ground_truth))
         summary.update(metrics.drift_over_known_frames(paths, run.ground_truth))
     return summary
@@ -298,8 +299,8 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     if loaded.sim_info is not None:
         (out / "simulation.json").write_text(json.dumps(loaded.sim_info.summary(), indent=2,
                                                         default=float))
-    write_tum(out / "trajectory_tum.txt", run.timestamps, result.best_path, origin_ns=origin)
-    write_kitti(out / "trajectory_kitti.txt", result.best_path)
+    write_tum(out / "trajectory_tum.txt", run.timestamps, result.path, origin_ns=origin)
+    write_kitti(out / "trajectory_kitti.txt", result.path)
     write_tum(out / "vo_tum.txt", run.timestamps, result.vo_path, origin_ns=origin)
     if run.ground_truth is not None:
         gt = np.asarray(run.ground_truth, np.float64)

@@ -329,7 +329,9 @@ def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask:
     if objective == "loglik":
         value = jnp.sum(out.infos.log_lik)
     else:
-        est = out.mean_pose if path == "mean" else out.best_path
+        est = {"mean": lambda: out.mean_pose, "best": lambda: out.best_path,
+               "smoothed": lambda: rbpf.smoothed_mean_path(out.infos.pose, out.infos.ancestors,
+                                                           out.final_state.log_w)}[path]()
         value = rigid_rms(est, reference, mask)
     return jnp.where(jnp.max(out.infos.map_status) > 0, jnp.nan, value)
 
@@ -566,8 +568,8 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
 
     config: everything not searched (particles, resampler, map, and the base values of the
     parameters not in ``space``). objective: "rms" (needs ground truth; m, lower is better) or
-    "loglik" (higher is better). path: "mean" (weighted-mean pose per frame) or "best" (the
-    final best particle's path) for "rms". crn: the same PRNG key for every set (common random
+    "loglik" (higher is better). path: "mean" (weighted-mean pose per frame), "best" (the
+    final best particle's path) or "smoothed" (``rbpf.smoothed_mean_path``) for "rms". crn: the same PRNG key for every set (common random
     numbers); only True is supported (False is a SearchError: repeat the search with other
     keys instead). batch: sets per chunk (default ``auto_batch``). values: an explicit [P, d]
     design (overrides design and n). inner: sets vmapped together per device (see

@@ -344,6 +344,7 @@ class SlamResult(NamedTuple):
     """Host-side (NumPy) outputs of one Gamma-SLAM run."""
 
     best_path: np.ndarray      # [T, 3] the final best particle's path through its ancestry
+    smoothed_path: np.ndarray  # [T, 3] final-weighted mean of every final particle's ancestry
     best_pose: np.ndarray      # [T, 3] highest-weight particle per frame
     mean_pose: np.ndarray      # [T, 3] weighted mean per frame
     vo_path: np.ndarray        # [T, 3] VO-only trajectory
@@ -363,6 +364,14 @@ class SlamResult(NamedTuple):
     store: str = "dense"       # the map store the filter ran on ([map] store, "auto" resolved)
     map_bytes: int = 0         # bytes the map store allocates (dense maps, or the tile pool)
     map_peak_bytes: int = 0    # most bytes the maps held at once (shared: live tiles + tables)
+    estimate: str = "best"     # [filter] estimate: which trajectory ``path`` is
+
+    @property
+    def path(self) -> np.ndarray:
+        """[T, 3] the reported trajectory ([filter] estimate): ``best_path``, ``mean_pose`` or
+        ``smoothed_path``."""
+        return {"best": self.best_path, "mean": self.mean_pose,
+                "smoothed": self.smoothed_path}[self.estimate]
 
 
 def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | None = None,
@@ -413,8 +422,9 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     mean = np.concatenate([o[2] for o in outputs])[:T]
     final_best = int(state.best)
     kmap, smap = rbpf.particle_map(state, final_best, cfg)
-    path = np.asarray(rbpf.backtrack_path(jnp.asarray(infos.pose), jnp.asarray(infos.ancestors),
-                                          jnp.int32(final_best)))
+    poses, ancestry = jnp.asarray(infos.pose), jnp.asarray(infos.ancestors)
+    path = np.asarray(rbpf.backtrack_path(poses, ancestry, jnp.int32(final_best)))
+    smoothed = np.asarray(rbpf.smoothed_mean_path(poses, ancestry, state.log_w))
     dropped = int(np.sum(infos.dropped_cells))
     if dropped:  # observed_cells(run) sizes M so that this cannot happen
         raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "
@@ -425,10 +435,10 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
                       f"{cfg.map_shape} map; observed cells beyond the edge were skipped "
                       f"(neither weighed nor mapped). Increase [map] margin.", ExtentWarning)
     return SlamResult(
-        best_path=path, best_pose=best, mean_pose=mean, vo_path=run.vo_poses(),
+        best_path=path, smoothed_path=smoothed, best_pose=best, mean_pose=mean, vo_path=run.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
         exponent=infos.exponent, kmap=np.asarray(kmap), smap=np.asarray(smap),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
         empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
         compile_seconds=compile_s, store=cfg.store, map_bytes=particle_map_bytes(cfg),
-        map_peak_bytes=map_peak_bytes(state, cfg))
+        map_peak_bytes=map_peak_bytes(state, cfg), estimate=config.filter.estimate)

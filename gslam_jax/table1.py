@@ -40,7 +40,7 @@ def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
     gt = run.ground_truth
     return {"course": course, "seed": seed, "distance_m": run.distance(),
             "vo_rms_m": metrics.rms_after_fit(res.vo_path, gt),
-            "slam_rms_m": metrics.rms_after_fit(res.best_path, gt),
+            "slam_rms_m": metrics.rms_after_fit(res.path, gt),
             "resampling_events": int(res.resampled.sum()),
             "extent_violations": res.extent_violations,
             "sim_seconds": sim_s, "filter_seconds": res.seconds + res.compile_seconds}

@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from synthetic import make_run
 
@@ -129,3 +130,21 @@ def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
                "--out", str(tmp_path / "run")])
     assert rc == 0
     assert (tmp_path / "run" / "config.toml").read_text() == (tmp_path / "t" / "tuned.toml").read_text()
+
+
+def test_run_reports_the_configured_estimate(tmp_path):
+    """[filter] estimate = "mean": the trajectory files and the RMS are the weighted mean poses."""
+    from gslam_jax.io import read_tum
+    from gslam_jax.metrics import rms_after_fit
+
+    run, _ = make_run(steps=25)
+    save_run(tmp_path / "r.npz", run)
+    out = tmp_path / "out"
+    assert main(["run", str(tmp_path / "r.npz"), "--set", "filter.particles=8",
+                 "--set", "filter.estimate=mean", "--out", str(out)]) == 0
+    mean = np.load(out / "trace.npz")["mean_pose"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["estimate"] == "mean"
+    np.testing.assert_allclose(read_tum(out / "trajectory_tum.txt")[1][:, :2], mean[:, :2],
+                               atol=1e-4)
+    assert summary["slam_rms_m"] == pytest.approx(rms_after_fit(mean, run.ground_truth), rel=1e-4)

@@ -17,7 +17,8 @@ from gslam_jax.rbpf.footprint import (compact_observation, observation_cells, wi
 from gslam_jax.rbpf.importance import log_importance
 from gslam_jax.rbpf.kernel import (Proposal, Resampler, ancestors, backtrack_path, best_slot,
                                    frame_keys, init, motion_noise, observe, predict, propagate,
-                                   resample, run_filter, scan_frames, step, update,
+                                   resample, run_filter, scan_frames, smoothed_mean_path, step,
+                                   update,
                                    update_noise)
 from gslam_jax.rbpf.maps import ROW_BAND, gather_particles, map_status, particle_map
 from gslam_jax.rbpf.types import (CPU_BLOCK_CELLS, STORES, UNKNOWN_MODES, FilterConfig,
@@ -31,7 +32,7 @@ __all__ = [
     # kernel
     "Proposal", "Resampler", "init", "motion_noise", "update_noise", "predict", "propagate",
     "update", "ancestors", "resample", "observe", "step", "scan_frames", "frame_keys",
-    "run_filter", "backtrack_path", "best_slot",
+    "run_filter", "backtrack_path", "smoothed_mean_path", "best_slot",
     # footprint, importance, map store
     "compact_observation", "observation_cells", "window_origin", "written_rows",
     "log_importance", "gather_particles", "ROW_BAND", "particle_map", "map_status",

@@ -40,7 +40,7 @@ from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Obser
 
 __all__ = ["Proposal", "Resampler", "init", "motion_noise", "update_noise", "predict",
            "propagate", "update", "ancestors", "resample", "observe", "step", "scan_frames",
-           "frame_keys", "run_filter", "backtrack_path", "best_slot"]
+           "frame_keys", "run_filter", "backtrack_path", "smoothed_mean_path", "best_slot"]
 
 Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
 """(state, u [3], standard-normal draws [J, 2], params) -> state with the particles moved."""
@@ -299,7 +299,8 @@ def _summaries(info: StepInfo) -> tuple[Array, Array]:
 
 
 def backtrack_path(poses: Array, ancestors: Array, last: Array) -> Array:
-    """Follow ancestry back from particle ``last`` at the final frame: [T, J, 3] -> [T, 3]."""
+    """Follow ancestry back from particle ``last`` at the final frame: [T, J, 3] -> [T, 3]
+    (``last`` [K] of slots: [T, K, 3], one path per slot)."""
 
     def back(j, xs):
         pose_t, anc_t = xs
@@ -307,6 +308,21 @@ def backtrack_path(poses: Array, ancestors: Array, last: Array) -> Array:
 
     _, path = lax.scan(back, last, (poses, ancestors), reverse=True)
     return path
+
+
+@jax.jit
+def smoothed_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
+    """The particle smoother's posterior mean trajectory (Kitagawa 1996; Doucet and Johansen
+    2011, sec. 4.3): every final particle's path through its ancestry, averaged with the final
+    normalised weights ``log_w`` [J] (heading by circular mean): [T, J, 3] -> [T, 3].
+
+    Frames where all surviving paths share one ancestor give that ancestor's pose, as the best
+    path does; where many lineages survive it averages them."""
+    paths = backtrack_path(poses, ancestors, jnp.arange(log_w.shape[0]))  # [T, J, 3]
+    w = jnp.exp(log_w - jax.nn.logsumexp(log_w))
+    xy = jnp.einsum("j,tjc->tc", w, paths[..., :2])
+    th = jnp.arctan2(jnp.sin(paths[..., 2]) @ w, jnp.cos(paths[..., 2]) @ w)
+    return jnp.concatenate([xy, th[:, None]], axis=1)
 
 
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
