@@ -1,10 +1,11 @@
-"""Filter seeds on a saved Run (issue 16): VO-only RMS, Gamma-SLAM RMS and the ESS after each
-update (as a fraction of J), for a config with ``--set`` overrides.
+"""Filter seeds on a saved Run (issue 16): VO-only RMS, Gamma-SLAM RMS of the reported path
+([filter] estimate) and of all three estimates, and the ESS after each update (as a fraction
+of J), for a config with ``--set`` overrides.
 
     python -m gslam_jax.cli run --source kitti --path ../shared/data/kitti-stereo-51 \
         --save-run /tmp/kitti51.npz
     python experiments/weights_scan.py /tmp/kitti51.npz --seeds 0 1 2 3 \
-        [--set filter.tempering=fixed] [--json out.json]
+        [--config configs/kitti.toml] [--set filter.tempering=fixed] [--json out.json]
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ def main() -> int:
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | {args.run_file} | "
           f"--set {' '.join(args.set) or '(none)'}")
     print(f"{'seed':>4} {'VO RMS':>7} {'SLAM RMS':>8} {'ratio':>6} {'ESS min':>7} {'ESS med':>7} "
-          f"{'<0.1J':>6} {'resamp':>6} {'phi med':>7}")
+          f"{'<0.1J':>6} {'resamp':>6} {'phi med':>7}  RMS / VO of best, mean, smoothed")
     rows = []
     for seed in args.seeds:
         cfg = dataclasses.replace(config, filter=dataclasses.replace(config.filter, seed=seed))
@@ -44,7 +45,10 @@ def main() -> int:
         J = cfg.filter.particles
         ess = np.asarray(res.ess)[np.asarray(res.updated)] / J
         row = {"seed": seed, "vo_rms_m": metrics.rms_after_fit(res.vo_path, run.ground_truth),
-               "slam_rms_m": metrics.rms_after_fit(res.best_path, run.ground_truth),
+               "slam_rms_m": metrics.rms_after_fit(res.path, run.ground_truth),
+               **{f"{name}_rms_m": metrics.rms_after_fit(path, run.ground_truth) for name, path
+                  in (("best", res.best_path), ("mean", res.mean_pose),
+                      ("smoothed", res.smoothed_path))},
                "ess_min_frac": float(ess.min()), "ess_median_frac": float(np.median(ess)),
                "updates_below_0.1J": int(np.sum(ess < 0.1)), "updates": int(ess.size),
                "resamples": int(np.sum(res.resampled)),
@@ -53,9 +57,13 @@ def main() -> int:
         print(f"{seed:4d} {row['vo_rms_m']:7.3f} {row['slam_rms_m']:8.3f} "
               f"{row['slam_rms_m'] / row['vo_rms_m']:6.2f} {row['ess_min_frac']:7.3f} "
               f"{row['ess_median_frac']:7.3f} {row['updates_below_0.1J']:3d}/{row['updates']:<2d} "
-              f"{row['resamples']:6d} {row['exponent_median']:7.3f}")
+              f"{row['resamples']:6d} {row['exponent_median']:7.3f}  "
+              + ", ".join(f"{row[k + '_rms_m'] / row['vo_rms_m']:.2f}"
+                          for k in ("best", "mean", "smoothed")))
     slam_rms = [r["slam_rms_m"] for r in rows]
-    print(f"mean SLAM RMS {np.mean(slam_rms):.3f} m, worst {np.max(slam_rms):.3f} m")
+    vo = rows[0]["vo_rms_m"]
+    print(f"{config.filter.estimate} path: mean SLAM RMS {np.mean(slam_rms):.3f} m, worst "
+          f"{np.max(slam_rms):.3f} m ({np.max(slam_rms) / vo:.2f} x VO)")
     if args.json:
         args.json.write_text(json.dumps({"environment": env, "overrides": args.set,
                                          "rows": rows}, indent=2))
