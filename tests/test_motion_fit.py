@@ -1,0 +1,82 @@
+"""Fitting the motion model's alphas (eqs. 2-3) to VO errors."""
+
+import numpy as np
+import pytest
+
+from gslam_jax.motion_fit import ALPHA_THETA_MAX, MotionFitError, fit_motion
+from gslam_jax.run import integrate_controls
+
+KITTI_LIKE = (0.005, 0.0007, 0.01)
+
+
+def simulate(alphas, n=10_000, seed=0, turn_std=0.2):
+    """VO controls u [n, 3] and true poses drawn from eqs. 1-3 around them (numpy)."""
+    rng = np.random.default_rng(seed)
+    dist = rng.uniform(0.1, 1.5, n)
+    side = rng.normal(0.0, 0.1, n)  # direction of travel off the robot's x axis
+    turn = rng.normal(0.0, turn_std, n)
+    u = np.column_stack([dist * np.cos(side), dist * np.sin(side), turn])
+    alpha_d, alpha_theta_d, alpha_theta = alphas
+    scale = 1.0 + alpha_d * rng.standard_normal(n)  # eq. 2: along Delta d only
+    sigma_theta = alpha_theta_d * dist + alpha_theta * np.abs(turn)  # eq. 3
+    true_u = np.column_stack([u[:, :2] * scale[:, None],
+                              turn + sigma_theta * rng.standard_normal(n)])
+    u[0] = true_u[0] = 0.0
+    return u, integrate_controls(true_u, np.array([3.0, -1.0, 0.4]))
+
+
+@pytest.mark.parametrize("alphas", [(0.05, 0.01, 0.05), KITTI_LIKE])
+def test_recovers_the_alphas(alphas):
+    u, ref = simulate(alphas)
+    fit = fit_motion(u, ref)
+    assert fit.frames == len(u) - 1
+    # about 3 standard errors at n = 10000: 1% for alpha_d, 2% for the heading pair
+    assert fit.alpha_d == pytest.approx(alphas[0], rel=0.03)
+    assert fit.alpha_theta_d == pytest.approx(alphas[1], rel=0.06)
+    assert fit.alpha_theta == pytest.approx(alphas[2], rel=0.06)
+    assert fit.across_rms < 1e-9  # eq. 1: no noise across the direction of travel
+    dist = np.hypot(u[1:, 0], u[1:, 1])
+    assert fit.along_rms == pytest.approx(alphas[0] * np.sqrt(np.mean(dist ** 2)), rel=0.03)
+    assert not fit.alpha_theta_at_bound
+
+
+@pytest.mark.parametrize("turn_std", [0.0, 1e-9])
+def test_alpha_theta_stays_bounded_without_turns(turn_std):
+    u, ref = simulate((0.05, 0.01, 0.05), turn_std=turn_std)
+    fit = fit_motion(u, ref)
+    assert 0.0 <= fit.alpha_theta <= ALPHA_THETA_MAX and np.isfinite(fit.alpha_theta)
+    assert fit.alpha_theta_d == pytest.approx(0.01, rel=0.03)  # the distance term carries it all
+
+
+def test_failures_missing_truth_and_standing_still_are_not_used():
+    u, ref = simulate(KITTI_LIKE, n=3000)
+    failed, unknown, still = np.array([5, 40, 41, 900]), np.array([100, 2000]), np.array([7, 300])
+    unknown_frames = np.concatenate([unknown, unknown + 1])  # a frame needs poses t-1 and t
+    usable = np.ones(len(u), bool)
+    usable[np.concatenate([failed, unknown_frames, still])] = False
+    expected = fit_motion(u, ref, usable)
+    bad_u, bad_ref = u.copy(), ref.copy()
+    bad_u[failed] += [3.0, -2.0, 1.0]  # absurd errors, on frames that must not count
+    bad_u[unknown_frames] += [3.0, -2.0, 1.0]
+    bad_u[still, :2] = 0.0
+    bad_u[still, 2] += 1.0
+    bad_ref[unknown] = np.nan
+    vo_failed = np.zeros(len(u), bool)
+    vo_failed[failed] = True
+    fit = fit_motion(bad_u, bad_ref, ~vo_failed)
+    assert fit.frames == expected.frames == len(u) - 1 - 10
+    np.testing.assert_allclose(fit, expected, rtol=1e-9)
+    assert fit.alpha_d < 0.01 and fit.heading_rms < 0.01
+
+
+def test_too_few_frames_or_no_ground_truth_are_named_errors():
+    u, ref = simulate(KITTI_LIKE, n=20)
+    ref[4:] = np.nan  # frames 1-3 have both poses
+    with pytest.raises(MotionFitError, match="3 usable frames of 20.*at least 5"):
+        fit_motion(u, ref)
+    with pytest.raises(MotionFitError, match="no ground truth"):
+        fit_motion(u, None)
+    with pytest.raises(MotionFitError, match="no ground truth"):
+        fit_motion(u, np.full_like(ref, np.nan))
+    with pytest.raises(MotionFitError, match=r"expected shape \(20, 3\)"):
+        fit_motion(u, ref[:10])
