@@ -1,10 +1,13 @@
-"""Fitting the motion model's alphas (eqs. 2-3) to VO errors."""
+"""Fitting the motion model's alphas (eqs. 2-3) to VO errors, and `gslam fit-motion`."""
 
 import numpy as np
 import pytest
+from synthetic import make_run
 
-from gslam_jax.motion_fit import ALPHA_THETA_MAX, MotionFitError, fit_motion
-from gslam_jax.run import integrate_controls
+from gslam_jax.cli import main
+from gslam_jax.config import load_config
+from gslam_jax.motion_fit import ALPHA_THETA_MAX, MotionFitError, fit_motion, fit_run
+from gslam_jax.run import integrate_controls, load_run, save_run
 
 KITTI_LIKE = (0.005, 0.0007, 0.01)
 
@@ -80,3 +83,36 @@ def test_too_few_frames_or_no_ground_truth_are_named_errors():
         fit_motion(u, np.full_like(ref, np.nan))
     with pytest.raises(MotionFitError, match=r"expected shape \(20, 3\)"):
         fit_motion(u, ref[:10])
+
+
+def _noisy_run_file(tmp_path, steps=40):
+    run, _ = make_run(steps=steps)
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, [0.01, 0.002, 0.003], run.controls.shape)
+    path = tmp_path / "r.npz"
+    save_run(path, run._replace(controls=run.controls + noise))
+    return path
+
+
+def test_cli_writes_a_config_with_the_fitted_motion(tmp_path, capsys):
+    path = _noisy_run_file(tmp_path)
+    out = tmp_path / "fitted.toml"
+    assert main(["fit-motion", str(path), "--set", "filter.particles=8", "--out", str(out)]) == 0
+    fit = fit_run(load_run(path))
+    config = load_config(out)
+    assert (config.motion.alpha_d, config.motion.alpha_theta_d, config.motion.alpha_theta) == \
+        (fit.alpha_d, fit.alpha_theta_d, fit.alpha_theta)
+    assert config.filter.particles == 8  # the rest of the config is the one given
+    text = capsys.readouterr().out
+    assert "[motion]" in text and f"alpha_d = {fit.alpha_d!r}" in text
+    assert f"frames used: {fit.frames} of 40" in text
+    assert main(["fit-motion", str(path), "--out", str(out)]) == 2  # no --overwrite
+    assert "exists" in capsys.readouterr().err
+    assert main(["fit-motion", str(path), "--out", str(out), "--overwrite"]) == 0
+
+
+def test_cli_without_ground_truth_exits_2(tmp_path, capsys):
+    run, _ = make_run(steps=10)
+    save_run(tmp_path / "r.npz", run._replace(ground_truth=None))
+    assert main(["fit-motion", str(tmp_path / "r.npz")]) == 2
+    assert "no ground truth" in capsys.readouterr().err
