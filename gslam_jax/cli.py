@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,6 +20,9 @@ from gslam_jax.pipeline import json_ready  # light too
 from gslam_jax.progress import ProgressBar
 from gslam_jax.results import results_folder
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
+
+if TYPE_CHECKING:
+    from gslam_jax.motion_fit import MotionFit
 
 __all__ = ["main", "console"]
 
@@ -165,6 +170,35 @@ def cmd_tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fit_text(fit: MotionFit, frames: int) -> str:
+    """The error figures behind a motion fit, in mm and mrad."""
+    text = (f"frames used: {fit.frames} of {frames}\n"
+            f"VO errors: along-track RMS {fit.along_rms * 1e3:.3g} mm, across-track RMS "
+            f"{fit.across_rms * 1e3:.3g} mm, heading RMS {fit.heading_rms * 1e3:.3g} mrad "
+            f"(median |d| {fit.median_dist:.3g} m, |dtheta| {fit.median_turn * 1e3:.3g} mrad)")
+    if fit.alpha_theta_at_bound:
+        text += "\nnote: alpha_theta stopped at its bound: the turns do not determine it"
+    return text
+
+
+def cmd_fit_motion(args: argparse.Namespace) -> int:
+    from gslam_jax.config import MotionSection, config_to_toml, section_to_toml
+    from gslam_jax.motion_fit import fit_run
+
+    if args.out is not None and args.out.exists() and not args.overwrite:
+        raise ConfigError(f"{args.out}: exists (--overwrite replaces it)")
+    config, run = _config_and_run(args)
+    fit = fit_run(run)
+    fitted = dataclasses.replace(config, motion=MotionSection(
+        alpha_d=fit.alpha_d, alpha_theta_d=fit.alpha_theta_d, alpha_theta=fit.alpha_theta))
+    print(section_to_toml(fitted, "motion"))
+    print(_fit_text(fit, run.num_frames))
+    if args.out is not None:
+        args.out.write_text(config_to_toml(fitted))
+        print(f"config: {args.out} (the config with the fitted [motion], for --config)")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from gslam_jax.bench import main as bench_main
     return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json,
@@ -252,6 +286,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "tuned.json here when complete (default results/tune-<time>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=cmd_tune)
+
+    p = sub.add_parser("fit-motion", help="fit the [motion] alphas to the VO errors of a log "
+                       "with ground truth (maximum likelihood of eqs. 2-3)")
+    _add_source_arguments(p)
+    p.add_argument("--out", type=Path, help="write the config with the fitted [motion] here "
+                   "(TOML, for --config)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    p.set_defaults(func=cmd_fit_motion)
     _build_rest(sub)
     return parser
 

@@ -23,7 +23,7 @@ from gslam_jax.sim.courses import COURSES
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
            "StereoSection", "Config", "read_toml", "load_config", "parse_config",
-           "apply_overrides", "config_to_toml", "load_table_config", "layered_config"]
+           "apply_overrides", "section_to_toml", "config_to_toml", "load_table_config", "layered_config"]
 
 
 class ConfigError(InputError):
@@ -261,20 +261,22 @@ def apply_overrides(config: Config, overrides: list[str]) -> Config:
     return parse_config(data, "--set", base=config)
 
 
+def section_to_toml(config: Config, name: str) -> str:
+    """One section of the config (``name``: filter, motion, ...) as a TOML table."""
+    lines = [f"[{name}]"]
+    for key, value in dataclasses.asdict(getattr(config, name)).items():
+        if isinstance(value, str):
+            lines.append(f'{key} = "{value}"')
+        elif isinstance(value, bool):
+            lines.append(f"{key} = {'true' if value else 'false'}")
+        else:
+            lines.append(f"{key} = {value!r}")
+    return "\n".join(lines) + "\n"
+
+
 def config_to_toml(config: Config) -> str:
     """The full config as TOML text (written beside every run's results)."""
-    lines = []
-    for name in _SECTION_TYPES:
-        lines.append(f"[{name}]")
-        for key, value in dataclasses.asdict(getattr(config, name)).items():
-            if isinstance(value, str):
-                lines.append(f'{key} = "{value}"')
-            elif isinstance(value, bool):
-                lines.append(f"{key} = {'true' if value else 'false'}")
-            else:
-                lines.append(f"{key} = {value!r}")
-        lines.append("")
-    return "\n".join(lines)
+    return "\n".join(section_to_toml(config, name) for name in _SECTION_TYPES)
 
 
 def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config]]:

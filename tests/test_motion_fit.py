@@ -1,0 +1,146 @@
+"""Fitting the motion model's alphas (eqs. 2-3) to VO errors, and `gslam fit-motion`."""
+
+import numpy as np
+import pytest
+from synthetic import make_run
+
+from gslam_jax.cli import main
+from gslam_jax.config import load_config
+from gslam_jax.motion_fit import (ALPHA_THETA_MAX, MOVING_FRACTION, MotionFitError,
+                                  fit_motion, fit_run)
+from gslam_jax.run import integrate_controls, load_run, save_run
+
+KITTI_LIKE = (0.005, 0.0007, 0.01)
+
+
+def simulate(alphas, n=10_000, seed=0, turn_std=0.2):
+    """VO controls u [n, 3] drawn by eqs. 1-3 around true increments, and the true poses;
+    the stds scale with the true |d| and |dtheta|, as ``fit_motion`` regresses them (numpy)."""
+    rng = np.random.default_rng(seed)
+    dist = rng.uniform(0.1, 1.5, n)
+    side = rng.normal(0.0, 0.1, n)  # direction of travel off the robot's x axis
+    turn = rng.normal(0.0, turn_std, n)
+    true_u = np.column_stack([dist * np.cos(side), dist * np.sin(side), turn])
+    alpha_d, alpha_theta_d, alpha_theta = alphas
+    scale = 1.0 + alpha_d * rng.standard_normal(n)  # eq. 2: along Delta d only
+    sigma_theta = alpha_theta_d * dist + alpha_theta * np.abs(turn)  # eq. 3
+    u = np.column_stack([true_u[:, :2] * scale[:, None],
+                         turn + sigma_theta * rng.standard_normal(n)])
+    u[0] = true_u[0] = 0.0
+    return u, integrate_controls(true_u, np.array([3.0, -1.0, 0.4]))
+
+
+def moving_frames(ref, usable=None):
+    """Frames t >= 1 whose true step is at least MOVING_FRACTION of the median step."""
+    step = np.hypot(*np.diff(ref[:, :2], axis=0).T)
+    ok = np.isfinite(step) if usable is None else np.isfinite(step) & usable[1:]
+    return int(np.sum(ok & (step >= MOVING_FRACTION * np.median(step[ok]))))
+
+
+@pytest.mark.parametrize("alphas", [(0.05, 0.01, 0.05), KITTI_LIKE])
+def test_recovers_the_alphas(alphas):
+    u, ref = simulate(alphas)
+    fit = fit_motion(u, ref)
+    assert fit.frames == moving_frames(ref) > 0.9 * len(u)
+    # about 3 standard errors at n = 10000: 1% for alpha_d, 2% for the heading pair
+    assert fit.alpha_d == pytest.approx(alphas[0], rel=0.03)
+    assert fit.alpha_theta_d == pytest.approx(alphas[1], rel=0.06)
+    assert fit.alpha_theta == pytest.approx(alphas[2], rel=0.06)
+    assert fit.across_rms < 1e-9  # eq. 1: no noise across the direction of travel
+    dist = np.hypot(*np.diff(ref[:, :2], axis=0).T)
+    dist = dist[dist >= MOVING_FRACTION * np.median(dist)]
+    assert fit.along_rms == pytest.approx(alphas[0] * np.sqrt(np.mean(dist ** 2)), rel=0.03)
+    assert not fit.alpha_theta_at_bound
+
+
+@pytest.mark.parametrize("turn_std", [0.0, 1e-9])
+def test_alpha_theta_stays_bounded_without_turns(turn_std):
+    u, ref = simulate((0.05, 0.01, 0.05), turn_std=turn_std)
+    fit = fit_motion(u, ref)
+    assert 0.0 <= fit.alpha_theta <= ALPHA_THETA_MAX and np.isfinite(fit.alpha_theta)
+    assert fit.alpha_theta_d == pytest.approx(0.01, rel=0.03)  # the distance term carries it all
+
+
+def test_failures_missing_truth_and_standing_still_are_not_used():
+    u, ref = simulate(KITTI_LIKE, n=3000)
+    failed, unknown, still = np.array([5, 40, 41, 900]), np.array([100, 2000]), np.array([7, 300])
+    unknown_frames = np.concatenate([unknown, unknown + 1])  # a frame needs poses t-1 and t
+    usable = np.ones(len(u), bool)
+    usable[np.concatenate([failed, unknown_frames, still])] = False
+    expected = fit_motion(u, ref, usable)
+    bad_u, bad_ref = u.copy(), ref.copy()
+    bad_u[failed] += [3.0, -2.0, 1.0]  # absurd errors, on frames that must not count
+    bad_u[unknown_frames] += [3.0, -2.0, 1.0]
+    bad_u[still, :2] = 0.0
+    bad_u[still, 2] += 1.0
+    bad_ref[unknown] = np.nan
+    vo_failed = np.zeros(len(u), bool)
+    vo_failed[failed] = True
+    fit = fit_motion(bad_u, bad_ref, ~vo_failed)
+    assert fit.frames == expected.frames == moving_frames(ref, usable)
+    np.testing.assert_allclose(fit, expected, rtol=1e-9)
+    assert fit.alpha_d < 0.01 and fit.heading_rms < 0.01
+
+
+def test_turns_in_place_do_not_inflate_alpha_d():
+    """A frame that turns on the spot (true |d| ~ 0) has no along-track error in eq. 2; its VO
+    jitter must not be divided by its tiny step (rendered Mars Yard A: alpha_d 0.28 that way)."""
+    u, ref = simulate(KITTI_LIKE, n=3000)
+    steps = np.diff(ref, axis=0)
+    spots = np.arange(10, 3000, 100)
+    true_u = np.vstack([np.zeros(3), np.column_stack([
+        np.cos(ref[:-1, 2]) * steps[:, 0] + np.sin(ref[:-1, 2]) * steps[:, 1],
+        -np.sin(ref[:-1, 2]) * steps[:, 0] + np.cos(ref[:-1, 2]) * steps[:, 1],
+        np.angle(np.exp(1j * steps[:, 2]))])])
+    true_u[spots] = [1e-5, 0.0, 0.1]  # turn in place
+    u[spots] = [1e-3, 0.0, 0.1]  # VO: 1 mm of jitter, 100 x the step
+    ref = integrate_controls(true_u, ref[0])
+    fit = fit_motion(u, ref)
+    assert fit.alpha_d == pytest.approx(KITTI_LIKE[0], rel=0.1)
+    assert fit.frames == moving_frames(ref) <= 3000 - 1 - len(spots)
+
+
+def test_too_few_frames_or_no_ground_truth_are_named_errors():
+    u, ref = simulate(KITTI_LIKE, n=20)
+    ref[4:] = np.nan  # frames 1-3 have both poses
+    with pytest.raises(MotionFitError, match="3 usable frames of 20.*at least 5"):
+        fit_motion(u, ref)
+    with pytest.raises(MotionFitError, match="no ground truth"):
+        fit_motion(u, None)
+    with pytest.raises(MotionFitError, match="no ground truth"):
+        fit_motion(u, np.full_like(ref, np.nan))
+    with pytest.raises(MotionFitError, match=r"expected shape \(20, 3\)"):
+        fit_motion(u, ref[:10])
+
+
+def _noisy_run_file(tmp_path, steps=40):
+    run, _ = make_run(steps=steps)
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, [0.01, 0.002, 0.003], run.controls.shape)
+    path = tmp_path / "r.npz"
+    save_run(path, run._replace(controls=run.controls + noise))
+    return path
+
+
+def test_cli_writes_a_config_with_the_fitted_motion(tmp_path, capsys):
+    path = _noisy_run_file(tmp_path)
+    out = tmp_path / "fitted.toml"
+    assert main(["fit-motion", str(path), "--set", "filter.particles=8", "--out", str(out)]) == 0
+    fit = fit_run(load_run(path))
+    config = load_config(out)
+    assert (config.motion.alpha_d, config.motion.alpha_theta_d, config.motion.alpha_theta) == \
+        (fit.alpha_d, fit.alpha_theta_d, fit.alpha_theta)
+    assert config.filter.particles == 8  # the rest of the config is the one given
+    text = capsys.readouterr().out
+    assert "[motion]" in text and f"alpha_d = {fit.alpha_d!r}" in text
+    assert f"frames used: {fit.frames} of 40" in text
+    assert main(["fit-motion", str(path), "--out", str(out)]) == 2  # no --overwrite
+    assert "exists" in capsys.readouterr().err
+    assert main(["fit-motion", str(path), "--out", str(out), "--overwrite"]) == 0
+
+
+def test_cli_without_ground_truth_exits_2(tmp_path, capsys):
+    run, _ = make_run(steps=10)
+    save_run(tmp_path / "r.npz", run._replace(ground_truth=None))
+    assert main(["fit-motion", str(tmp_path / "r.npz")]) == 2
+    assert "no ground truth" in capsys.readouterr().err
