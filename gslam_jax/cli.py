@@ -172,7 +172,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def _fit_text(fit: MotionFit, frames: int) -> str:
     """The error figures behind a motion fit, in mm and mrad."""
-    text = (f"frames used: {fit.frames} of {frames}\n"
+    text = (f"frames used: {fit.frames} of {frames}, errors summed over windows of {fit.window} "
+            f"frame{'s' if fit.window > 1 else ''}\n"
             f"VO errors: along-track RMS {fit.along_rms * 1e3:.3g} mm, across-track RMS "
             f"{fit.across_rms * 1e3:.3g} mm, heading RMS {fit.heading_rms * 1e3:.3g} mrad "
             f"(median |d| {fit.median_dist:.3g} m, |dtheta| {fit.median_turn * 1e3:.3g} mrad)")
@@ -188,7 +189,7 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
     if args.out is not None and args.out.exists() and not args.overwrite:
         raise ConfigError(f"{args.out}: exists (--overwrite replaces it)")
     config, run = _config_and_run(args)
-    fit = fit_run(run)
+    fit = fit_run(run, args.window)
     fitted = dataclasses.replace(config, motion=MotionSection(
         alpha_d=fit.alpha_d, alpha_theta_d=fit.alpha_theta_d, alpha_theta=fit.alpha_theta))
     print(section_to_toml(fitted, "motion"))
@@ -290,6 +291,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("fit-motion", help="fit the [motion] alphas to the VO errors of a log "
                        "with ground truth (maximum likelihood of eqs. 2-3)")
     _add_source_arguments(p)
+    p.add_argument("--window", type=_positive_int, help="fit the errors summed over this many "
+                   "consecutive frames (default: the frames between two local maps, so that "
+                   "correlated VO errors are fitted at the spread the filter's updates see)")
     p.add_argument("--out", type=Path, help="write the config with the fitted [motion] here "
                    "(TOML, for --config)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")

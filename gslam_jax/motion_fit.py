@@ -11,10 +11,13 @@ increments against the ground-truth increments are samples of (q_d, q_theta), so
   errors, both >= 0 and alpha_theta <= ``ALPHA_THETA_MAX`` (it is not identifiable when every
   |dtheta| is tiny, and must not run off then).
 
-Only frames that moved at least ``MOVING_FRACTION`` of the median step are used: eqs. 2-3 give
-a standing robot no error, so a frame of a turn in place (|d| ~ 0) would make e_a / |d|
-arbitrarily large. The stds are regressed on the true |Delta d| and |Delta theta|, not the
-VO's: the VO's own |Delta theta| contains its error, so on a nearly straight log the frames with large heading
+Only frames that moved at least ``MOVING_FRACTION`` of the median step fit alpha_d: eq. 2 gives
+a turn in place (|d| ~ 0) no along-track error, and its e_a / |d| would be arbitrarily large.
+The heading fit also uses the frames that turned at least ``MIN_TURN`` (eq. 3's turn term is
+what covers a turn in place); a robot standing still fits nothing.
+
+The stds are regressed on the true |Delta d| and |Delta theta|, not the VO's: the VO's own
+|Delta theta| contains its error, so on a nearly straight log the frames with large heading
 errors are the frames with large VO turns, and the fit would blame the turning (alpha_theta)
 for noise that turning does not cause (KITTI, 51 frames: alpha_theta 0.45 that way, against
 true turns of 0.7 mrad per frame). Where turns and steps are large against the errors, as on
@@ -35,10 +38,11 @@ from gslam_jax.run import Run
 from gslam_jax.vo.geometry import increments_2d
 
 __all__ = ["MotionFitError", "MotionFit", "IncrementErrors", "increment_errors", "fit_motion",
-           "fit_run", "MIN_FRAMES", "MOVING_FRACTION", "ALPHA_THETA_MAX"]
+           "fit_run", "update_interval", "MIN_FRAMES", "MOVING_FRACTION", "MIN_TURN", "ALPHA_THETA_MAX"]
 
 MIN_FRAMES = 5
 MOVING_FRACTION = 0.25  # frames fitting alpha_d moved at least this times the median step
+MIN_TURN = 0.01  # rad: a frame that moved less but turned this much still fits eq. 3
 ALPHA_THETA_MAX = 1.0  # rad of heading noise std per rad turned: a bound, never a fit
 _STD_FLOOR = 1e-12  # rad, keeps the heading std positive at alpha_theta_d = alpha_theta = 0
 
@@ -53,7 +57,8 @@ class MotionFit(NamedTuple):
     alpha_d: float
     alpha_theta_d: float
     alpha_theta: float
-    frames: int  # frames used
+    frames: int  # frames used (alpha_d: those that moved; heading: also those that turned)
+    window: int  # consecutive frames whose summed errors were fitted (1: each frame alone)
     along_rms: float  # m, VO minus truth along the VO direction
     across_rms: float  # m, across it (eq. 1 assumes none)
     heading_rms: float  # rad
@@ -63,8 +68,10 @@ class MotionFit(NamedTuple):
 
 
 class IncrementErrors(NamedTuple):
-    """Per used frame: the true increment's |d| and |dtheta| and the VO's errors against it."""
+    """Per used frame: its number, the true increment's |d| and |dtheta| and the VO's errors
+    against it."""
 
+    frame: np.ndarray
     dist: np.ndarray
     turn: np.ndarray
     along: np.ndarray
@@ -118,37 +125,53 @@ def increment_errors(controls: np.ndarray, reference: np.ndarray | None,
     dist = np.hypot(u[:, 0], u[:, 1])
     ux, uy = u[:, 0] / dist, u[:, 1] / dist
     ex, ey = u[:, 0] - g[:, 0], u[:, 1] - g[:, 1]
-    return IncrementErrors(dist=np.hypot(g[:, 0], g[:, 1]), turn=np.abs(g[:, 2]),
+    return IncrementErrors(frame=np.flatnonzero(used), dist=np.hypot(g[:, 0], g[:, 1]), turn=np.abs(g[:, 2]),
                            along=ex * ux + ey * uy,
                            across=ey * ux - ex * uy, heading=_wrap(u[:, 2] - g[:, 2]))
 
 
-def _heading_nll(x: np.ndarray, scale: np.ndarray, basis: np.ndarray,
+def _heading_nll(x: np.ndarray, scale: np.ndarray, dist: np.ndarray, turn: np.ndarray,
                  err2: np.ndarray) -> tuple[float, np.ndarray]:
-    """Mean Gaussian NLL (less log sqrt(2 pi)) of the heading errors and its gradient in x,
-    with (alpha_theta_d, alpha_theta) = x * scale and basis = [|d|, |dtheta|] columns."""
-    std = basis @ (x * scale) + _STD_FLOOR
+    """Mean Gaussian NLL (less log sqrt(2 pi)) of the windows' summed heading errors and its
+    gradient in x, with (alpha_theta_d, alpha_theta) = x * scale; dist, turn [W, k]: a
+    window's std is the root sum of squares of its frames' eq. 3 stds."""
+    a, b = x * scale
+    per_frame = a * dist + b * turn
+    std = np.sqrt(np.sum(per_frame ** 2, axis=1)) + _STD_FLOOR
     nll = np.mean(np.log(std) + 0.5 * err2 / std ** 2)
-    d_std = (1.0 / std - err2 / std ** 3) / len(std)
-    return float(nll), (basis.T @ d_std) * scale
+    d_std = (1.0 / std - err2 / std ** 3) / len(std)  # d nll / d std
+    grad = np.array([d_std @ (np.sum(per_frame * dist, axis=1) / std),
+                     d_std @ (np.sum(per_frame * turn, axis=1) / std)])
+    return float(nll), grad * scale
 
 
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
-def _fit_heading(dist: np.ndarray, turn: np.ndarray, err: np.ndarray) -> tuple[float, float]:
-    """ML (alpha_theta_d, alpha_theta) of eq. 3, bounded to [0, inf) x [0, ALPHA_THETA_MAX].
+def _windows(frames: np.ndarray, size: int) -> np.ndarray:
+    """[W, size] positions in ``frames`` (sorted frame numbers) of runs of ``size`` consecutive
+    frames: each stretch without a gap is cut into whole windows from its start."""
+    breaks = np.flatnonzero(np.diff(frames) != 1) + 1
+    out = [run[: len(run) // size * size].reshape(-1, size)
+           for run in np.split(np.arange(len(frames)), breaks)]
+    return np.concatenate(out) if out else np.zeros((0, size), int)
 
-    Optimised in units of the b = 0 closed form and of rms(e)/rms(|dtheta|), from b = 0 and
-    from a mix; the first start wins ties, so an unidentifiable alpha_theta stays 0."""
-    a_scale = _rms(err / dist)
+
+def _fit_heading(dist: np.ndarray, turn: np.ndarray, err: np.ndarray,
+                 a_scale: float) -> tuple[float, float]:
+    """ML (alpha_theta_d, alpha_theta) of eq. 3, bounded to [0, inf) x [0, ALPHA_THETA_MAX],
+    from windows' (dist, turn [W, k]) summed heading errors ``err`` [W].
+
+    Optimised in units of ``a_scale`` (the b = 0 closed form over the frames that moved) and of
+    rms(e)/rms(|dtheta|), from b = 0 and from a mix; the first start wins ties, so an
+    unidentifiable alpha_theta stays 0."""
     if a_scale == 0.0:
         return 0.0, 0.0
-    turn_rms = _rms(turn)
+    turn_rms = _rms(np.sqrt(np.sum(turn ** 2, axis=1)))
     b_scale = min(_rms(err) / turn_rms, ALPHA_THETA_MAX) if turn_rms > 0 else ALPHA_THETA_MAX
     scale = np.array([a_scale, b_scale])
-    args = (scale, np.column_stack([dist, turn]), err ** 2)
+    args = (scale, dist, turn, err ** 2)
     bounds = [(0.0, None), (0.0, ALPHA_THETA_MAX / b_scale)]
     best = None
     for start in ([1.0, 0.0], [0.5, 0.5]):
@@ -161,30 +184,59 @@ def _fit_heading(dist: np.ndarray, turn: np.ndarray, err: np.ndarray) -> tuple[f
 
 
 def fit_motion(controls: np.ndarray, reference: np.ndarray | None,
-               usable: np.ndarray | None = None) -> MotionFit:
+               usable: np.ndarray | None = None, window: int = 1) -> MotionFit:
     """Maximum-likelihood alphas of eqs. 2-3 from VO controls and ground-truth poses.
 
     controls [T, 3]: a Run's increments (controls[t] moves frame t-1 to t in the robot frame of
     t-1). reference [T, 3]: true poses (x, y, theta), NaN rows unknown. usable [T] bool: False
     marks frames not to use (VO failures). Frames t >= 1 with both poses known, usable and
     |d| > 0 are used; the truth increments are ``increments_2d(reference)``.
+
+    window: fit the errors summed over runs of this many consecutive frames, whose variance
+    under eqs. 2-3 is the sum of the frames' (independent) variances. VO errors are correlated
+    from frame to frame (a slowly varying bias: KITTI's heading errors have a lag-1
+    correlation of 0.89), so they grow faster than the independent model says; fitting over the
+    frames between two map updates matches the spread the filter's weights meet.
     """
+    if window < 1:
+        raise MotionFitError(f"window must be at least 1 frame, got {window}")
     e = increment_errors(controls, reference, usable)
     moving = e.dist >= MOVING_FRACTION * np.median(e.dist)
     if moving.sum() < MIN_FRAMES:
         raise MotionFitError(f"{int(moving.sum())} frames moved at least {MOVING_FRACTION} of "
                              f"the median step ({np.median(e.dist):.3g} m): fitting the motion "
                              f"model needs at least {MIN_FRAMES}")
-    e = IncrementErrors(*(field[moving] for field in e))
-    alpha_theta_d, alpha_theta = _fit_heading(e.dist, e.turn, e.heading)
-    return MotionFit(alpha_d=_rms(e.along / e.dist), alpha_theta_d=alpha_theta_d,
-                     alpha_theta=alpha_theta, frames=len(e.dist), along_rms=_rms(e.along),
-                     across_rms=_rms(e.across), heading_rms=_rms(e.heading),
-                     median_dist=float(np.median(e.dist)), median_turn=float(np.median(e.turn)),
+    heading = moving | (e.turn >= MIN_TURN)  # a turn in place informs eq. 3's turn term
+    along_w = _windows(e.frame[moving], window)
+    head_w = _windows(e.frame[heading], window)
+    if len(along_w) < MIN_FRAMES or len(head_w) < MIN_FRAMES:
+        raise MotionFitError(f"{min(len(along_w), len(head_w))} windows of {window} consecutive "
+                             f"usable frames: fitting the motion model needs at least "
+                             f"{MIN_FRAMES} (a smaller window, or a longer log)")
+    dist, along = e.dist[moving][along_w], e.along[moving][along_w].sum(axis=1)
+    alpha_d = float(np.sqrt(np.mean(along ** 2 / np.sum(dist ** 2, axis=1))))
+    h_dist, h_turn = e.dist[heading][head_w], e.turn[heading][head_w]
+    h_err = e.heading[heading][head_w].sum(axis=1)
+    a_scale = float(np.sqrt(np.mean(h_err ** 2 / np.sum(h_dist ** 2, axis=1))))
+    alpha_theta_d, alpha_theta = _fit_heading(h_dist, h_turn, h_err, a_scale)
+    return MotionFit(alpha_d=alpha_d, alpha_theta_d=alpha_theta_d, alpha_theta=alpha_theta,
+                     frames=int(heading.sum()), window=window, along_rms=_rms(e.along[moving]),
+                     across_rms=_rms(e.across[moving]), heading_rms=_rms(e.heading[heading]),
+                     median_dist=float(np.median(e.dist[moving])),
+                     median_turn=float(np.median(e.turn[heading])),
                      alpha_theta_at_bound=alpha_theta >= ALPHA_THETA_MAX * (1 - 1e-9))
 
 
-def fit_run(run: Run) -> MotionFit:
-    """``fit_motion`` on a Run: its controls and ground truth, without its VO-failure frames."""
+def update_interval(run: Run) -> int:
+    """Median number of frames between the Run's local maps (the filter's updates); 1 without
+    two of them."""
+    updates = np.flatnonzero(np.asarray(run.obs_index) >= 0)
+    return max(1, int(round(float(np.median(np.diff(updates)))))) if len(updates) > 1 else 1
+
+
+def fit_run(run: Run, window: int | None = None) -> MotionFit:
+    """``fit_motion`` on a Run: its controls and ground truth, without its VO-failure frames;
+    ``window`` None: the Run's ``update_interval``."""
     usable = None if run.vo_failed is None else ~np.asarray(run.vo_failed, bool)
-    return fit_motion(run.controls, run.ground_truth, usable)
+    return fit_motion(run.controls, run.ground_truth, usable,
+                      update_interval(run) if window is None else window)

@@ -6,8 +6,8 @@ from synthetic import make_run
 
 from gslam_jax.cli import main
 from gslam_jax.config import load_config
-from gslam_jax.motion_fit import (ALPHA_THETA_MAX, MOVING_FRACTION, MotionFitError,
-                                  fit_motion, fit_run)
+from gslam_jax.motion_fit import (ALPHA_THETA_MAX, MIN_TURN, MOVING_FRACTION, MotionFitError,
+                                  _windows, fit_motion, fit_run, update_interval)
 from gslam_jax.run import integrate_controls, load_run, save_run
 
 KITTI_LIKE = (0.005, 0.0007, 0.01)
@@ -31,17 +31,20 @@ def simulate(alphas, n=10_000, seed=0, turn_std=0.2):
 
 
 def moving_frames(ref, usable=None):
-    """Frames t >= 1 whose true step is at least MOVING_FRACTION of the median step."""
-    step = np.hypot(*np.diff(ref[:, :2], axis=0).T)
+    """Frames t >= 1 whose true step is at least MOVING_FRACTION of the median step or whose
+    true turn is at least MIN_TURN."""
+    diff = np.diff(ref, axis=0)
+    step, turn = np.hypot(diff[:, 0], diff[:, 1]), np.abs(np.angle(np.exp(1j * diff[:, 2])))
     ok = np.isfinite(step) if usable is None else np.isfinite(step) & usable[1:]
-    return int(np.sum(ok & (step >= MOVING_FRACTION * np.median(step[ok]))))
+    return int(np.sum(ok & ((step >= MOVING_FRACTION * np.median(step[ok]))
+                            | (turn >= MIN_TURN))))
 
 
 @pytest.mark.parametrize("alphas", [(0.05, 0.01, 0.05), KITTI_LIKE])
 def test_recovers_the_alphas(alphas):
     u, ref = simulate(alphas)
     fit = fit_motion(u, ref)
-    assert fit.frames == moving_frames(ref) > 0.9 * len(u)
+    assert fit.frames == moving_frames(ref) > 0.9 * len(u) and fit.window == 1
     # about 3 standard errors at n = 10000: 1% for alpha_d, 2% for the heading pair
     assert fit.alpha_d == pytest.approx(alphas[0], rel=0.03)
     assert fit.alpha_theta_d == pytest.approx(alphas[1], rel=0.06)
@@ -97,7 +100,54 @@ def test_turns_in_place_do_not_inflate_alpha_d():
     ref = integrate_controls(true_u, ref[0])
     fit = fit_motion(u, ref)
     assert fit.alpha_d == pytest.approx(KITTI_LIKE[0], rel=0.1)
-    assert fit.frames == moving_frames(ref) <= 3000 - 1 - len(spots)
+    assert fit.frames == moving_frames(ref)  # the turns in place fit the heading terms
+
+
+def test_windows_are_consecutive_frames_and_gaps_break_them():
+    frames = np.array([1, 2, 3, 4, 5, 7, 8, 9, 12, 13])
+    np.testing.assert_array_equal(_windows(frames, 2), [[0, 1], [2, 3], [5, 6], [8, 9]])
+    np.testing.assert_array_equal(_windows(frames, 3), [[0, 1, 2], [5, 6, 7]])
+
+
+def test_windows_keep_independent_errors_and_widen_for_correlated_ones():
+    """Independent errors: a 5-frame window fits the same alphas. A slowly varying heading bias
+    (AR(1), correlation 0.9): the window's fit grows towards the spread the bias builds up."""
+    u, ref = simulate(KITTI_LIKE, n=20_000, seed=4)
+    one, five = fit_motion(u, ref), fit_motion(u, ref, window=5)
+    assert five.window == 5
+    assert five.alpha_d == pytest.approx(one.alpha_d, rel=0.06)
+    assert five.alpha_theta_d == pytest.approx(one.alpha_theta_d, rel=0.15)
+    rng = np.random.default_rng(5)
+    bias_std, rho = 5e-3, 0.9
+    bias = np.zeros(len(u))
+    for t in range(1, len(u)):
+        bias[t] = rho * bias[t - 1] + np.sqrt(1 - rho ** 2) * bias_std * rng.standard_normal()
+    u_biased = u.copy()
+    u_biased[1:, 2] += bias[1:]
+    b_one, b_five = fit_motion(u_biased, ref), fit_motion(u_biased, ref, window=5)
+    assert b_five.heading_rms == pytest.approx(b_one.heading_rms)  # same frames, per frame
+    # the 5-frame sums of the heading errors, straight from the poses (every frame moves here)
+    diff = np.diff(ref, axis=0)
+    err = np.angle(np.exp(1j * (u_biased[1:, 2] - diff[:, 2])))
+    n = len(err) // 5 * 5
+    sums_rms = np.sqrt(np.mean(err[:n].reshape(-1, 5).sum(axis=1) ** 2))
+    assert sums_rms > 1.7 * np.sqrt(5) * b_one.heading_rms  # the bias adds up
+    dist, turn = np.hypot(diff[:n, 0], diff[:n, 1]), np.abs(diff[:n, 2])
+
+    def window_std(fit):  # RMS over the windows of eq. 3's std of a 5-frame sum
+        per_frame = fit.alpha_theta_d * dist + fit.alpha_theta * turn
+        return np.sqrt(np.mean(np.sum(per_frame.reshape(-1, 5) ** 2, axis=1)))
+
+    assert window_std(b_five) == pytest.approx(sums_rms, rel=0.1)
+    assert window_std(b_one) < 0.9 * sums_rms  # the per-frame fit is too narrow there
+
+
+def test_update_interval_is_the_median_spacing_of_the_local_maps():
+    run, _ = make_run(steps=30)
+    obs = -np.ones(30, np.int32)
+    obs[[0, 4, 8, 11, 15, 19]] = np.arange(6)
+    assert update_interval(run._replace(obs_index=obs)) == 4
+    assert update_interval(run._replace(obs_index=-np.ones(30, np.int32))) == 1
 
 
 def test_too_few_frames_or_no_ground_truth_are_named_errors():
