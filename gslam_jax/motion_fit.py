@@ -38,7 +38,7 @@ from gslam_jax.run import Run
 from gslam_jax.vo.geometry import increments_2d
 
 __all__ = ["MotionFitError", "MotionFit", "IncrementErrors", "increment_errors", "fit_motion",
-           "fit_run", "update_interval", "MIN_FRAMES", "MOVING_FRACTION", "MIN_TURN", "ALPHA_THETA_MAX"]
+           "fit_run", "update_interval", "noise_ratios", "MIN_FRAMES", "MOVING_FRACTION", "MIN_TURN", "ALPHA_THETA_MAX"]
 
 MIN_FRAMES = 5
 MOVING_FRACTION = 0.25  # frames fitting alpha_d moved at least this times the median step
@@ -225,6 +225,18 @@ def fit_motion(controls: np.ndarray, reference: np.ndarray | None,
                      median_dist=float(np.median(e.dist[moving])),
                      median_turn=float(np.median(e.turn[heading])),
                      alpha_theta_at_bound=alpha_theta >= ALPHA_THETA_MAX * (1 - 1e-9))
+
+
+def noise_ratios(alphas: tuple[float, float, float], fit: MotionFit) -> tuple[float, float]:
+    """How wide the motion noise ``alphas`` (alpha_d, alpha_theta_d, alpha_theta) is against
+    ``fit``: the ratios of the along-track and heading stds (eqs. 2-3) at the fit's median step
+    and turn (inf where the fit found no error)."""
+    def ratio(mine: float, fitted: float) -> float:
+        return mine / fitted if fitted > 0 else float("inf")
+
+    heading = lambda a_d, a_t: a_d * fit.median_dist + a_t * fit.median_turn  # noqa: E731
+    return (ratio(alphas[0], fit.alpha_d),
+            ratio(heading(alphas[1], alphas[2]), heading(fit.alpha_theta_d, fit.alpha_theta)))
 
 
 def update_interval(run: Run) -> int:

@@ -280,7 +280,25 @@ def summarise(run, result, config: Config, description: str) -> dict:
         paths = {"vo": result.vo_path, "slam": result.path}
         summary.update(metrics.errors_over_known_frames(paths, run.ground_truth))
         summary.update(metrics.drift_over_known_frames(paths, run.ground_truth))
+        summary.update(_motion_check(run, config))
     return summary
+
+
+def _motion_check(run, config: Config) -> dict:
+    """``motion_fit``: the [motion] alphas fitted to this run's VO errors (``gslam fit-motion``)
+    and how wide the configured noise is against them; empty when the run cannot be fitted."""
+    from gslam_jax.motion_fit import MotionFitError, fit_run, noise_ratios
+
+    try:
+        fit = fit_run(run)
+    except MotionFitError:
+        return {}
+    m = config.motion
+    along, heading = noise_ratios((m.alpha_d, m.alpha_theta_d, m.alpha_theta), fit)
+    return {"motion_fit": {"alpha_d": fit.alpha_d, "alpha_theta_d": fit.alpha_theta_d,
+                           "alpha_theta": fit.alpha_theta, "window_frames": fit.window,
+                           "frames": fit.frames, "configured_over_fitted_along": along,
+                           "configured_over_fitted_heading": heading}}
 
 
 def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
@@ -323,6 +341,10 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     return summary
 
 
+# print_summary notes motion noise that is more than this factor off the run's fitted noise
+MOTION_NOISE_TOLERANCE = 3.0
+
+
 def print_summary(summary: dict, run, result) -> None:
     """The console report of a finished run."""
     print(f"distance: {summary['distance_m']:.1f} m")
@@ -339,6 +361,15 @@ def print_summary(summary: dict, run, result) -> None:
         else:
             print(f"ground truth: only {scored} of {run.num_frames} frames have a finite pose; "
                   "no RMS")
+    fit = summary.get("motion_fit")
+    if fit is not None:
+        off = {k: fit[f"configured_over_fitted_{k}"] for k in ("along", "heading")}
+        if any(not 1 / MOTION_NOISE_TOLERANCE <= r <= MOTION_NOISE_TOLERANCE
+               for r in off.values()):
+            print(f"note: the [motion] noise is {off['along']:.2g}x (along-track) and "
+                  f"{off['heading']:.2g}x (heading) what this run's VO errors fit (alpha_d "
+                  f"{fit['alpha_d']:.2g}, alpha_theta_d {fit['alpha_theta_d']:.2g}, alpha_theta "
+                  f"{fit['alpha_theta']:.2g}); `gslam fit-motion` writes a config with them")
     print(f"resampling events: {summary['resampling_events']}, filter time "
           f"{result.seconds:.1f} s (+{result.compile_seconds:.1f} s first chunk incl. compile)")
     if result.extent_violations:

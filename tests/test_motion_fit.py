@@ -194,3 +194,22 @@ def test_cli_without_ground_truth_exits_2(tmp_path, capsys):
     save_run(tmp_path / "r.npz", run._replace(ground_truth=None))
     assert main(["fit-motion", str(tmp_path / "r.npz")]) == 2
     assert "no ground truth" in capsys.readouterr().err
+
+
+def test_run_reports_the_fit_and_notes_motion_noise_far_off_it(tmp_path, capsys):
+    import json
+
+    path = _noisy_run_file(tmp_path)
+    fit = fit_run(load_run(path))
+    fitted = [f"motion.alpha_d={fit.alpha_d}", f"motion.alpha_theta_d={fit.alpha_theta_d}",
+              f"motion.alpha_theta={fit.alpha_theta}"]
+    for scale, noted in ((1.0, False), (10.0, True)):
+        out = tmp_path / f"out{scale}"
+        sets = fitted[:1] + [f"motion.alpha_theta_d={fit.alpha_theta_d * scale}",
+                             f"motion.alpha_theta={fit.alpha_theta * scale}"]
+        args = ["run", str(path), "--out", str(out), "--set", "filter.particles=8"]
+        assert main(args + [a for s in sets for a in ("--set", s)]) == 0
+        summary = json.loads((out / "summary.json").read_text())["motion_fit"]
+        assert summary["alpha_d"] == pytest.approx(fit.alpha_d)
+        assert summary["configured_over_fitted_heading"] == pytest.approx(scale, rel=1e-6)
+        assert ("note: the [motion] noise" in capsys.readouterr().out) == noted
