@@ -43,7 +43,7 @@ class FilterConfig(NamedTuple):
     update_map: bool = True
     observed_cells: int = 0
     particle_block: int = 0
-    tempering: str = "fixed"   # "fixed": the paper's beta; "adaptive": see ``gslam_jax.tempering``
+    tempering: str = "adaptive"  # "fixed": the paper's beta; "adaptive": ``gslam_jax.tempering``
     ess_target: float = 0.5    # "adaptive": conditional ESS fraction each update keeps
     store: str = "dense"
     tile: int = 32
