@@ -23,6 +23,17 @@ def ess(log_w: Array) -> Array:
     return 1.0 / jnp.sum(jnp.exp(2.0 * log_w))
 
 
+# An ESS within this fraction above the resampling threshold counts as at it (resampled).
+# Adaptive tempering puts the ESS exactly at ess_target * J, the threshold by default; float32
+# sums in another order (particle blocks, another backend) must not flip the decision there.
+THRESHOLD_TIE = 1e-3
+
+
+def below_threshold(log_w: Array, ratio: float) -> Array:
+    """Whether to resample (eq. 23): ESS < ratio * J, or within ``THRESHOLD_TIE`` above it."""
+    return ess(log_w) < ratio * log_w.shape[0] * (1.0 + THRESHOLD_TIE)
+
+
 def _inverse_cdf(w: Array, positions: Array) -> Array:
     cdf = jnp.cumsum(w)
     cdf = cdf / cdf[-1]

@@ -20,6 +20,7 @@ LM = LocalMapParams(resolution=RES, max_range=5.0, cells=64)
 
 
 def _cfg(J, mode="ignore", **kw):
+    kw.setdefault("tempering", "fixed")  # the paper's weights (eqs. 26, 30-31) unscaled
     return rbpf.FilterConfig(num_particles=J, map_shape=(256, 256), map_origin=(-20.48, -20.48),
                              resolution=RES, local_size=64, unknown_cells=mode, **kw)
 

@@ -216,8 +216,8 @@ def _equal_weights(log_w: Array) -> Array:
 def resample(state: FilterState, u: Array, cfg: FilterConfig,
              new_log_w: Callable[[Array], Array] = _equal_weights
              ) -> tuple[FilterState, Array, Array]:
-    """ESS-gated resampling (eq. 23; a ``Resampler``): when ESS < ``resample_ratio * J``,
-    particles are drawn by ``ancestors`` and take their maps (``maps.resample_maps``: dense
+    """ESS-gated resampling (eq. 23; a ``Resampler``): when ESS < ``resample_ratio * J``
+    (``resampling.below_threshold``: a tie within float rounding resamples), particles are drawn by ``ancestors`` and take their maps (``maps.resample_maps``: dense
     maps copied over the rows written so far, shared page tables gathered). Returns (state,
     ancestors [J], resampled []).
 
@@ -228,7 +228,7 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
     """
     J = cfg.num_particles
     lw = lax.stop_gradient(state.log_w)
-    do = resampling.ess(lw) < cfg.resample_ratio * J
+    do = resampling.below_threshold(lw, cfg.resample_ratio)
 
     def yes(s: FilterState) -> tuple[FilterState, Array]:
         anc = ancestors(lw, u, cfg)

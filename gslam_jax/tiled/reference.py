@@ -169,7 +169,8 @@ def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: Filte
     log_w = unnorm - (top + math.log(np.sum(np.exp(unnorm - top))))
     e = nm.ess(log_w)
     anc = np.arange(J)
-    resampled = e < cfg.resample_ratio * J
+    # at the threshold (within 0.1%, where adaptive tempering lands) counts as below it
+    resampled = e < cfg.resample_ratio * J * 1.001
     if resampled:
         anc = nm.survivors_keep_slots(
             nm.resample(cfg.resampler, np.exp(log_w), np.asarray(noise.resample_u)))
