@@ -9,8 +9,8 @@ these tuples; a test checks that the implementations behind them match.
 from __future__ import annotations
 
 __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJECTIVES",
-           "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "SOURCES", "BAD_FRAME_POLICIES",
-           "STEREO_ALGORITHMS"]
+           "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "SOURCES",
+           "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``

@@ -23,7 +23,8 @@ from gslam_jax.sim.courses import COURSES
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
            "StereoSection", "Config", "read_toml", "load_config", "parse_config",
-           "apply_overrides", "section_to_toml", "config_to_toml", "load_table_config", "layered_config"]
+           "apply_overrides", "section_to_toml", "config_to_toml", "load_table_config",
+           "layered_config"]
 
 
 class ConfigError(InputError):

@@ -1,9 +1,10 @@
 """A finished run placed on the Earth: its GPS readings checked, aligned, written in UTM.
 
 ``gslam run --gps`` reads the log (or simulates one) and checks it against the run *before*
-the filter runs (``gps_input``), then fits the reported path ([filter] estimate) to it and writes the georeferenced
-outputs (``write_gps_outputs``; paper section 8 and appendix). The fit itself, the UTM
-conversion and the log format live in ``gps``; this module is the workflow around them.
+the filter runs (``gps_input``), then fits the reported path ([filter] estimate) to it and
+writes the georeferenced outputs (``write_gps_outputs``; paper section 8 and appendix). The
+fit itself, the UTM conversion and the log format live in ``gps``; this module is the workflow
+around them.
 """
 
 from __future__ import annotations
@@ -82,8 +83,9 @@ def gps_input(name: str, run, seed: int = 0, log: GpsLog | None = None) -> GpsIn
 def write_gps_outputs(out: Path, readings: GpsInput, run, result,
                       std: np.ndarray | None = None) -> dict:
     """Align the reported path of ``result`` (``SlamResult.path``) to the readings (weighted
-    Procrustes, paper appendix) and write ``trajectory_utm.txt``, ``map_utm.png`` (+ world file) and ``gps_alignment.npz``
-    to ``out``; returns the summary's "gps" figures (readings used, residuals, map corners).
+    Procrustes, paper appendix) and write ``trajectory_utm.txt``, ``map_utm.png`` (+ world
+    file) and ``gps_alignment.npz`` to ``out``; returns the summary's "gps" figures (readings
+    used, residuals, map corners).
     ``std``: the map's expected std when the caller has it already (else computed here)."""
     log, truth_xy = readings.log, readings.truth_xy
     try:

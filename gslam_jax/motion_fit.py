@@ -38,7 +38,8 @@ from gslam_jax.run import Run
 from gslam_jax.vo.geometry import increments_2d
 
 __all__ = ["MotionFitError", "MotionFit", "IncrementErrors", "increment_errors", "fit_motion",
-           "fit_run", "update_interval", "noise_ratios", "MIN_FRAMES", "MOVING_FRACTION", "MIN_TURN", "ALPHA_THETA_MAX"]
+           "fit_run", "update_interval", "noise_ratios", "MIN_FRAMES", "MOVING_FRACTION",
+           "MIN_TURN", "ALPHA_THETA_MAX"]
 
 MIN_FRAMES = 5
 MOVING_FRACTION = 0.25  # frames fitting alpha_d moved at least this times the median step
@@ -125,8 +126,8 @@ def increment_errors(controls: np.ndarray, reference: np.ndarray | None,
     dist = np.hypot(u[:, 0], u[:, 1])
     ux, uy = u[:, 0] / dist, u[:, 1] / dist
     ex, ey = u[:, 0] - g[:, 0], u[:, 1] - g[:, 1]
-    return IncrementErrors(frame=np.flatnonzero(used), dist=np.hypot(g[:, 0], g[:, 1]), turn=np.abs(g[:, 2]),
-                           along=ex * ux + ey * uy,
+    return IncrementErrors(frame=np.flatnonzero(used), dist=np.hypot(g[:, 0], g[:, 1]),
+                           turn=np.abs(g[:, 2]), along=ex * ux + ey * uy,
                            across=ey * ux - ex * uy, heading=_wrap(u[:, 2] - g[:, 2]))
 
 
@@ -234,9 +235,12 @@ def noise_ratios(alphas: tuple[float, float, float], fit: MotionFit) -> tuple[fl
     def ratio(mine: float, fitted: float) -> float:
         return mine / fitted if fitted > 0 else float("inf")
 
-    heading = lambda a_d, a_t: a_d * fit.median_dist + a_t * fit.median_turn  # noqa: E731
+    def heading_std(alpha_theta_d: float, alpha_theta: float) -> float:  # eq. 3
+        return alpha_theta_d * fit.median_dist + alpha_theta * fit.median_turn
+
     return (ratio(alphas[0], fit.alpha_d),
-            ratio(heading(alphas[1], alphas[2]), heading(fit.alpha_theta_d, fit.alpha_theta)))
+            ratio(heading_std(alphas[1], alphas[2]), heading_std(fit.alpha_theta_d,
+                                                                 fit.alpha_theta)))
 
 
 def update_interval(run: Run) -> int:

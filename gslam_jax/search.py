@@ -569,12 +569,13 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     config: everything not searched (particles, resampler, map, and the base values of the
     parameters not in ``space``). objective: "rms" (needs ground truth; m, lower is better) or
     "loglik" (higher is better). path: "mean" (weighted-mean pose per frame), "best" (the
-    final best particle's path) or "smoothed" (``rbpf.smoothed_mean_path``) for "rms". crn: the same PRNG key for every set (common random
-    numbers); only True is supported (False is a SearchError: repeat the search with other
-    keys instead). batch: sets per chunk (default ``auto_batch``). values: an explicit [P, d]
-    design (overrides design and n). inner: sets vmapped together per device (see
-    ``evaluate``). The result's ``total_seconds`` include compilation; ``first_chunk_seconds``
-    are the part spent on the first chunk (compilation and its compute).
+    final best particle's path) or "smoothed" (``rbpf.smoothed_mean_path``) for "rms". crn:
+    the same PRNG key for every set (common random numbers); only True is supported (False is
+    a SearchError: repeat the search with other keys instead). batch: sets per chunk (default
+    ``auto_batch``). values: an explicit [P, d] design (overrides design and n). inner: sets
+    vmapped together per device (see ``evaluate``). The result's ``total_seconds`` include
+    compilation; ``first_chunk_seconds`` are the part spent on the first chunk (compilation
+    and its compute).
     """
     import time
 

@@ -435,7 +435,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
                       f"{cfg.map_shape} map; observed cells beyond the edge were skipped "
                       f"(neither weighed nor mapped). Increase [map] margin.", ExtentWarning)
     return SlamResult(
-        best_path=path, smoothed_path=smoothed, best_pose=best, mean_pose=mean, vo_path=run.vo_poses(),
+        best_path=path, smoothed_path=smoothed, best_pose=best, mean_pose=mean,
+        vo_path=run.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
         exponent=infos.exponent, kmap=np.asarray(kmap), smap=np.asarray(smap),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,

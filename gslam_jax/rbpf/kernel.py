@@ -217,8 +217,9 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
              new_log_w: Callable[[Array], Array] = _equal_weights
              ) -> tuple[FilterState, Array, Array]:
     """ESS-gated resampling (eq. 23; a ``Resampler``): when ESS < ``resample_ratio * J``
-    (``resampling.below_threshold``: a tie within float rounding resamples), particles are drawn by ``ancestors`` and take their maps (``maps.resample_maps``: dense
-    maps copied over the rows written so far, shared page tables gathered). Returns (state,
+    (``resampling.below_threshold``: a tie within float rounding resamples), particles are
+    drawn by ``ancestors`` and take their maps (``maps.resample_maps``: dense maps copied over
+    the rows written so far, shared page tables gathered). Returns (state,
     ancestors [J], resampled []).
 
     The choice and the ancestors use the weights' values only (stop-gradient); the new log
@@ -290,17 +291,19 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
     return lax.cond(has_obs, observe_frame, lambda s: (s, _no_update_info(s, cfg)), state)
 
 
+def _weighted_mean_pose(w: Array, pose: Array) -> Array:
+    """Mean of poses [J, 3] under normalised weights w [J] (circular mean for the heading)."""
+    xy = w @ pose[:, :2]
+    th = jnp.arctan2(w @ jnp.sin(pose[:, 2]), w @ jnp.cos(pose[:, 2]))
+    return jnp.concatenate([xy, th[None]])
+
+
 def _summaries(info: StepInfo) -> tuple[Array, Array]:
-    w = jnp.exp(info.log_w)
-    best = info.pose[info.best]
-    xy = w @ info.pose[:, :2]
-    th = jnp.arctan2(w @ jnp.sin(info.pose[:, 2]), w @ jnp.cos(info.pose[:, 2]))
-    return best, jnp.concatenate([xy, th[None]])
+    return info.pose[info.best], _weighted_mean_pose(jnp.exp(info.log_w), info.pose)
 
 
 def backtrack_path(poses: Array, ancestors: Array, last: Array) -> Array:
-    """Follow ancestry back from particle ``last`` at the final frame: [T, J, 3] -> [T, 3]
-    (``last`` [K] of slots: [T, K, 3], one path per slot)."""
+    """Follow ancestry back from particle ``last`` at the final frame: [T, J, 3] -> [T, 3]."""
 
     def back(j, xs):
         pose_t, anc_t = xs
@@ -316,13 +319,19 @@ def smoothed_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     2011, sec. 4.3): every final particle's path through its ancestry, averaged with the final
     normalised weights ``log_w`` [J] (heading by circular mean): [T, J, 3] -> [T, 3].
 
-    Frames where all surviving paths share one ancestor give that ancestor's pose, as the best
-    path does; where many lineages survive it averages them."""
-    paths = backtrack_path(poses, ancestors, jnp.arange(log_w.shape[0]))  # [T, J, 3]
-    w = jnp.exp(log_w - jax.nn.logsumexp(log_w))
-    xy = jnp.einsum("j,tjc->tc", w, paths[..., :2])
-    th = jnp.arctan2(jnp.sin(paths[..., 2]) @ w, jnp.cos(paths[..., 2]) @ w)
-    return jnp.concatenate([xy, th[:, None]], axis=1)
+    Walks back once, carrying each slot's share of the final weight (a parent's share is the
+    sum of its children's), so the J paths are never materialised: O(J) memory besides the
+    inputs. Frames where all surviving paths share one ancestor give that ancestor's pose, as
+    the best path does; where many lineages survive it averages them."""
+    J = log_w.shape[0]
+
+    def back(w, xs):
+        pose_t, anc_t = xs
+        return jax.ops.segment_sum(w, anc_t, num_segments=J), _weighted_mean_pose(w, pose_t)
+
+    _, path = lax.scan(back, jnp.exp(log_w - jax.nn.logsumexp(log_w)), (poses, ancestors),
+                       reverse=True)
+    return path
 
 
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
