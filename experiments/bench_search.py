@@ -22,12 +22,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gslam_jax import rbpf  # noqa: E402
-from gslam_jax import search as S  # noqa: E402
+from gslam_jax.tuning import search as S  # noqa: E402
 from gslam_jax import slam  # noqa: E402
 from gslam_jax.machine import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
-from gslam_jax.localmap import LocalMapParams  # noqa: E402
+from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
 from common import report  # noqa: E402
 
 

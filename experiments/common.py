@@ -16,11 +16,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gslam_jax import choices  # noqa: E402
-from gslam_jax import search as S  # noqa: E402
+from gslam_jax.tuning import search as S  # noqa: E402
 from gslam_jax import slam  # noqa: E402
 from gslam_jax.config import Config  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
-from gslam_jax.localmap import LocalMapParams  # noqa: E402
+from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
 from gslam_jax.run import Run  # noqa: E402
 from gslam_jax.sim.vonoise import VO_PROFILES  # noqa: E402
 

@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.exact:  # must be set before JAX starts its backend
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_max_isa=AVX").strip()
     from gslam_jax.run import load_run
-    from gslam_jax.tiled.compare import compare
+    from gslam_jax.app.compare import compare
 
     run = load_run(args.run) if args.run else None
     res = compare(run, particles=args.particles, unknown_cells=args.unknown_cells,

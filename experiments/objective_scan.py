@@ -16,7 +16,7 @@ import argparse
 import numpy as np
 from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_run, report
 
-from gslam_jax import search as S
+from gslam_jax.tuning import search as S
 from gslam_jax.machine import environment
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
 

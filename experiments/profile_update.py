@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gslam_jax import choices, rbpf  # noqa: E402
-from gslam_jax.bench import _chained, _synthetic_state  # noqa: E402
+from gslam_jax.app.bench import _chained, _synthetic_state  # noqa: E402
 from gslam_jax.machine import environment  # noqa: E402
 
 

@@ -36,14 +36,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gslam_jax import search as S  # noqa: E402
+from gslam_jax.tuning import search as S  # noqa: E402
 from gslam_jax import slam  # noqa: E402
-from gslam_jax import strategies as ST  # noqa: E402
-from gslam_jax import tuning as TU  # noqa: E402
-from gslam_jax.bench import environment  # noqa: E402
+from gslam_jax.tuning import strategies as ST  # noqa: E402
+from gslam_jax.tuning import gradient as TU  # noqa: E402
+from gslam_jax.app.bench import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
-from gslam_jax.localmap import LocalMapParams  # noqa: E402
+from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
 from gslam_jax.run import Run, load_run  # noqa: E402
 from common import report  # noqa: E402
 

@@ -65,7 +65,7 @@ def ab(rounds: int, particles: int = 200, unknown_cells: str = "ignore") -> dict
 
     from gslam_jax import slam
     from gslam_jax.config import Config
-    from gslam_jax.tiled.compare import _default_run, time_dense_updates
+    from gslam_jax.app.compare import _default_run, time_dense_updates
 
     run = _default_run()
     c = Config()
@@ -125,7 +125,7 @@ def _spawn(out_dir: Path, *args, cached_only: bool = False) -> dict:
 
 
 def plot(rows: list[dict], path: Path) -> None:
-    from gslam_jax.plots import plt
+    from gslam_jax.app.plots import plt
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 4))
     ok = [r for r in rows if "error" not in r]
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="table and plot from the points already measured; run none")
     args = ap.parse_args(argv)
     if args.ab:
-        from gslam_jax.bench import environment
+        from gslam_jax.app.bench import environment
 
         for k, v in environment().items():
             print(f"  {k}: {v}")
@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
             kw["pool_tiles"] = int(p[5])
         print(json.dumps(point(p[0], int(p[1]), p[2], int(p[3]), **kw)))
         return 0
-    from gslam_jax.bench import environment
+    from gslam_jax.app.bench import environment
 
     env = environment()
     for k, v in env.items():

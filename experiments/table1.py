@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from gslam_jax.table1 import PAPER_TABLE1, main
+from gslam_jax.app.table1 import PAPER_TABLE1, main
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -17,8 +17,8 @@ import jax
 import numpy as np
 from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_run, report
 
-from gslam_jax import search as S
-from gslam_jax import tuning as TU
+from gslam_jax.tuning import search as S
+from gslam_jax.tuning import gradient as TU
 from gslam_jax.machine import environment
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
 

@@ -2,7 +2,7 @@
 ([filter] estimate) and of all three estimates, and the ESS after each update (as a fraction
 of J), for a config with ``--set`` overrides.
 
-    python -m gslam_jax.cli run --source kitti --path ../shared/data/kitti-stereo-51 \
+    python -m gslam_jax.app.cli run --source kitti --path ../shared/data/kitti-stereo-51 \
         --save-run /tmp/kitti51.npz
     python experiments/weights_scan.py /tmp/kitti51.npz --seeds 0 1 2 3 \
         [--config configs/kitti.toml] [--set filter.tempering=fixed] [--json out.json]
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax import metrics, slam
-from gslam_jax.bench import environment
+from gslam_jax.app.bench import environment
 from gslam_jax.config import apply_overrides, load_config
 from gslam_jax.run import load_run
 

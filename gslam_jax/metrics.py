@@ -11,8 +11,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import cells
-from .run import Run, known_positions
+from gslam_jax.rbpf import cells
+from gslam_jax.run import Run, known_positions
 
 __all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
            "drift_per_distance", "path_length", "trajectory_metrics", "errors_over_known_frames",

@@ -15,12 +15,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import cells, rbpf, unknown
+from gslam_jax import rbpf
+from gslam_jax.rbpf import cells
+from gslam_jax.rbpf import unknown
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
-from gslam_jax.localmap import LocalMapParams
+from gslam_jax.vo.localmap import LocalMapParams
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
-from gslam_jax.motion import MotionParams
+from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.rbpf import tilestore
 from gslam_jax.run import Run, RunError, describe_cells, known_positions
 

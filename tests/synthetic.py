@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gslam_jax.localmap import LocalMapParams, build_local_maps
+from gslam_jax.vo.localmap import LocalMapParams, build_local_maps
 from gslam_jax.run import Run, integrate_controls
 
 

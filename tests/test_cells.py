@@ -6,7 +6,7 @@ import pytest
 from jax import enable_x64
 from scipy import integrate, special, stats
 
-from gslam_jax import cells
+from gslam_jax.rbpf import cells
 
 
 def _pred64(k, S, kp, Sp):

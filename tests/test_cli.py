@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax.cli import main
+from gslam_jax.app.cli import main
 from gslam_jax.run import save_run
 
 
 def test_help_lists_subcommands():
-    out = subprocess.run([sys.executable, "-m", "gslam_jax.cli", "--help"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "gslam_jax.app.cli", "--help"], capture_output=True, text=True)
     assert out.returncode == 0
     for cmd in ("run", "bench"):
         assert cmd in out.stdout
@@ -65,7 +65,7 @@ def test_bench_writes_every_figure(tmp_path, capsys):
 
 def test_building_the_parser_does_not_import_jax():
     """`gslam compare --exact` sets XLA_FLAGS before JAX starts; the parser must not start it."""
-    code = ("import sys; from gslam_jax.cli import build_parser; build_parser(); "
+    code = ("import sys; from gslam_jax.app.cli import build_parser; build_parser(); "
             "sys.exit(1 if 'jax' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
@@ -73,7 +73,7 @@ def test_building_the_parser_does_not_import_jax():
 def test_run_config_applies_the_course_section_of_a_table1_config(tmp_path):
     import argparse
 
-    from gslam_jax.cli import _load_config
+    from gslam_jax.app.cli import _load_config
 
     path = tmp_path / "t.toml"
     path.write_text("[motion]\nalpha_d = 0.04\n[course.maze.filter]\nbeta_prev = 0.2\n")

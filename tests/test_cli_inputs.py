@@ -8,7 +8,7 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import gps
-from gslam_jax.cli import ProgressBar, main
+from gslam_jax.app.cli import ProgressBar, main
 from gslam_jax.run import RunError, save_run
 
 SITE = np.array([394000.0, 3783000.0])  # UTM zone 11N, like the simulated receiver's site
@@ -107,7 +107,7 @@ def test_partial_ground_truth_is_scored_over_its_finite_frames(tmp_path, capsys)
 
 
 def test_ess_plot_threshold_is_the_resample_ratio(tmp_path, capsys, monkeypatch):
-    from gslam_jax import plots
+    from gslam_jax.app import plots
 
     _, path = _run_file(tmp_path, steps=10)
     thresholds = []
@@ -199,7 +199,7 @@ def test_kitti_and_euroc_get_sequence_and_max_frames(tmp_path, capsys, monkeypat
 
 
 def test_table1_particles_default_to_the_config(tmp_path, monkeypatch, capsys):
-    from gslam_jax import table1
+    from gslam_jax.app import table1
 
     used = []
 
@@ -223,7 +223,7 @@ def test_table1_particles_default_to_the_config(tmp_path, monkeypatch, capsys):
 
 
 def test_compare_accepts_a_table1_config(tmp_path, monkeypatch, capsys):
-    from gslam_jax.tiled import compare as compare_module
+    from gslam_jax.app import compare as compare_module
 
     seen = {}
 

@@ -53,7 +53,7 @@ def test_shipped_configs_load():
     import tomllib
     from pathlib import Path
 
-    from gslam_jax.search import load_space
+    from gslam_jax.tuning.search import load_space
     from gslam_jax.config import load_table_config
 
     paths = sorted((Path(__file__).parents[1] / "configs").glob("*.toml"))
@@ -100,7 +100,7 @@ PAPER = Path(__file__).resolve().parents[2] / "shared" / "paper" / "gamma-slam-j
 
 def test_paper_table1_figures_match_the_papers_text():
     """The reference column printed beside the simulated Table I is the paper's own."""
-    from gslam_jax.table1 import PAPER_TABLE1
+    from gslam_jax.app.table1 import PAPER_TABLE1
 
     if not PAPER.is_file():
         pytest.skip(f"the paper's text is not at {PAPER}")

@@ -8,11 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from gslam_jax import choices, resampling, rbpf
-from gslam_jax.cli import build_parser
+from gslam_jax import choices, rbpf
+from gslam_jax.rbpf import resampling
+from gslam_jax.app.cli import build_parser
 from gslam_jax.config import Config, ConfigError, apply_overrides, load_config
-from gslam_jax.localmap import LocalMapParams
-from gslam_jax.motion import MotionParams
+from gslam_jax.vo.localmap import LocalMapParams
+from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.tiled import numerics
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import search as S
+from gslam_jax.tuning import search as S
 from gslam_jax.config import Config, FilterSection, MapSection
 
 distributed = pytest.importorskip(
@@ -12,7 +12,7 @@ distributed = pytest.importorskip(
 
 
 def test_two_worker_cluster_equals_single_process_search():
-    from gslam_jax.distributed import distributed_search
+    from gslam_jax.tuning.distributed import distributed_search
 
     run, _ = make_run(seed=2, steps=20)
     config = Config(filter=FilterSection(particles=8, unknown_cells="ignore"),

@@ -11,9 +11,9 @@ from synthetic import World, make_run
 from gslam_jax import rbpf
 from gslam_jax.rbpf.importance import _log_importance
 from gslam_jax import slam
-from gslam_jax.cells import obs_from_stats
+from gslam_jax.rbpf.cells import obs_from_stats
 from gslam_jax.config import Config, FilterSection, MotionSection
-from gslam_jax.localmap import LocalMapParams, points_to_stats
+from gslam_jax.vo.localmap import LocalMapParams, points_to_stats
 
 RES = 0.16
 LM = LocalMapParams(resolution=RES, max_range=5.0, cells=64)
@@ -255,7 +255,7 @@ def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
     params = rbpf.FilterParams(beta_prev=0.3, beta_new=0.7)
     spelled = rbpf.log_importance(k, S, kp, Sp, kd[np.arange(M) % D], Sd[np.arange(M) % D],
                                   jnp.bool_(True), params, "sample")
-    from gslam_jax.cells import log_v_obs
+    from gslam_jax.rbpf.cells import log_v_obs
     drawn = _log_importance(jnp.asarray(k), jnp.asarray(S), jnp.asarray(kp), jnp.asarray(Sp),
                                jnp.asarray(kd), jnp.asarray(Sd), jnp.bool_(True), params,
                                "sample", log_v_obs(jnp.asarray(k), jnp.asarray(S)))

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gslam_jax import gps, gps_sim
+from gslam_jax import gps
+from gslam_jax.gps import simulate as gps_sim
 
 
 def _course(dt: float = 0.1, speed: float = 1.0, laps: float = 2.0) -> tuple[np.ndarray, np.ndarray]:

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from gslam_jax import cells
+from gslam_jax.rbpf import cells
 from gslam_jax import rbpf
 from gslam_jax.rbpf.importance import _log_importance
 

@@ -5,7 +5,7 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import gps, slam
-from gslam_jax.cli import main
+from gslam_jax.app.cli import main
 from gslam_jax.config import Config, ConfigError, apply_overrides
 from gslam_jax.gps import GpsLogError
 from gslam_jax.run import RunError, load_run, save_run
@@ -84,7 +84,7 @@ def test_seed_where_nothing_is_simulated_is_refused(tmp_path, run_file, capsys, 
 
 
 def test_seed_is_taken_for_a_simulated_gps(tmp_path, run_file, monkeypatch):
-    from gslam_jax import pipeline
+    from gslam_jax.app import pipeline
 
     seen = {}
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from gslam_jax.localmap import LocalMapBuilder, LocalMapParams, points_to_stats, range_gate
+from gslam_jax.vo.localmap import LocalMapBuilder, LocalMapParams, points_to_stats, range_gate
 
 
 def test_binning_matches_brute_force():

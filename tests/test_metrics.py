@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import minimize
 from scipy.special import gammaln
 
-from gslam_jax import cells
+from gslam_jax.rbpf import cells
 from gslam_jax.metrics import (apply_rigid, drift_per_distance,
                                final_position_error, pose_map, rigid_fit_2d, rms_after_fit,
                                trajectory_metrics, vo_only_map)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gslam_jax.motion import MotionParams, apply_motion, log_density, sample_motion
+from gslam_jax.rbpf.motion import MotionParams, apply_motion, log_density, sample_motion
 
 PARAMS = MotionParams(alpha_d=0.1, alpha_theta_d=0.02, alpha_theta=0.2)
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax.cli import main
+from gslam_jax.app.cli import main
 from gslam_jax.config import load_config
-from gslam_jax.motion_fit import (ALPHA_THETA_MAX, MIN_TURN, MOVING_FRACTION, MotionFitError,
+from gslam_jax.tuning.motion_fit import (ALPHA_THETA_MAX, MIN_TURN, MOVING_FRACTION, MotionFitError,
                                   _windows, fit_motion, fit_run, update_interval)
 from gslam_jax.run import integrate_controls, load_run, save_run
 

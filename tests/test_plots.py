@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from gslam_jax.plots import save_ess_png, save_map_comparison_png, save_map_png
+from gslam_jax.app.plots import save_ess_png, save_map_comparison_png, save_map_png
 
 
 def _std_map(seed: int) -> np.ndarray:
@@ -45,7 +45,7 @@ def test_bad_inputs(tmp_path) -> None:
 
 
 def test_ground_truth_png(tmp_path) -> None:
-    from gslam_jax.plots import save_ground_truth_png
+    from gslam_jax.app.plots import save_ground_truth_png
 
     gt = np.stack([np.linspace(1, 10, 20), np.linspace(1, 5, 20), np.zeros(20)], axis=1)
     gt[3] = np.nan  # a frame without ground truth is a gap in the line, not an error

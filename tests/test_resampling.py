@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gslam_jax import resampling
+from gslam_jax.rbpf import resampling
 
 J = 10
 W = np.array([0.3, 0.25, 0.12, 0.1, 0.08, 0.06, 0.04, 0.03, 0.015, 0.005])

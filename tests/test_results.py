@@ -12,7 +12,7 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import slam
-from gslam_jax.cli import main
+from gslam_jax.app.cli import main
 from gslam_jax.gps import GpsLogError
 from gslam_jax.io import read_tum, write_tum
 from gslam_jax.run import load_run, save_run
@@ -107,7 +107,7 @@ def test_overwrite_never_replaces_a_folder_of_other_files(tmp_path, run_file, fa
 
 
 def test_a_failed_write_leaves_no_results(tmp_path, run_file, fake_slam, capsys, monkeypatch):
-    from gslam_jax import plots
+    from gslam_jax.app import plots
 
     _, path = run_file
     out = tmp_path / "deep" / "out"
@@ -235,7 +235,7 @@ def test_a_second_command_on_the_same_out_never_mixes(tmp_path, run_file, fake_s
 
 def test_a_failing_gps_output_leaves_no_folder_that_looks_complete(tmp_path, run_file, fake_slam,
                                                                    monkeypatch, capsys):
-    from gslam_jax import georeference
+    from gslam_jax.gps import georeference
 
     _, path = run_file
 

@@ -13,9 +13,9 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import metrics
-from gslam_jax import search as S
+from gslam_jax.tuning import search as S
 from gslam_jax.config import Config, FilterSection, MapSection
-from gslam_jax.localmap import LocalMapParams
+from gslam_jax.vo.localmap import LocalMapParams
 
 LM = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0)
 CONFIG = Config(filter=FilterSection(particles=8, unknown_cells="ignore"), map=MapSection(margin=1.0))
@@ -222,9 +222,9 @@ def test_sharded_on_two_cpu_devices(tmp_path):
         import jax, numpy as np
         assert len(jax.devices()) == 2, jax.devices()
         from synthetic import make_run
-        from gslam_jax import search as S
+        from gslam_jax.tuning import search as S
         from gslam_jax.config import Config, FilterSection, MapSection
-        from gslam_jax.localmap import LocalMapParams
+        from gslam_jax.vo.localmap import LocalMapParams
         run, _ = make_run(seed=1, steps=16, drift=0.01,
                           params=LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0))
         cfg = Config(filter=FilterSection(particles=8, unknown_cells="ignore"),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gslam_jax.datasets.sim import simulate_run
-from gslam_jax.localmap import LocalMapParams
+from gslam_jax.vo.localmap import LocalMapParams
 from gslam_jax.run import validate_run
 
 PARAMS = LocalMapParams(resolution=0.16, max_range=8.0)

@@ -8,7 +8,7 @@ import pytest
 
 from gslam_jax import metrics
 from gslam_jax.datasets.sim_stereo import load_sim_stereo
-from gslam_jax.localmap import LocalMapParams
+from gslam_jax.vo.localmap import LocalMapParams
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gslam_jax.datasets.sim import simulate_odometry, simulate_run
-from gslam_jax.localmap import LocalMapParams
+from gslam_jax.vo.localmap import LocalMapParams
 from gslam_jax.metrics import rms_after_fit
 from gslam_jax.run import integrate_controls
 from gslam_jax.sim import (VONoiseParams, apply_vo_noise, course_names, drive, make_course,

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from gslam_jax import search as S
-from gslam_jax import strategies as ST
+from gslam_jax.tuning import search as S
+from gslam_jax.tuning import strategies as ST
 
 SPACE = S.parse_space({"alpha_d": {"range": [0.001, 1.0], "log": True}, "beta_new": [0.01, 1.0],
                        "obs_weight": [0.1, 1.0]})

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gslam_jax import rbpf as gf
-from gslam_jax import tempering
+from gslam_jax.rbpf import tempering
 from gslam_jax.tiled import numerics as nm
 
 

@@ -63,7 +63,7 @@ def _equivalence() -> dict:
 
     from gslam_jax import rbpf
     from gslam_jax.slam import local_observations, map_extent, observed_cells
-    from gslam_jax.tiled.compare import DenseOutput, check_agreement
+    from gslam_jax.app.compare import DenseOutput, check_agreement
     from gslam_jax.tiled.reference import run_tiled
 
     run, _ = make_run(seed=0, steps=70)
@@ -129,7 +129,7 @@ def test_dense_update_timing_replays_the_run():
 
     from gslam_jax import rbpf
     from gslam_jax.slam import local_observations, map_extent
-    from gslam_jax.tiled.compare import time_dense_updates
+    from gslam_jax.app.compare import time_dense_updates
 
     run, _ = make_run(seed=1, steps=40)
     obs = local_observations(run, 1e-4)
@@ -229,7 +229,7 @@ def test_compare_times_fairly_and_names_its_figures(monkeypatch, capsys):
     import jax
 
     from gslam_jax.config import Config, FilterSection, MapSection
-    from gslam_jax.tiled import compare as C
+    from gslam_jax.app import compare as C
 
     jax.devices()  # the backend starts here, before XLA_FLAGS changes (XLA reads it at start)
     assert C.dense_label("") == "dense (JAX)"

@@ -261,7 +261,8 @@ def test_search_and_tune_do_not_score_a_run_whose_pool_ran_out():
 
     from synthetic import make_run
 
-    from gslam_jax import search, tuning
+    from gslam_jax.tuning import search
+    from gslam_jax.tuning import gradient as tuning
     from gslam_jax.config import Config
 
     run, _ = make_run(seed=2, steps=12)

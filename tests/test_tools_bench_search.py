@@ -10,7 +10,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "experiments"))
 
 import bench_search as B  # noqa: E402
 
-from gslam_jax import search as S  # noqa: E402
+from gslam_jax.tuning import search as S  # noqa: E402
 
 
 def test_objectives_are_compared_per_parameter_set():

@@ -10,7 +10,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "experiments"))
 
 import search_strategies as B  # noqa: E402
 
-from gslam_jax import strategies as ST  # noqa: E402
+from gslam_jax.tuning import strategies as ST  # noqa: E402
 from gslam_jax.run import validate_run  # noqa: E402
 
 

@@ -8,10 +8,10 @@ from synthetic import make_run
 
 from gslam_jax import rbpf
 from gslam_jax import slam
-from gslam_jax import tuning as TU
+from gslam_jax.tuning import gradient as TU
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
-from gslam_jax.localmap import LocalMapParams
-from gslam_jax.motion import MotionParams, apply_motion, log_density
+from gslam_jax.vo.localmap import LocalMapParams
+from gslam_jax.rbpf.motion import MotionParams, apply_motion, log_density
 
 LM = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0)
 
@@ -60,7 +60,7 @@ def test_gradient_matches_central_differences(short_run):
     central differences of the same objective under common random numbers, for every alpha and
     beta_prev (ESS-gated resampling on, 3x too much motion noise so the gradient is well away
     from zero). Fixed tempering: the adaptive exponent is held constant under differentiation
-    (``gslam_jax.tempering``), so its gradient leaves out how the exponent moves, which the
+    (``gslam_jax.rbpf.tempering``), so its gradient leaves out how the exponent moves, which the
     finite differences include.
 
     The alphas' gradient is a score-function estimate (high variance): over 8 disjoint sets of

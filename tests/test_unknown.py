@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from gslam_jax import unknown
+from gslam_jax.rbpf import unknown
 
 
 def test_pack_known_bits_match_brute_force():

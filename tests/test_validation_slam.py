@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import cells, slam
+from gslam_jax import slam
+from gslam_jax.rbpf import cells
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
 from gslam_jax.errors import InputError
 from gslam_jax.run import RunError

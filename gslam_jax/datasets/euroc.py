@@ -30,13 +30,13 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from ..errors import DatasetError
-from ..run import Run
-from ..vo.calib import CalibrationError, RectifiedRig
-from ..vo.fallback import GRAVITY
-from ..vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
-from ..vo.geometry import invert, make_transform, pose_to_2d
-from .kitti import first_not_increasing, read_image, read_table
+from gslam_jax.errors import DatasetError
+from gslam_jax.run import Run
+from gslam_jax.vo.calib import CalibrationError, RectifiedRig
+from gslam_jax.vo.fallback import GRAVITY
+from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
+from gslam_jax.vo.geometry import invert, make_transform, pose_to_2d
+from gslam_jax.datasets.kitti import first_not_increasing, read_image, read_table
 
 __all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "quat_to_matrix",
            "euroc_frontend", "load_euroc"]

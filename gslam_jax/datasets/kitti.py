@@ -17,12 +17,12 @@ from typing import Callable, NamedTuple
 import cv2
 import numpy as np
 
-from ..errors import DatasetError
-from ..run import Run
-from ..vo.calib import CalibrationError, ImageError, RectifiedRig
-from ..vo.frontend import FrontEndParams, FrontEndResult, run_frontend
-from ..vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pose_to_2d
-from ..vo.stereo import DenseStereoParams
+from gslam_jax.errors import DatasetError
+from gslam_jax.run import Run
+from gslam_jax.vo.calib import CalibrationError, ImageError, RectifiedRig
+from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, run_frontend
+from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pose_to_2d
+from gslam_jax.vo.stereo import DenseStereoParams
 
 __all__ = ["KittiParams", "Table", "read_table", "find_sequence", "read_kitti_calib",
            "read_kitti_poses", "read_image", "kitti_frontend", "load_kitti"]

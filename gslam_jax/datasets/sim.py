@@ -15,14 +15,14 @@ from typing import Callable, Iterator, NamedTuple
 
 import numpy as np
 
-from ..localmap import LocalMapParams, build_local_maps
-from ..run import Run, integrate_controls
-from ..sim.courses import COURSES, Course, make_course
-from ..sim.environments import world_for_course
-from ..sim.sensor import PointSensor, SensorParams
-from ..sim.trajectory import DriveParams, Trajectory, drive
-from ..sim.vonoise import VO_PROFILES, VONoiseDraw, VONoiseParams, apply_vo_noise, true_increments
-from ..sim.world import World
+from gslam_jax.vo.localmap import LocalMapParams, build_local_maps
+from gslam_jax.run import Run, integrate_controls
+from gslam_jax.sim.courses import COURSES, Course, make_course
+from gslam_jax.sim.environments import world_for_course
+from gslam_jax.sim.sensor import PointSensor, SensorParams
+from gslam_jax.sim.trajectory import DriveParams, Trajectory, drive
+from gslam_jax.sim.vonoise import VO_PROFILES, VONoiseDraw, VONoiseParams, apply_vo_noise, true_increments
+from gslam_jax.sim.world import World
 
 __all__ = ["SimInfo", "Odometry", "simulate_odometry", "simulate_run", "course_names",
            "ProgressFn"]

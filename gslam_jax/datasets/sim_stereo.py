@@ -14,13 +14,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..localmap import LocalMapParams
-from ..run import Run
-from ..sim.render import RenderParams, StereoRenderer
-from ..sim.world import World
-from ..sim.environments import world_for_course
-from ..vo.frontend import FrontEndParams, FrontEndSummary, run_frontend
-from .sim import Odometry, ProgressFn, simulate_odometry
+from gslam_jax.vo.localmap import LocalMapParams
+from gslam_jax.run import Run
+from gslam_jax.sim.render import RenderParams, StereoRenderer
+from gslam_jax.sim.world import World
+from gslam_jax.sim.environments import world_for_course
+from gslam_jax.vo.frontend import FrontEndParams, FrontEndSummary, run_frontend
+from gslam_jax.datasets.sim import Odometry, ProgressFn, simulate_odometry
 
 __all__ = ["SimStereoParams", "SimStereoInfo", "load_sim_stereo"]
 

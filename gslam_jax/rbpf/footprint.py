@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from gslam_jax import unknown
+from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.types import FilterConfig, Observation
 

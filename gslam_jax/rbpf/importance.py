@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from gslam_jax import cells
+from gslam_jax.rbpf import cells
 from gslam_jax.rbpf.footprint import Footprint
 from gslam_jax.rbpf.types import FilterConfig, FilterParams
 

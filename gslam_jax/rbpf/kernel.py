@@ -29,8 +29,11 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from gslam_jax import cells, resampling, tempering, unknown
-from gslam_jax.motion import apply_motion
+from gslam_jax.rbpf import cells
+from gslam_jax.rbpf import resampling
+from gslam_jax.rbpf import tempering
+from gslam_jax.rbpf import unknown
+from gslam_jax.rbpf.motion import apply_motion
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.rbpf.footprint import (compact_observation, read_footprints, window_origin,
                                       written_rows)

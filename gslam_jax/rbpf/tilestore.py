@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from gslam_jax import unknown
+from gslam_jax.rbpf import unknown
 from gslam_jax.errors import InputError
 
 __all__ = ["TileStore", "POOL_EXHAUSTED", "WINDOW_EXCEEDED", "PoolExhaustedError", "init",

@@ -9,8 +9,9 @@ from typing import NamedTuple
 import jax
 from jax import Array
 
-from gslam_jax import choices, unknown
-from gslam_jax.motion import MotionParams
+from gslam_jax import choices
+from gslam_jax.rbpf import unknown
+from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.rbpf import tilestore
 
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "UpdateInfo",
@@ -43,7 +44,7 @@ class FilterConfig(NamedTuple):
     update_map: bool = True
     observed_cells: int = 0
     particle_block: int = 0
-    tempering: str = "adaptive"  # "fixed": the paper's beta; "adaptive": ``gslam_jax.tempering``
+    tempering: str = "adaptive"  # "fixed": the paper's beta; "adaptive": ``gslam_jax.rbpf.tempering``
     ess_target: float = 0.5    # "adaptive": conditional ESS fraction each update keeps
     store: str = "dense"
     tile: int = 32

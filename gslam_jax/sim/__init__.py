@@ -10,12 +10,12 @@ vonoise.py      VO increments with eqs. 1-3 noise, slow bias and failures (true 
 ``gslam_jax.datasets.sim.simulate_run`` assembles them into a ``Run``.
 """
 
-from .courses import COURSES, Course, CourseSpec, course_names, make_course
-from .environments import WORLD_KINDS, make_world, world_for_course
-from .sensor import PointSensor, SensorParams, depth_noise_std
-from .trajectory import DriveParams, Trajectory, drive
-from .vonoise import VO_PROFILES, VONoiseDraw, VONoiseParams, apply_vo_noise, true_increments
-from .world import Material, World
+from gslam_jax.sim.courses import COURSES, Course, CourseSpec, course_names, make_course
+from gslam_jax.sim.environments import WORLD_KINDS, make_world, world_for_course
+from gslam_jax.sim.sensor import PointSensor, SensorParams, depth_noise_std
+from gslam_jax.sim.trajectory import DriveParams, Trajectory, drive
+from gslam_jax.sim.vonoise import VO_PROFILES, VONoiseDraw, VONoiseParams, apply_vo_noise, true_increments
+from gslam_jax.sim.world import Material, World
 
 __all__ = ["COURSES", "Course", "CourseSpec", "course_names", "make_course", "WORLD_KINDS",
            "make_world", "world_for_course", "PointSensor", "SensorParams", "depth_noise_std",

@@ -18,8 +18,8 @@ from typing import Callable
 
 import numpy as np
 
-from .courses import Course
-from .world import (Material, World, empty_world, path_clearance_mask, smooth_noise, stamp_box,
+from gslam_jax.sim.courses import Course
+from gslam_jax.sim.world import (Material, World, empty_world, path_clearance_mask, smooth_noise, stamp_box,
                     stamp_canopy, stamp_clump, stamp_disk, stamp_dome)
 
 __all__ = ["WORLD_KINDS", "make_world", "world_for_course"]

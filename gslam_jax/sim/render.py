@@ -35,9 +35,9 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from ..vo.calib import RectifiedRig
-from ..vo.geometry import CAM_TO_ROBOT_AXES, make_transform
-from .world import Material, World
+from gslam_jax.vo.calib import RectifiedRig
+from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, make_transform
+from gslam_jax.sim.world import Material, World
 
 __all__ = ["RenderParams", "StereoRenderer", "camera_mounts"]
 

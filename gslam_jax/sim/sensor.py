@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .world import Material, World
+from gslam_jax.sim.world import Material, World
 
 __all__ = ["SensorParams", "PointSensor", "depth_noise_std"]
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .courses import Course
+from gslam_jax.sim.courses import Course
 
 __all__ = ["DriveParams", "Trajectory", "drive"]
 

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .geometry import make_transform, matrix_to_rotvec, rotvec_to_matrix
+from gslam_jax.vo.geometry import make_transform, matrix_to_rotvec, rotvec_to_matrix
 
 __all__ = ["Camera", "MotionEstimate", "project", "triangulate", "rigid_fit", "estimate_motion"]
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import make_transform, rotvec_to_matrix
+from gslam_jax.vo.geometry import make_transform, rotvec_to_matrix
 
 __all__ = ["SOURCES", "fallback_increment", "slip_ratio", "level_rotation", "correct_tilt",
            "planar_transform", "GRAVITY"]

@@ -15,14 +15,14 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from ..localmap import LocalMapBuilder, LocalMapParams
-from ..run import Run, validate_run
-from .calib import ImageError, RectifiedRig
-from .estimate import Camera
-from .fallback import correct_tilt, fallback_increment, level_rotation, planar_transform, slip_ratio
-from .geometry import increments_2d, invert, pose_to_2d
-from .odometry import StereoVO, VOParams, VOResult
-from .stereo import DenseStereoParams, dense_disparity, disparity_to_points, to_robot_frame
+from gslam_jax.vo.localmap import LocalMapBuilder, LocalMapParams
+from gslam_jax.run import Run, validate_run
+from gslam_jax.vo.calib import ImageError, RectifiedRig
+from gslam_jax.vo.estimate import Camera
+from gslam_jax.vo.fallback import correct_tilt, fallback_increment, level_rotation, planar_transform, slip_ratio
+from gslam_jax.vo.geometry import increments_2d, invert, pose_to_2d
+from gslam_jax.vo.odometry import StereoVO, VOParams, VOResult
+from gslam_jax.vo.stereo import DenseStereoParams, dense_disparity, disparity_to_points, to_robot_frame
 
 __all__ = ["FrontEndParams", "FrontEndSummary", "FrontEndResult", "SensorAids", "run_frontend"]
 

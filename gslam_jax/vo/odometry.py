@@ -14,9 +14,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .clique import rigid_inliers
-from .estimate import Camera, estimate_motion, triangulate
-from .features import (FeatureParams, Features, dense_feature_disparity, describe, detect,
+from gslam_jax.vo.clique import rigid_inliers
+from gslam_jax.vo.estimate import Camera, estimate_motion, triangulate
+from gslam_jax.vo.features import (FeatureParams, Features, dense_feature_disparity, describe, detect,
                        feature_disparity, match_sad, prefilter, refine_matches)
 
 __all__ = ["VOParams", "VOResult", "StereoVO"]

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .calib import RectifiedRig
+from gslam_jax.vo.calib import RectifiedRig
 
 __all__ = ["DenseStereoParams", "dense_disparity", "disparity_to_points", "to_robot_frame"]
 

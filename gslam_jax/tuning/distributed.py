@@ -24,7 +24,7 @@ from typing import Any, Callable, Sequence
 import jax
 import numpy as np
 
-from gslam_jax import search as S
+from gslam_jax.tuning import search as S
 from gslam_jax import slam
 from gslam_jax.config import Config
 from gslam_jax.run import Run

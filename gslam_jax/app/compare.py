@@ -223,7 +223,7 @@ def _plot(path: Path, dense: DenseOutput, tiled: TiledOutput, title: str) -> Non
 
 def _default_run() -> Run:
     from gslam_jax.datasets.sim import simulate_run
-    from gslam_jax.localmap import LocalMapParams
+    from gslam_jax.vo.localmap import LocalMapParams
 
     run, _ = simulate_run("mars-yard-a", seed=0, params=LocalMapParams(max_range=5.0, travel=2.0),
                           max_frames=600)

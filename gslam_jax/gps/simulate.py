@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .gps import GpsLog, utm_to_latlon
+from gslam_jax.gps import GpsLog, utm_to_latlon
 
 __all__ = ["GpsSimConfig", "SimulatedGps", "simulate_gps"]
 

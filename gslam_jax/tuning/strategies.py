@@ -21,7 +21,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from gslam_jax.search import SearchSpace, design_points
+from gslam_jax.tuning.search import SearchSpace, design_points
 
 __all__ = ["Evaluator", "Trace", "design_trace", "successive_halving", "tpe_search"]
 

@@ -31,7 +31,7 @@ PAPER_TABLE1 = {
 
 def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
     """Simulate one course and run Gamma-SLAM on it; returns the Table I row for this seed."""
-    from gslam_jax.pipeline import Source, load_source  # the source step of ``gslam run``
+    from gslam_jax.app.pipeline import Source, load_source  # the source step of ``gslam run``
 
     t0 = time.perf_counter()
     run = load_source(Source(course=course, seed=seed), config).run

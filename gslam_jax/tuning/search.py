@@ -44,7 +44,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from scipy.stats import qmc
 
-from gslam_jax import cells, choices, rbpf, slam
+from gslam_jax import choices, rbpf, slam
+from gslam_jax.rbpf import cells
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.machine import device_memory_limit, physical_memory

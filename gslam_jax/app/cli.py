@@ -16,13 +16,13 @@ import numpy as np
 from gslam_jax import choices  # light (no JAX), as the next two
 from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still set XLA_FLAGS
 from gslam_jax.errors import InputError
-from gslam_jax.pipeline import json_ready  # light too
-from gslam_jax.progress import ProgressBar
-from gslam_jax.results import results_folder
+from gslam_jax.app.pipeline import json_ready  # light too
+from gslam_jax.app.progress import ProgressBar
+from gslam_jax.app.results import results_folder
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
 
 if TYPE_CHECKING:
-    from gslam_jax.motion_fit import MotionFit
+    from gslam_jax.tuning.motion_fit import MotionFit
 
 __all__ = ["main", "console"]
 
@@ -62,7 +62,7 @@ def _positive_float(text: str) -> float:
 
 def _source(args: argparse.Namespace):
     """The pipeline's Source from the source arguments."""
-    from gslam_jax.pipeline import Source
+    from gslam_jax.app.pipeline import Source
 
     return Source(run_file=args.run_file, source=args.source, course=args.course,
                   path=args.path, sequence=args.sequence, seed=args.seed,
@@ -79,7 +79,7 @@ def _load_config(args: argparse.Namespace):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from gslam_jax.pipeline import run_pipeline
+    from gslam_jax.app.pipeline import run_pipeline
 
     config = _load_config(args)
     out, _ = run_pipeline(_source(args), config, args.out, overwrite=args.overwrite,
@@ -89,7 +89,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _config_and_run(args: argparse.Namespace):
-    from gslam_jax.pipeline import check_local_map_size, check_source, load_source
+    from gslam_jax.app.pipeline import check_local_map_size, check_source, load_source
 
     config = _load_config(args)
     src = _source(args)
@@ -108,7 +108,7 @@ def _values_text(values: dict[str, float]) -> str:
 
 def cmd_search(args: argparse.Namespace) -> int:
     from gslam_jax.config import config_to_toml
-    from gslam_jax.search import SearchError, config_with_values, load_space, search
+    from gslam_jax.tuning.search import SearchError, config_with_values, load_space, search
 
     try:
         space, options = load_space(args.space)
@@ -138,8 +138,8 @@ def cmd_search(args: argparse.Namespace) -> int:
 
 def cmd_tune(args: argparse.Namespace) -> int:
     from gslam_jax.config import config_to_toml
-    from gslam_jax.search import SearchError, config_with_values
-    from gslam_jax.tuning import TuneError, tune
+    from gslam_jax.tuning.search import SearchError, config_with_values
+    from gslam_jax.tuning.gradient import TuneError, tune
 
     every = max(1, args.steps // 10)
 
@@ -184,7 +184,7 @@ def _fit_text(fit: MotionFit, frames: int) -> str:
 
 def cmd_fit_motion(args: argparse.Namespace) -> int:
     from gslam_jax.config import MotionSection, config_to_toml, section_to_toml
-    from gslam_jax.motion_fit import fit_run
+    from gslam_jax.tuning.motion_fit import fit_run
 
     if args.out is not None and args.out.exists() and not args.overwrite:
         raise ConfigError(f"{args.out}: exists (--overwrite replaces it)")
@@ -201,7 +201,7 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from gslam_jax.bench import main as bench_main
+    from gslam_jax.app.bench import main as bench_main
     return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json,
                       course=args.course, course_particles=args.course_particles,
                       plot_path=args.plot, particle_block=args.particle_block,
@@ -209,7 +209,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_table1(args: argparse.Namespace) -> int:
-    from gslam_jax.table1 import main as table1_main
+    from gslam_jax.app.table1 import main as table1_main
     return table1_main(args.courses, args.seeds, args.particles, args.config, args.json, args.quick)
 
 
@@ -222,7 +222,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_max_isa=AVX").strip()
     from gslam_jax.run import load_run
     from gslam_jax.config import load_table_config
-    from gslam_jax.tiled.compare import compare
+    from gslam_jax.app.compare import compare
 
     # A Table I config works too: its shared settings are used, its [course.*] tables are not.
     config, per_course = load_table_config(args.config)

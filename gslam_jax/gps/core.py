@@ -31,7 +31,7 @@ __all__ = [
     "Alignment", "OnlineState", "align", "align_particles", "online_init", "online_update",
     "online_solve", "transform_points", "transform_poses", "interpolate_path",
     "GpsLog", "GpsLogError", "read_gps_log", "write_gps_log", "latlon_to_utm", "utm_to_latlon",
-    "utm_zone", "utm_epsg", "transverse_mercator", "WGS84",
+    "utm_zone", "utm_epsg", "transverse_mercator", "Ellipsoid", "WGS84",
     "align_to_gps", "readings_in_span", "map_corners", "world_file_params", "write_world_file",
     "write_georeferenced_png",
 ]

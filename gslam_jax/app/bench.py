@@ -131,7 +131,7 @@ def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0
 
 def plot_scaling(rows: list[dict], path: Path) -> None:
     """us per particle per update against J, one line per (mode, local, map, block setting)."""
-    from gslam_jax.plots import plt
+    from gslam_jax.app.plots import plt
 
     def line(r):
         return r["mode"], r["local"], r["map"], r.get("block_setting", 0), r.get("store", "dense")

@@ -21,7 +21,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from gslam_jax.config import Config, ConfigError
-from gslam_jax.results import ResultsError, results_folder
+from gslam_jax.app.results import ResultsError, results_folder
 
 __all__ = ["Source", "LoadedSource", "check_source", "load_source", "check_save_run",
            "save_run_file", "check_local_map_size", "write_outputs", "print_summary",
@@ -211,7 +211,7 @@ def check_gps(gps: str | Path | None, run, seed: int | None, log=None):
     """The checked GPS input of ``--gps`` (``georeference.gps_input``) or None."""
     if gps is None:
         return None
-    from gslam_jax import georeference
+    from gslam_jax.gps import georeference
     return georeference.gps_input(gps, run, 0 if seed is None else seed, log=log)
 
 
@@ -237,7 +237,9 @@ def write_figures(out: Path, run, result, num_particles: int,
     """Map PNGs (VO-only beside Gamma-SLAM, coloured by expected std) and the ESS plot with the
     resampling threshold (``threshold`` J, filter.resample_ratio); returns the Gamma-SLAM map's
     expected std."""
-    from gslam_jax import cells, metrics, plots
+    from gslam_jax import metrics
+    from gslam_jax.rbpf import cells
+    from gslam_jax.app import plots
 
     slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
     vo_map = metrics.vo_only_map(run)
@@ -287,7 +289,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
 def _motion_check(run, config: Config) -> dict:
     """``motion_fit``: the [motion] alphas fitted to this run's VO errors (``gslam fit-motion``)
     and how wide the configured noise is against them; empty when the run cannot be fitted."""
-    from gslam_jax.motion_fit import MotionFitError, fit_run, noise_ratios
+    from gslam_jax.tuning.motion_fit import MotionFitError, fit_run, noise_ratios
 
     try:
         fit = fit_run(run)
@@ -335,7 +337,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     slam_std = write_figures(out, run, result, config.filter.particles,
                              config.filter.resample_ratio)
     if gps_input is not None:
-        from gslam_jax import georeference
+        from gslam_jax.gps import georeference
         summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result, slam_std)
     _write_json(out / "summary.json", summary)
     return summary

@@ -14,7 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gslam_jax import cells, gps
+from gslam_jax import gps
+from gslam_jax.rbpf import cells
 from gslam_jax.config import ConfigError
 from gslam_jax.gps import GpsLog, GpsLogError
 from gslam_jax.run import known_positions
@@ -46,7 +47,7 @@ def gps_input(name: str, run, seed: int = 0, log: GpsLog | None = None) -> GpsIn
     if log is None:
         if run.ground_truth is None:
             raise ConfigError("--gps sim needs a run with ground truth")
-        from gslam_jax.gps_sim import GpsSimConfig, simulate_gps
+        from gslam_jax.gps.simulate import GpsSimConfig, simulate_gps
         gt = np.asarray(run.ground_truth, np.float64)
         known = known_positions(gt)
         if known.sum() < 2:

@@ -44,10 +44,10 @@ from jax import Array, lax
 from gslam_jax import choices, rbpf, slam
 from gslam_jax.config import Config
 from gslam_jax.errors import InputError
-from gslam_jax.motion import MotionParams, motion_stds
+from gslam_jax.rbpf.motion import MotionParams, motion_stds
 from gslam_jax.rbpf import tilestore
 from gslam_jax.run import Run
-from gslam_jax.search import (FILTER_PARAM_NAMES, PARAM_NAMES, ObsSettings, base_values,
+from gslam_jax.tuning.search import (FILTER_PARAM_NAMES, PARAM_NAMES, ObsSettings, base_values,
                               obs_settings, observations_from_values, params_from_values,
                               refines_obs, search_inputs)
 
