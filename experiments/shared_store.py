@@ -93,12 +93,13 @@ def _course_run(course: str, frames: int, config):
     """The simulated course (seed 0, the config's local maps), cached as a Run file."""
     from gslam_jax import slam
     from gslam_jax.datasets.sim import simulate_run
+    from gslam_jax.vo.localmap import localmap_params
     from gslam_jax.run import load_run, save_run
 
     path = RUN_CACHE / f"{course}_{frames}.npz"
     if path.exists():
         return load_run(path)
-    run, _ = simulate_run(course, seed=0, params=slam.localmap_params(config),
+    run, _ = simulate_run(course, seed=0, params=localmap_params(config),
                           max_frames=frames or None)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_run(path, run)

@@ -26,6 +26,7 @@ from gslam_jax.machine import environment
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.datasets.sim_stereo import load_sim_stereo
+from gslam_jax.vo.localmap import localmap_params
 
 
 def _row(name: str, run, config: Config) -> dict:
@@ -51,7 +52,7 @@ def main() -> int:
     config = Config()
     config = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
                                                                     particles=args.particles))
-    params = slam.localmap_params(config)
+    params = localmap_params(config)
     frames = args.frames or None
     env = environment()
     print(f"# {env['date']} | {env['processor']} | {env['cpus']} cpus | jax {env['jax']} | "

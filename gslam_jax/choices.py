@@ -9,7 +9,7 @@ these tuples; a test checks that the implementations behind them match.
 from __future__ import annotations
 
 __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJECTIVES",
-           "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "SOURCES",
+           "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS",
            "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
@@ -24,6 +24,5 @@ SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --desig
 # particle's ancestral path
 ESTIMATES = ("best", "mean", "smoothed")
 SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] estimate``)
-SOURCES = ("sim", "sim-stereo", "kitti", "euroc")  # ``gslam run --source``
 BAD_FRAME_POLICIES = ("error", "fallback")  # ``gslam run --on-bad-frame``
 STEREO_ALGORITHMS = ("sgbm", "bm")  # ``[stereo] algorithm`` (vo.stereo.DenseStereoParams)

@@ -20,13 +20,12 @@ from gslam_jax.rbpf import cells
 from gslam_jax.rbpf import unknown
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
-from gslam_jax.vo.localmap import LocalMapParams
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.rbpf import tilestore
 from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
-__all__ = ["MapExtent", "map_extent", "localmap_params", "observed_cells", "filter_config",
+__all__ = ["MapExtent", "map_extent", "observed_cells", "filter_config",
            "choose_store", "MapStoreNotice", "map_peak_bytes",
            "filter_params", "local_observations", "map_observations", "particle_map_bytes",
            "map_memory", "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
@@ -69,14 +68,6 @@ def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin:
     # Python ints: a huge extent stays huge (and fails the memory check) instead of wrapping.
     shape = tuple(max(window, 8 * math.ceil(math.ceil(float(n)) / 8)) for n in cells_needed)
     return MapExtent((float(lo[0]), float(lo[1])), shape)  # type: ignore[arg-type]
-
-
-def localmap_params(config: Config) -> LocalMapParams:
-    """How a config's [localmap] and [map] sections turn points into local maps."""
-    lm = config.localmap
-    return LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
-                          max_range=lm.max_range, min_height=lm.min_height,
-                          max_height=lm.max_height, travel=lm.travel)
 
 
 def observed_cells(run: Run, multiple: int = 128) -> int:

@@ -84,6 +84,8 @@ def test_one_list_of_allowed_values_per_setting():
 
 
 def test_command_line_choices_are_the_shared_lists():
+    from gslam_jax.datasets.registry import source_names
+
     parser = build_parser()
     subparsers = next(a for a in parser._actions if a.choices and "run" in a.choices).choices
     found = {}
@@ -91,7 +93,7 @@ def test_command_line_choices_are_the_shared_lists():
         for action in sub._actions:
             if action.choices is not None:
                 found.setdefault(action.option_strings[0], set()).add(tuple(action.choices))
-    expected = {"--source": choices.SOURCES, "--on-bad-frame": choices.BAD_FRAME_POLICIES,
+    expected = {"--source": source_names(), "--on-bad-frame": choices.BAD_FRAME_POLICIES,
                 "--design": choices.SEARCH_DESIGNS, "--score-path": choices.SCORE_PATHS,
                 "--mode": choices.UNKNOWN_CELLS, "--unknown-cells": choices.UNKNOWN_CELLS}
     for option, allowed in expected.items():

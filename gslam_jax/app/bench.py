@@ -109,11 +109,12 @@ def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0
     from gslam_jax import slam
     from gslam_jax.config import Config
     from gslam_jax.datasets.sim import simulate_run
+    from gslam_jax.vo.localmap import localmap_params
 
     config = Config()
     config = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
                                                                     particles=particles))
-    run, _ = simulate_run(course, seed=seed, params=slam.localmap_params(config))
+    run, _ = simulate_run(course, seed=seed, params=localmap_params(config))
     first = time.perf_counter()
     slam.run_slam(run, config)
     first = time.perf_counter() - first

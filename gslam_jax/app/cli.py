@@ -16,9 +16,10 @@ import numpy as np
 from gslam_jax import choices  # light (no JAX), as the next two
 from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still set XLA_FLAGS
 from gslam_jax.errors import InputError
-from gslam_jax.app.pipeline import json_ready  # light too
+from gslam_jax.app.outputs import json_ready  # light too
 from gslam_jax.app.progress import ProgressBar
 from gslam_jax.app.results import results_folder
+from gslam_jax.datasets.registry import Source, get_source, source_names
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
 
 if TYPE_CHECKING:
@@ -60,10 +61,8 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _source(args: argparse.Namespace):
-    """The pipeline's Source from the source arguments."""
-    from gslam_jax.app.pipeline import Source
-
+def _source(args: argparse.Namespace) -> Source:
+    """The source request from the source arguments."""
     return Source(run_file=args.run_file, source=args.source, course=args.course,
                   path=args.path, sequence=args.sequence, seed=args.seed,
                   max_frames=args.max_frames, on_bad_frame=args.on_bad_frame)
@@ -74,7 +73,7 @@ def _load_config(args: argparse.Namespace):
     --course), then the --set overrides."""
     from gslam_jax.config import layered_config
 
-    simulated = getattr(args, "run_file", None) is None and args.source in ("sim", "sim-stereo")
+    simulated = getattr(args, "run_file", None) is None and get_source(args.source).simulated
     return layered_config(args.config, args.course if simulated else None, args.set)
 
 
@@ -89,17 +88,14 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _config_and_run(args: argparse.Namespace):
-    from gslam_jax.app.pipeline import check_local_map_size, check_source, load_source
+    """The config and the Run of a command's source arguments: the same checks and loading
+    as ``gslam run`` (``pipeline.check_inputs``, ``pipeline.prepare_source``)."""
+    from gslam_jax.app.pipeline import check_inputs, prepare_source
 
     config = _load_config(args)
     src = _source(args)
-    check_source(src, config)
-    check_local_map_size(config)
-    loaded = load_source(src, config, ProgressBar("front-end"))
-    run = loaded.run
-    print(f"source: {loaded.description}: {run.num_frames} frames, {run.num_local_maps} "
-          "local maps")
-    return config, run
+    check_inputs(src, config)
+    return config, prepare_source(src, config, ProgressBar("front-end")).run
 
 
 def _values_text(values: dict[str, float]) -> str:
@@ -304,13 +300,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (see README)")
-    p.add_argument("--source", choices=choices.SOURCES, default="sim",
-                   help="where frames come from when no Run file is given (default: sim)")
+    names = source_names()
+    p.add_argument("--source", choices=names, default=Source.source,
+                   help="where frames come from when no Run file is given: "
+                   + "; ".join(f"{n}: {get_source(n).help}" for n in names)
+                   + f" (default: {Source.source})")
     p.add_argument("--course", default="mars-yard-a", choices=COURSES, metavar="COURSE",
                    help=f"simulated course: {', '.join(COURSES)} (default mars-yard-a)")
-    p.add_argument("--path", type=Path, help="dataset folder for --source kitti/euroc")
-    p.add_argument("--sequence", metavar="NN", help="KITTI sequence: the folder under "
-                   "PATH/sequences (e.g. 00); needed when there are several")
+    p.add_argument("--path", type=Path, help="the dataset of the source: " + "; ".join(
+        f"--source {n}: {get_source(n).path}" for n in names if get_source(n).path))
+    p.add_argument("--sequence", metavar="NN", help="the sequence to read (--source "
+                   + "/".join(n for n in names if get_source(n).sequence)
+                   + "), e.g. 00; needed when the dataset holds several")
     p.add_argument("--seed", type=_seed, help="simulation seed, 0 <= seed < 2^32 (default 0); "
                    "only for simulated sources and --gps sim (the filter's seed is filter.seed)")
     p.add_argument("--max-frames", type=_positive_int, metavar="N",

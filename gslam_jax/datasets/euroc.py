@@ -30,13 +30,16 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from gslam_jax.config import Config
+from gslam_jax.datasets.kitti import first_not_increasing, read_image, read_table
+from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.errors import DatasetError
 from gslam_jax.run import Run
 from gslam_jax.vo.calib import CalibrationError, RectifiedRig
 from gslam_jax.vo.fallback import GRAVITY
 from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
 from gslam_jax.vo.geometry import invert, make_transform, pose_to_2d
-from gslam_jax.datasets.kitti import first_not_increasing, read_image, read_table
+from gslam_jax.vo.localmap import localmap_params
 
 __all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "quat_to_matrix",
            "euroc_frontend", "load_euroc"]
@@ -364,3 +367,19 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams(), *,
 def load_euroc(root: str | Path, params: EurocParams = EurocParams()) -> Run:
     """The Run of an EuRoC ASL sequence (see :func:`euroc_frontend` for the summary)."""
     return euroc_frontend(root, params).run
+
+
+def _load(src: Source, config: Config, progress: Callable[[int, int], None] | None = None
+          ) -> LoadedSource:
+    default = FrontEndParams()
+    result = euroc_frontend(src.path, EurocParams(
+        max_frames=src.max_frames,
+        frontend=FrontEndParams(local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
+                                stereo=stereo_settings(config, default.stereo))),
+        progress=progress)
+    print(result.summary.text())
+    return LoadedSource(result.run, f"EuRoC {src.path}")
+
+
+SOURCE = DataSource(name="euroc", help="EuRoC ASL layout (DIR/mav0/...)", load=_load,
+                    images=True, path="the EuRoC folder, holding mav0/")

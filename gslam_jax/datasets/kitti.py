@@ -10,18 +10,21 @@ file; frames must be consecutive, a gap is an error naming the missing image.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, NamedTuple
 
 import cv2
 import numpy as np
 
+from gslam_jax.config import Config
+from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.errors import DatasetError
 from gslam_jax.run import Run
 from gslam_jax.vo.calib import CalibrationError, ImageError, RectifiedRig
 from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, run_frontend
 from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pose_to_2d
+from gslam_jax.vo.localmap import localmap_params
 from gslam_jax.vo.stereo import DenseStereoParams
 
 __all__ = ["KittiParams", "Table", "read_table", "find_sequence", "read_kitti_calib",
@@ -256,3 +259,20 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams(), *,
 def load_kitti(root: str | Path, params: KittiParams = KittiParams()) -> Run:
     """The Run of a KITTI odometry sequence (see :func:`kitti_frontend` for the summary)."""
     return kitti_frontend(root, params).run
+
+
+def _load(src: Source, config: Config, progress: Callable[[int, int], None] | None = None
+          ) -> LoadedSource:
+    sequence = find_sequence(Path(src.path), src.sequence).name
+    fe = KittiParams().frontend  # KITTI's own front-end defaults, with the config's settings
+    result = kitti_frontend(src.path, KittiParams(
+        sequence=sequence, max_frames=src.max_frames,
+        frontend=replace(fe, local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
+                         stereo=stereo_settings(config, fe.stereo))), progress=progress)
+    print(result.summary.text())
+    return LoadedSource(result.run, f"KITTI {src.path} sequence {sequence}")
+
+
+SOURCE = DataSource(name="kitti", help="KITTI odometry layout (sequences/NN, poses/NN.txt)",
+                    load=_load, images=True, path="the KITTI odometry folder, holding "
+                    "sequences/", sequence=True)

@@ -15,14 +15,17 @@ from typing import Callable, Iterator, NamedTuple
 
 import numpy as np
 
-from gslam_jax.vo.localmap import LocalMapParams, build_local_maps
+from gslam_jax.config import Config
+from gslam_jax.datasets.registry import DataSource, LoadedSource, Source
 from gslam_jax.run import Run, integrate_controls
 from gslam_jax.sim.courses import COURSES, Course, make_course
 from gslam_jax.sim.environments import world_for_course
 from gslam_jax.sim.sensor import PointSensor, SensorParams
 from gslam_jax.sim.trajectory import DriveParams, Trajectory, drive
-from gslam_jax.sim.vonoise import VO_PROFILES, VONoiseDraw, VONoiseParams, apply_vo_noise, true_increments
+from gslam_jax.sim.vonoise import (VO_PROFILES, VONoiseDraw, VONoiseParams, apply_vo_noise,
+                                   true_increments)
 from gslam_jax.sim.world import World
+from gslam_jax.vo.localmap import LocalMapParams, build_local_maps, localmap_params
 
 __all__ = ["SimInfo", "Odometry", "simulate_odometry", "simulate_run", "course_names",
            "ProgressFn"]
@@ -175,3 +178,13 @@ def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = Non
                    points_per_frame=float(counts.mean()), dropped_points=int(dropped),
                    timings=timings)
     return run, info
+
+
+def _load(src: Source, config: Config, progress: ProgressFn | None = None) -> LoadedSource:
+    run, info = simulate_run(src.course, seed=src.sim_seed, params=localmap_params(config),
+                             max_frames=src.max_frames, progress=progress)
+    return LoadedSource(run, f"simulated course {src.course} (seed {src.sim_seed})", info)
+
+
+SOURCE = DataSource(name="sim", help="simulated course (point sensor, VO noise drawn by the "
+                    "course's profile)", load=_load, simulated=True)

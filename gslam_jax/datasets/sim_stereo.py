@@ -10,17 +10,19 @@ but the images reaches the front-end; ground truth is attached only for scoring.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from gslam_jax.vo.localmap import LocalMapParams
+from gslam_jax.config import Config
+from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
+from gslam_jax.datasets.sim import Odometry, ProgressFn, simulate_odometry
 from gslam_jax.run import Run
+from gslam_jax.sim.environments import world_for_course
 from gslam_jax.sim.render import RenderParams, StereoRenderer
 from gslam_jax.sim.world import World
-from gslam_jax.sim.environments import world_for_course
 from gslam_jax.vo.frontend import FrontEndParams, FrontEndSummary, run_frontend
-from gslam_jax.datasets.sim import Odometry, ProgressFn, simulate_odometry
+from gslam_jax.vo.localmap import LocalMapParams, localmap_params
 
 __all__ = ["SimStereoParams", "SimStereoInfo", "load_sim_stereo"]
 
@@ -104,3 +106,17 @@ def load_sim_stereo(course: str, seed: int = 0, local_map_params: LocalMapParams
     info = SimStereoInfo(odo, world, res.summary, res.poses,
                          np.array([r.n_inliers for r in res.vo]), timings)
     return res.run, info
+
+
+def _load(src: Source, config: Config, progress: ProgressFn | None = None) -> LoadedSource:
+    sp = SimStereoParams()
+    sp = replace(sp, frontend=replace(sp.frontend,
+                                      stereo=stereo_settings(config, sp.frontend.stereo)))
+    run, info = load_sim_stereo(src.course, src.sim_seed, localmap_params(config),
+                                max_frames=src.max_frames, progress=progress, params=sp)
+    print(info.text())
+    return LoadedSource(run, f"rendered stereo of course {src.course} (seed {src.sim_seed})")
+
+
+SOURCE = DataSource(name="sim-stereo", help="rendered stereo images of a simulated course "
+                    "through the OpenCV front-end", load=_load, simulated=True, images=True)

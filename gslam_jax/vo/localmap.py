@@ -10,11 +10,14 @@ float64; ``cells.obs_from_stats`` turns them into (k, S).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator
+from typing import TYPE_CHECKING, Iterable, Iterator
 
 import numpy as np
 
-__all__ = ["LocalMapParams", "LocalMapBuilder", "points_to_stats", "relative_pose",
+if TYPE_CHECKING:
+    from gslam_jax.config import Config
+
+__all__ = ["LocalMapParams", "localmap_params", "LocalMapBuilder", "points_to_stats", "relative_pose",
            "transform_points", "build_local_maps"]
 
 
@@ -44,6 +47,14 @@ class LocalMapParams:
             return int(self.cells)
         need = int(np.ceil(2.0 * self.max_range / self.resolution))
         return int(8 * np.ceil(need / 8))
+
+
+def localmap_params(config: Config) -> LocalMapParams:
+    """How a config's [localmap] and [map] sections turn points into local maps."""
+    lm = config.localmap
+    return LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
+                          max_range=lm.max_range, min_height=lm.min_height,
+                          max_height=lm.max_height, travel=lm.travel)
 
 
 def relative_pose(ref: np.ndarray, pose: np.ndarray) -> np.ndarray:

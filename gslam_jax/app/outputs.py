@@ -1,0 +1,185 @@
+"""The results of a run: trajectories, maps, figures, ``summary.json`` and the console report.
+
+:func:`write_outputs` writes every file of ``gslam run`` into a staging folder
+(``results.results_folder``); :func:`print_summary` prints the report of a finished run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from gslam_jax.config import Config
+from gslam_jax.datasets.registry import LoadedSource
+
+__all__ = ["json_ready", "write_figures", "summarise", "write_outputs", "print_summary",
+           "MOTION_NOISE_TOLERANCE"]
+
+
+def json_ready(value):
+    """``value`` with NumPy scalars as Python numbers and NaN/inf as None (valid JSON)."""
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _write_json(path: Path, data: dict) -> None:
+    path.write_text(json.dumps(json_ready(data), indent=2, allow_nan=False))
+
+
+def write_figures(out: Path, run, result, num_particles: int,
+                  threshold: float = 0.5) -> np.ndarray:
+    """Map PNGs (VO-only beside Gamma-SLAM, coloured by expected std) and the ESS plot with the
+    resampling threshold (``threshold`` J, filter.resample_ratio); returns the Gamma-SLAM map's
+    expected std."""
+    from gslam_jax import metrics
+    from gslam_jax.rbpf import cells
+    from gslam_jax.app import plots
+
+    slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
+    vo_map = metrics.vo_only_map(run)
+    vo_std = np.asarray(cells.expected_std(vo_map.k, vo_map.S))
+    plots.save_map_png(out / "map.png", slam_std, result.map_origin, result.resolution,
+                       path=result.path, title="Gamma-SLAM")
+    plots.save_map_comparison_png(out / "maps_vo_vs_slam.png", vo_std, vo_map.origin, slam_std,
+                                  result.map_origin, result.resolution, vo_path=result.vo_path,
+                                  slam_path=result.path)
+    plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled,
+                       threshold=threshold)
+    if run.ground_truth is not None:
+        gt = metrics.ground_truth_in_map_frame(run.ground_truth, result.vo_path)
+        if np.isfinite(gt).any():
+            plots.save_ground_truth_png(out / "ground_truth.png", vo_std, vo_map.origin,
+                                        slam_std, result.map_origin, result.resolution, gt,
+                                        result.vo_path, result.path)
+    return slam_std
+
+
+def summarise(run, result, config: Config, description: str) -> dict:
+    """The figures of ``summary.json`` (without the GPS figures)."""
+    from gslam_jax import metrics
+
+    summary = {
+        "source": description,
+        "frames": run.num_frames,
+        "local_maps": run.num_local_maps,
+        "distance_m": run.distance(),
+        "particles": config.filter.particles,
+        "estimate": config.filter.estimate,
+        "resampling_events": int(np.sum(result.resampled)),
+        "extent_violations": result.extent_violations,
+        "empty_observations": result.empty_observations,
+        "vo_failures": int(np.sum(run.vo_failed)) if run.vo_failed is not None else 0,
+        "filter_seconds": result.seconds,
+        "compile_seconds": result.compile_seconds,
+    }
+    if run.ground_truth is not None:
+        paths = {"vo": result.vo_path, "slam": result.path}
+        summary.update(metrics.errors_over_known_frames(paths, run.ground_truth))
+        summary.update(metrics.drift_over_known_frames(paths, run.ground_truth))
+        summary.update(_motion_check(run, config))
+    return summary
+
+
+def _motion_check(run, config: Config) -> dict:
+    """``motion_fit``: the [motion] alphas fitted to this run's VO errors (``gslam fit-motion``)
+    and how wide the configured noise is against them; empty when the run cannot be fitted."""
+    from gslam_jax.tuning.motion_fit import MotionFitError, fit_run, noise_ratios
+
+    try:
+        fit = fit_run(run)
+    except MotionFitError:
+        return {}
+    m = config.motion
+    along, heading = noise_ratios((m.alpha_d, m.alpha_theta_d, m.alpha_theta), fit)
+    return {"motion_fit": {"alpha_d": fit.alpha_d, "alpha_theta_d": fit.alpha_theta_d,
+                           "alpha_theta": fit.alpha_theta, "window_frames": fit.window,
+                           "frames": fit.frames, "configured_over_fitted_along": along,
+                           "configured_over_fitted_heading": heading}}
+
+
+def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
+                  gps_input=None) -> dict:
+    """Every output file of a run into ``out`` (a staging folder); returns the summary.
+
+    The TUM files carry the dataset's own clock (``Run.time_origin_ns`` added, e.g. EuRoC's
+    nanosecond timestamps); ``ground_truth_tum.txt`` holds the frames with a finite
+    ground-truth pose, beside the estimate, for evo. ``summary.json`` is written last."""
+    from gslam_jax.config import config_to_toml
+    from gslam_jax.io import save_map, write_kitti, write_tum
+
+    run = loaded.run
+    origin = run.time_origin_ns
+    (out / "config.toml").write_text(config_to_toml(config))
+    if loaded.sim_info is not None:
+        (out / "simulation.json").write_text(json.dumps(loaded.sim_info.summary(), indent=2,
+                                                        default=float))
+    write_tum(out / "trajectory_tum.txt", run.timestamps, result.path, origin_ns=origin)
+    write_kitti(out / "trajectory_kitti.txt", result.path)
+    write_tum(out / "vo_tum.txt", run.timestamps, result.vo_path, origin_ns=origin)
+    if run.ground_truth is not None:
+        gt = np.asarray(run.ground_truth, np.float64)
+        known = np.isfinite(gt).all(axis=1)
+        if known.any():
+            write_tum(out / "ground_truth_tum.txt", np.asarray(run.timestamps)[known], gt[known],
+                      origin_ns=origin)
+    save_map(out / "map.npz", result.kmap, result.smap, result.map_origin, result.resolution)
+    np.savez_compressed(out / "trace.npz", ess=result.ess, exponent=result.exponent,
+                        resampled=result.resampled,
+                        updated=result.updated, log_lik=result.log_lik,
+                        best_pose=result.best_pose, mean_pose=result.mean_pose)
+    summary = summarise(run, result, config, loaded.description)
+    slam_std = write_figures(out, run, result, config.filter.particles,
+                             config.filter.resample_ratio)
+    if gps_input is not None:
+        from gslam_jax.gps import georeference
+        summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result, slam_std)
+    _write_json(out / "summary.json", summary)
+    return summary
+
+
+# print_summary notes motion noise that is more than this factor off the run's fitted noise
+MOTION_NOISE_TOLERANCE = 3.0
+
+
+def print_summary(summary: dict, run, result) -> None:
+    """The console report of a finished run."""
+    print(f"distance: {summary['distance_m']:.1f} m")
+    if run.ground_truth is not None:
+        scored = summary["gt_frames_scored"]
+        over = "" if scored == run.num_frames else \
+            f" (over the {scored} of {run.num_frames} frames with ground truth)"
+        if "vo_rms_m" in summary:
+            print(f"VO-only RMS: {summary['vo_rms_m']:.3f} m{over}")
+            print(f"Gamma-SLAM RMS: {summary['slam_rms_m']:.3f} m{over}")
+        if "slam_drift_pct" in summary:
+            print(f"ground-truth distance: {summary['gt_distance_m']:.1f} m, final drift: VO-only "
+                  f"{summary['vo_drift_pct']:.2f} %, Gamma-SLAM {summary['slam_drift_pct']:.2f} %")
+        else:
+            print(f"ground truth: only {scored} of {run.num_frames} frames have a finite pose; "
+                  "no RMS")
+    fit = summary.get("motion_fit")
+    if fit is not None:
+        off = {k: fit[f"configured_over_fitted_{k}"] for k in ("along", "heading")}
+        if any(not 1 / MOTION_NOISE_TOLERANCE <= r <= MOTION_NOISE_TOLERANCE
+               for r in off.values()):
+            print(f"note: the [motion] noise is {off['along']:.2g}x (along-track) and "
+                  f"{off['heading']:.2g}x (heading) what this run's VO errors fit (alpha_d "
+                  f"{fit['alpha_d']:.2g}, alpha_theta_d {fit['alpha_theta_d']:.2g}, alpha_theta "
+                  f"{fit['alpha_theta']:.2g}); `gslam fit-motion` writes a config with them")
+    print(f"resampling events: {summary['resampling_events']}, filter time "
+          f"{result.seconds:.1f} s (+{result.compile_seconds:.1f} s first chunk incl. compile)")
+    if result.extent_violations:
+        print(f"WARNING: {result.extent_violations} particle updates reached the map edge")
+    if result.empty_observations:
+        print(f"note: {result.empty_observations} local maps had no informative cell "
+              "(weights unchanged)")
