@@ -9,7 +9,8 @@ from gslam_jax import gps
 from gslam_jax.gps import simulate as gps_sim
 
 
-def _course(dt: float = 0.1, speed: float = 1.0, laps: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+def _course(dt: float = 0.1, speed: float = 1.0,
+            laps: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """A rounded 150 m x 80 m loop driven ``laps`` times: times [T], poses [T,3]."""
     th = np.linspace(0, 2 * np.pi, 4001)
     c, s = np.cos(th), np.sin(th)

@@ -3,8 +3,8 @@
 ``gslam run --gps`` reads the log (or simulates one) and checks it against the run *before*
 the filter runs (``gps_input``), then fits the reported path ([filter] estimate) to it and
 writes the georeferenced outputs (``write_gps_outputs``; paper section 8 and appendix). The
-fit itself, the UTM conversion and the log format live in ``gps``; this module is the workflow
-around them.
+fit (``gps.align``), the UTM conversion (``gps.utm``), the log format (``gps.log``) and the
+world-file raster (``gps.raster``) live beside it; this module is the workflow around them.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 from gslam_jax import gps
 from gslam_jax.rbpf import cells
 from gslam_jax.config import ConfigError
-from gslam_jax.gps import GpsLog, GpsLogError
+from gslam_jax.gps.log import GpsLog, GpsLogError
 from gslam_jax.run import known_positions
 
 __all__ = ["GpsInput", "gps_input", "write_gps_outputs"]
@@ -100,14 +100,15 @@ def write_gps_outputs(out: Path, readings: GpsInput, run, result,
                fmt="%.4f", header=f"time easting northing heading (UTM zone {log.zone}"
                f"{'N' if log.north else 'S'}, EPSG:{log.epsg})")
     shape = result.kmap.shape
-    corners = np.asarray(gps.transform_points(al, gps.map_corners(result.map_origin, result.resolution,
-                                                                  shape)), np.float64) + log.origin
+    corners_slam = gps.map_corners(result.map_origin, result.resolution, shape)
+    corners = np.asarray(gps.transform_points(al, corners_slam), np.float64) + log.origin
     if std is None:
         std = np.asarray(cells.expected_std(result.kmap, result.smap))
     gps.write_georeferenced_png(out / "map_utm.png", std, result.map_origin, result.resolution,
                                 al.R, al.l, log.origin, cmap="inferno")
     np.savez(out / "gps_alignment.npz", R=np.asarray(al.R), l=np.asarray(al.l),
-             site_origin=np.asarray(log.origin), zone=log.zone, epsg=log.epsg, map_corners_utm=corners)
+             site_origin=np.asarray(log.origin), zone=log.zone, epsg=log.epsg,
+             map_corners_utm=corners)
     # Residuals of the fit at the readings it used, in metres (float64 host interpolation).
     t0 = float(run.timestamps[0])
     t, gt = np.asarray(run.timestamps, np.float64) - t0, np.asarray(log.time, np.float64) - t0

@@ -15,7 +15,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gslam_jax.gps import GpsLog, utm_to_latlon
+from gslam_jax.gps.log import GpsLog
+from gslam_jax.gps.utm import utm_to_latlon
 
 __all__ = ["GpsSimConfig", "SimulatedGps", "simulate_gps"]
 
