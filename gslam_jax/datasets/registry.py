@@ -16,6 +16,7 @@ import importlib
 import pkgutil
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 from gslam_jax.config import Config, ConfigError
@@ -24,7 +25,7 @@ if TYPE_CHECKING:
     from gslam_jax.run import Run
 
 __all__ = ["Source", "LoadedSource", "DataSource", "Progress", "sources", "source_names",
-           "get_source", "check_source", "stereo_settings", "RUN_FILE"]
+           "get_source", "discover", "check_source", "stereo_settings", "RUN_FILE"]
 
 Progress = Callable[[int, int], None]
 
@@ -101,22 +102,27 @@ class DataSource:
     cuts_frames: bool = True
 
 
-@functools.cache
-def sources() -> dict[str, DataSource]:
-    """Every registered source by name, from the ``SOURCE`` of each module of the package."""
-    import gslam_jax.datasets as package
-
+def discover(package: ModuleType) -> dict[str, DataSource]:
+    """The ``SOURCE`` of every module of ``package``, by name (modules without one are not
+    sources); a name declared twice is an error."""
     found: dict[str, DataSource] = {}
     for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
         module = importlib.import_module(f"{package.__name__}.{info.name}")
         spec = getattr(module, "SOURCE", None)
-        if spec is None:
+        if not isinstance(spec, DataSource):
             continue
         if spec.name in found:
-            raise RuntimeError(f"source '{spec.name}' is declared twice (gslam_jax.datasets."
-                               f"{info.name})")
+            raise RuntimeError(f"source '{spec.name}' is declared twice ({module.__name__})")
         found[spec.name] = spec
     return found
+
+
+@functools.cache
+def sources() -> dict[str, DataSource]:
+    """Every registered source by name: the sources of ``gslam_jax.datasets``."""
+    import gslam_jax.datasets
+
+    return discover(gslam_jax.datasets)
 
 
 def source_names(command_line: bool = True) -> tuple[str, ...]:
