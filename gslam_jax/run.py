@@ -2,7 +2,7 @@
 
 A Run is produced by a source (simulator, dataset adapter, native ``.npz`` log) after the
 front-end (VO, local-map builder) has processed every frame, so the whole sequence is known when
-the filter is compiled. The native file format is exactly the fields below (see README).
+the filter is compiled. The native file format is exactly the fields below (docs/formats.md).
 """
 
 from __future__ import annotations
@@ -263,7 +263,7 @@ _OPTIONAL = ("ground_truth", "vo_failed", "initial_pose", "time_origin_ns")
 
 
 def save_run(path: str | Path | BinaryIO, run: Run) -> None:
-    """Write a Run as a native ``.npz`` file (the format documented in README); ``path`` may
+    """Write a Run as a native ``.npz`` file (the format of docs/formats.md); ``path`` may
     be an open binary file."""
     validate_run(run, str(getattr(path, "name", path)))
     arrays = {name: np.asarray(getattr(run, name)) for name in _REQUIRED}

@@ -51,9 +51,9 @@ def test_paper_config_file_holds_every_default():
         assert set(data[section]) == set(dataclasses.asdict(getattr(Config(), section)))
 
 
-def test_readme_settings_table_shows_the_defaults():
-    readme = (ROOT / "README.md").read_text()
-    table = readme.split("| key | default | meaning |", 1)[1].split("\n\n", 1)[0]
+def test_configuration_reference_shows_the_defaults():
+    reference = (ROOT / "docs" / "configuration.md").read_text()
+    table = reference.split("| key | default | allowed | meaning |", 1)[1].split("\n\n", 1)[0]
     rows = re.findall(r"^\| ((?:`\w+\.\w+`(?:, )?)+) \| ([^|]+) \|", table, re.MULTILINE)
     seen = set()
     for keys, defaults in rows:

@@ -104,7 +104,8 @@ def _values_text(values: dict[str, float]) -> str:
 
 def cmd_search(args: argparse.Namespace) -> int:
     from gslam_jax.config import config_to_toml
-    from gslam_jax.tuning.search import SearchError, config_with_values, load_space, search
+    from gslam_jax.tuning.search import search
+    from gslam_jax.tuning.space import SearchError, config_with_values, load_space
 
     try:
         space, options = load_space(args.space)
@@ -134,7 +135,7 @@ def cmd_search(args: argparse.Namespace) -> int:
 
 def cmd_tune(args: argparse.Namespace) -> int:
     from gslam_jax.config import config_to_toml
-    from gslam_jax.tuning.search import SearchError, config_with_values
+    from gslam_jax.tuning.space import SearchError, config_with_values
     from gslam_jax.tuning.gradient import TuneError, tune
 
     every = max(1, args.steps // 10)
@@ -299,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_source_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (see README)")
+    p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (docs/formats.md)")
     names = source_names()
     p.add_argument("--source", choices=names, default=Source.source,
                    help="where frames come from when no Run file is given: "
