@@ -1,10 +1,51 @@
 """gslam-jax: Gamma-SLAM (Marks et al., Journal of Field Robotics 26(1), 2009) in JAX.
 
-Modules: ``cells`` (cell statistics, eqs. 5-26), ``motion`` (eqs. 1-3), ``resampling``,
-``unknown``, ``rbpf`` (the dense particle filter), ``localmap``, ``run`` (the Run container),
-``slam`` (host driver), ``config`` and ``choices`` (settings), ``machine`` (memory, CPU),
-``vo`` and ``datasets`` (front-ends), ``sim``, ``tiled`` (the reference), ``gps``, ``search``,
-``tuning``, ``metrics``, ``plots``, ``cli``.
+Where things live, lowest layer first (``tests/test_layers.py`` keeps imports going down):
+
+* ``config``, ``choices``, ``errors``, ``machine``, ``io``: settings and shared basics;
+* ``rbpf``: the paper's filter math: ``cells`` (eq. 14 update, eq. 26 log predictive),
+  ``motion`` (eqs. 1-3), ``resampling``, ``tempering``, ``unknown`` (eq. 31), the map store
+  (``maps``, ``tilestore``) and the kernel (``init``, ``step``, ``scan_frames``);
+* ``run``: the ``Run`` container (controls, local maps) and its ``.npz`` format;
+* ``vo``: the stereo front-end, images -> VO increments -> points -> ``localmap``;
+* ``sim``: the simulator; ``tiled``: the independent copy-on-write reference;
+  ``metrics``: RMS after the rigid fit, drift;
+* ``datasets``: the sources of frames, one module each (``datasets.registry``);
+* ``slam``: the host driver, ``run_slam(run, config)``;
+* ``gps``: alignment to GPS, UTM, georeferenced outputs; ``tuning``: parameter search, optax
+  tuning, motion-noise fit;
+* ``app``: the ``gslam`` command line, ``gslam run`` as functions, results, figures.
+
+The names below are imported on first use, so ``import gslam_jax`` stays light (no JAX).
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    "Config": "gslam_jax.config",
+    "load_config": "gslam_jax.config",
+    "Run": "gslam_jax.run",
+    "load_run": "gslam_jax.run",
+    "save_run": "gslam_jax.run",
+    "run_slam": "gslam_jax.slam",
+    "SlamResult": "gslam_jax.slam",
+    "Source": "gslam_jax.datasets.registry",
+    "run_pipeline": "gslam_jax.app.pipeline",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'gslam_jax' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
