@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gslam_jax import rbpf
-from gslam_jax.rbpf import tilestore
+from gslam_jax.rbpf import maps
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 from gslam_jax.tiled.reference import DEFAULT_TILE_SIZE, TiledOutput, draw_noise, run_tiled
@@ -84,14 +84,10 @@ def _state_bytes(state: rbpf.FilterState) -> int:
     return int(sum(np.asarray(x).nbytes for x in jax.tree.leaves(state)))
 
 
-def _live_bytes(state: rbpf.FilterState) -> int:
+def _live_bytes(state: rbpf.FilterState, cfg: rbpf.FilterConfig) -> int:
     """Shared store: the peak of its live tiles' bytes plus its page tables and bookkeeping
     (what the tiled reference's ledger counts, and the indices); dense: the whole state."""
-    t = state.tiles
-    if t is None:
-        return _state_bytes(state)
-    fixed = _state_bytes(state) - sum(np.asarray(x).nbytes for x in (t.kpool, t.spool, t.bpool))
-    return int(t.peak) * tilestore.tile_bytes(t) + fixed
+    return _state_bytes(state) - maps.map_bytes(cfg) + maps.peak_bytes(state.maps, cfg)
 
 
 def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarray,
@@ -99,7 +95,7 @@ def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs:
     """Wall time of every local-map update as the run executes it, resampling included (as the
     tiled reference's times are): the run replayed frame by frame through ``rbpf.step`` (the
     frame of ``run_filter``, same draws), jitted with the state donated. A timed call is the
-    frame's predict (~0.03 us per particle) and its update.
+    frame's predict (negligible beside the update) and its update.
 
     The per-frame inputs are sliced into lists of device arrays beforehand, so that no eager
     JAX indexing lands in a timed call.
@@ -139,13 +135,9 @@ def run_dense(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarr
     out = jax.block_until_ready(rbpf.run_filter(*args))
     seconds = time.perf_counter() - t0
     i = jax.device_get(out.infos)
-    tilestore.check_status(int(np.max(i.map_status)), cfg.pool_size)
-    if out.final_state.tiles is None:
-        kmap, smap = np.asarray(out.final_state.kmap), np.asarray(out.final_state.smap)
-    else:
-        kmap, smap, _ = (np.asarray(x) for x in tilestore.to_dense(out.final_state.tiles,
-                                                                   cfg.map_shape))
-    nbytes, live = _state_bytes(out.final_state), _live_bytes(out.final_state)
+    maps.check_status(int(np.max(i.map_status)), cfg)
+    kmap, smap, _ = (np.asarray(x) for x in maps.to_dense(out.final_state.maps, cfg))
+    nbytes, live = _state_bytes(out.final_state), _live_bytes(out.final_state, cfg)
     # One update on the final maps, state donated as in the scan; ``update`` does not
     # resample, so every repeat does the same work (as gslam bench).
     upd = jax.jit(partial(rbpf.update, cfg=cfg), donate_argnums=0)
@@ -299,7 +291,7 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
                   "state_MB": dense.state_bytes / MB, "store": cfg.store,
                   # shared store: the most its live tiles (and page tables) held at once
                   "peak_live_MB": dense.live_bytes / MB,
-                  "pool_tiles": cfg.pool_size if cfg.store == "shared" else None},
+                  "pool_tiles": maps.pool_tiles(cfg) if cfg.store == "shared" else None},
         "tiled": {"seconds_per_update": upd_t,
                   "seconds_per_update_that_resampled": tiled_rs,
                   "seconds_per_update_without_resampling": tiled_kept,
@@ -331,7 +323,7 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
     if cfg.store == "shared":
         say(f"{'map memory: peak live tiles':30}{dense.live_bytes / MB:>{w - 3}.1f} MB"
             f"{tiled.peak_bytes / MB:>13.1f} MB   (shared: most bytes held by live pool tiles, "
-            f"page tables and bookkeeping; its pool of {cfg.pool_size} tiles allocates "
+            f"page tables and bookkeeping; its pool of {maps.pool_tiles(cfg)} tiles allocates "
             f"{dense.state_bytes / MB:.1f} MB up front)")
     say(f"{'map memory: fixed / peak':30}{dense.state_bytes / MB:>{w - 3}.1f} MB"
         f"{tiled.peak_bytes / MB:>13.1f} MB"

@@ -37,7 +37,7 @@ class KittiParams:
     only one. max_frames: process at most this many frames (None: all). The dense stereo searches
     128 disparities: KITTI's fx * baseline is 380 px m, so the default 64 would cover depths
     from 5.9 m only, and nearer surfaces (parked cars) would be matched wrongly as far points;
-    128 covers from 3 m (77 against 53 ms per frame for SGBM here)."""
+    128 covers from 3 m, at some extra stereo time per frame."""
 
     sequence: str | None = None
     camera_height: float = 1.65

@@ -1,4 +1,4 @@
-"""Adaptive tempering of the importance weights (issue 16), as in adaptive SMC.
+"""Adaptive tempering of the importance weights, as in adaptive SMC.
 
 The paper tempers each update's log importance factors by fixed independence factors beta
 (eqs. 30-31: log lambda / beta). On real stereo those factors are far too peaked: neighbouring

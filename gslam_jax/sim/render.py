@@ -1,6 +1,6 @@
 """Stereo image renderer for simulated worlds: two rectified 512x384 grey pairs per frame.
 
-Honest imagery for the OpenCV front-end (issue 4, item 5): the images are rendered from the
+Honest imagery for the OpenCV front-end: the images are rendered from the
 world's surfaces, and the front-end sees nothing else.
 
 Method (why not a per-pixel ray march): the world is a 2.5-D heightfield (``World.height`` at

@@ -115,7 +115,7 @@ def combine(sum_prev: float, n_prev: int, sum_new: float, n_obs: int, beta_prev:
 
 def tempering_exponent(log_w: np.ndarray, log_lam: np.ndarray, target: float,
                        tol: float = 1e-10) -> float:
-    """Adaptive tempering (issue 16), written apart from ``gslam_jax.rbpf.tempering``: the largest
+    """Adaptive tempering, written apart from ``gslam_jax.rbpf.tempering``: the largest
     exponent phi in [0, 1] of the increments ``log_lam`` whose conditional ESS fraction
     ``(sum W e^{phi l})^2 / sum W e^{2 phi l}`` under the weights W = exp(log_w) is at least
     ``target``; 1 when phi = 1 meets it. In float64, by the Illinois (modified regula falsi)
