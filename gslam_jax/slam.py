@@ -27,7 +27,8 @@ from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
 __all__ = ["MapExtent", "map_extent", "observed_cells", "filter_config",
            "choose_store", "MapStoreNotice", "map_peak_bytes",
-           "filter_params", "local_observations", "map_observations", "particle_map_bytes",
+           "filter_params", "local_observations", "raw_observations", "ObsSettings",
+           "obs_settings", "refine_observations", "map_observations", "particle_map_bytes",
            "map_memory", "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
            "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError"]
 
@@ -255,11 +256,40 @@ def local_observations(run: Run, min_variance: float, weight: float = 1.0,
     return obs
 
 
-def map_observations(run: Run, config: Config) -> np.ndarray:
-    """``local_observations`` with the config's ``[map]`` min_variance, obs_weight and
-    min_points."""
+def raw_observations(run: Run) -> np.ndarray:
+    """The Run's raw observations: ``local_observations`` with no floor, weight 1 and the
+    two-point threshold, which ``refine_observations`` turns into the filter's on the device."""
+    return local_observations(run, 0.0)
+
+
+class ObsSettings(NamedTuple):
+    """The ``[map]`` observation settings, float32 scalars on the device (traced: the search
+    and the tuner vary them without a recompilation)."""
+
+    min_variance: jax.Array
+    obs_weight: jax.Array
+    min_points: jax.Array
+
+
+def obs_settings(config: Config) -> ObsSettings:
+    """The config's ``[map]`` min_variance, obs_weight and min_points."""
     m = config.map
-    return local_observations(run, m.min_variance, m.obs_weight, m.min_points)
+    return ObsSettings(jnp.float32(m.min_variance), jnp.float32(m.obs_weight),
+                       jnp.float32(m.min_points))
+
+
+def refine_observations(raw: jax.Array, settings: ObsSettings) -> jax.Array:
+    """The filter's observations [M, L, L, 2]: ``raw_observations`` floored, weighted and
+    thresholded by ``settings`` on the device (``cells.refine_obs``). The one route of the
+    observation settings, for a run as for a search or the tuner."""
+    return cells.refine_obs(raw, settings.min_variance, settings.obs_weight,
+                            settings.min_points)
+
+
+def map_observations(run: Run, config: Config) -> jax.Array:
+    """The filter's observations of ``run`` under the config's ``[map]`` settings:
+    ``raw_observations`` refined on the device (``refine_observations``)."""
+    return refine_observations(jnp.asarray(raw_observations(run)), obs_settings(config))
 
 
 class RunArrays(NamedTuple):
@@ -380,7 +410,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     """
     cfg = filter_config(config, run)
     params = filter_params(config)
-    obs = jnp.asarray(map_observations(run, config))
+    obs = map_observations(run, config)
     T = run.num_frames
     key = jax.random.key(config.filter.seed) if key is None else key
     keys = rbpf.frame_keys(key, T)
