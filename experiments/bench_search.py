@@ -22,7 +22,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gslam_jax import rbpf  # noqa: E402
+from gslam_jax.tuning import designs as D  # noqa: E402
+from gslam_jax.tuning import evaluation as E  # noqa: E402
 from gslam_jax.tuning import search as S  # noqa: E402
+from gslam_jax.tuning import space as SP  # noqa: E402
 from gslam_jax import slam  # noqa: E402
 from gslam_jax.machine import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
@@ -68,9 +71,9 @@ def main(argv: list[str] | None = None) -> dict:
     config = Config(filter=FilterSection(particles=args.particles, unknown_cells="ignore"),
                     map=MapSection(margin=2.0))
     cfg = slam.filter_config(config, run)
-    space = S.parse_space({"alpha_d": {"range": [0.005, 0.1], "log": True},
+    space = SP.parse_space({"alpha_d": {"range": [0.005, 0.1], "log": True},
                            "alpha_theta_d": {"range": [0.001, 0.03], "log": True}})
-    values = S.design_points(space, "sobol", args.sets)
+    values = D.design_points(space, "sobol", args.sets)
     key = jax.random.key(0)
 
     # Batched: one call (compile first with the same shapes).
@@ -84,7 +87,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     # Loop: the filter once per set (compiled once; parameters are traced arguments).
     base = slam.filter_params(config)
-    obs = jnp.asarray(slam.local_observations(run, config.map.min_variance))
+    obs = slam.map_observations(run, config)
     controls = jnp.asarray(run.controls, jnp.float32)
     idx = jnp.asarray(run.obs_index, jnp.int32)
     start = jnp.asarray(run.start_pose(), jnp.float32)
@@ -93,9 +96,9 @@ def main(argv: list[str] | None = None) -> dict:
 
     @jax.jit
     def one(v):
-        p = S.params_from_values(v, space.names, base)
+        p = SP.params_from_values(v, space.names, base)
         out = rbpf.run_filter(key, p, controls, idx, obs, cfg, start)
-        return S.objective_value(out, "rms", ref, mask)
+        return E.objective_value(out, "rms", ref, mask)
 
     one(jnp.asarray(values[0], jnp.float32)).block_until_ready()
 

@@ -16,7 +16,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gslam_jax import choices  # noqa: E402
-from gslam_jax.tuning import search as S  # noqa: E402
+from gslam_jax.tuning.evaluation import evaluate  # noqa: E402
 from gslam_jax import slam  # noqa: E402
 from gslam_jax.config import Config  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
@@ -57,8 +57,8 @@ def key_averaged(run: Run, config: Config, names: tuple[str, ...] = ALPHAS
     base = slam.filter_params(config)
 
     def f(values: np.ndarray, keys: range, objective: str) -> np.ndarray:
-        return np.mean([S.evaluate(values, jax.random.key(k), inputs, base, names, cfg,
-                                   objective) for k in keys], axis=0)
+        return np.mean([evaluate(values, jax.random.key(k), inputs, base, names, cfg,
+                                 objective) for k in keys], axis=0)
 
     return f
 

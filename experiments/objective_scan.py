@@ -16,7 +16,7 @@ import argparse
 import numpy as np
 from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_run, report
 
-from gslam_jax.tuning import search as S
+from gslam_jax.tuning.evaluation import OBJECTIVES
 from gslam_jax.machine import environment
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
 
@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> dict:
         averaged = key_averaged(run, config, (name,))
         values = (true[name] * factors)[:, None]
         scans[name] = {}
-        for objective in S.OBJECTIVES:
+        for objective in OBJECTIVES:
             scans[name][objective] = averaged(values, range(args.keys), objective).round(4).tolist()
             best = factors[np.argmax(scans[name][objective]) if objective == "loglik"
                            else np.argmin(scans[name][objective])]

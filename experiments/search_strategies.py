@@ -3,7 +3,7 @@
 For each problem (two simulated course prefixes and the real KITTI frames of a Run file) and
 each space (4 and 8 parameters), every strategy runs with the same batched evaluator (the
 mean-path RMS after the rigid fit, averaged over ``--select-keys`` filter keys, sets vmapped /
-sharded in batches of ``--batch`` by ``search.evaluate``, compiled before any clock starts):
+sharded in batches of ``--batch`` by ``evaluation.evaluate``, compiled before any clock starts):
 
 * sobol: 256 scrambled Sobol points (the reference), halton: ``--halton`` Halton points;
 * tpe: Optuna TPE asking ``--batch`` sets per evaluator call, ``--tpe`` sets in all;
@@ -36,7 +36,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gslam_jax.tuning import search as S  # noqa: E402
+from gslam_jax.tuning import designs as D  # noqa: E402
+from gslam_jax.tuning import evaluation as E  # noqa: E402
+from gslam_jax.tuning import space as SP  # noqa: E402
 from gslam_jax import slam  # noqa: E402
 from gslam_jax.tuning import strategies as ST  # noqa: E402
 from gslam_jax.tuning import gradient as TU  # noqa: E402
@@ -72,15 +74,15 @@ def evaluator(run: Run, config: Config, names: tuple[str, ...], keys: list[int],
               ) -> ST.Evaluator:
     """values [P, d] -> mean-path RMS [P] averaged over ``keys``; P padded to a multiple of
     ``batch`` so that every call reuses one compiled shape."""
-    inputs, cfg = S.search_inputs(run, config, names)
-    base, obs_base = slam.filter_params(config), S.obs_settings(config)
+    inputs, cfg = slam.run_arrays(run, config)
+    base = slam.filter_params(config)
 
     def per_key(values: np.ndarray) -> np.ndarray:
         P = len(values)
         pad = (-P) % batch
         v = np.concatenate([values, np.repeat(values[-1:], pad, 0)]) if pad else values
-        return np.stack([S.evaluate(v, jax.random.key(k), inputs, base, names, cfg, "rms",
-                                    batch=batch, obs_base=obs_base)[:P] for k in keys])
+        return np.stack([E.evaluate(v, jax.random.key(k), inputs, base, names, cfg, "rms",
+                                    batch=batch)[:P] for k in keys])
 
     def f(values: np.ndarray) -> np.ndarray:
         return per_key(values).mean(axis=0)
@@ -93,11 +95,11 @@ def gradient_trace(run: Run, config: Config, names: tuple[str, ...], steps: int,
                    lr: float, every: int) -> ST.Trace:
     """Supervised adam tuning; incumbent = the current values every ``every`` steps. One step
     is run first to compile (not timed)."""
-    tunable = tuple(n for n in names if n != "min_points")
+    tunable = tuple(n for n in names if n in SP.TUNABLE_NAMES)
     TU.tune(run, config, "supervised", "adam", lr, 1, names=tunable, runs_per_step=runs,
             key=jax.random.key(99))
     trace = ST.Trace([], [], [], [])
-    fixed = {n: S.base_values(config)[n] for n in names}
+    fixed = {n: SP.base_values(config)[n] for n in names}
     t0 = time.perf_counter()
 
     def on_step(step: int, loss: float, values: dict[str, float]) -> None:
@@ -120,14 +122,14 @@ def time_to_band(trace: ST.Trace, fresh: list[float], target: float) -> float | 
 
 
 def one_problem(name: str, run: Run, config: Config, space_key: str, args) -> dict:
-    space = S.parse_space(SPACES[space_key])
+    space = SP.parse_space(SPACES[space_key])
     names = space.names
     sel = list(range(args.select_keys))
     full = evaluator(run, config, names, sel, args.batch)
     pre = prefix_run(run, max(2, run.num_frames // 3))
     prefix = evaluator(pre, config, names, sel, args.batch)
     # Compile every shape before any clock starts.
-    v0 = S.design_points(space, "sobol", args.batch, seed=123)
+    v0 = D.design_points(space, "sobol", args.batch, seed=123)
     c0 = time.perf_counter()
     full(v0), prefix(v0)
     compile_s = time.perf_counter() - c0

@@ -17,7 +17,8 @@ import jax
 import numpy as np
 from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_run, report
 
-from gslam_jax.tuning import search as S
+from gslam_jax.tuning import designs as D
+from gslam_jax.tuning import space as SP
 from gslam_jax.tuning import gradient as TU
 from gslam_jax.machine import environment
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
@@ -64,9 +65,9 @@ def main(argv: list[str] | None = None) -> dict:
                "rms_true": float(mean_rms(row(true), eval_keys)[0]),
                "rms_start": float(mean_rms(row(start), eval_keys)[0])}
     if args.search:
-        space = S.parse_space({k: {"range": [v / 5.0, v * 5.0], "log": True}
+        space = SP.parse_space({k: {"range": [v / 5.0, v * 5.0], "log": True}
                                for k, v in true.items()})
-        values = S.design_points(space, "sobol", args.search)
+        values = D.design_points(space, "sobol", args.search)
         t0 = time.perf_counter()
         rms = mean_rms(values, range(args.search_keys))
         best = values[int(np.argmin(rms))]

@@ -297,10 +297,11 @@ class RunArrays(NamedTuple):
 
     controls: jax.Array    # [T, 3]
     obs_index: jax.Array   # [T]
-    local_obs: jax.Array   # [M, L, L, 2]
+    local_obs: jax.Array   # [M, L, L, 2] raw observations (``raw_observations``)
     reference: jax.Array   # [T, 3] ground truth (zeros where unknown)
     mask: jax.Array        # [T] frames with a ground-truth position (``ground_truth_mask``)
     start: jax.Array       # [3]
+    obs: ObsSettings       # the config's settings for ``refine_observations``
 
 
 def ground_truth_mask(run: Run) -> np.ndarray:
@@ -322,16 +323,18 @@ def require_ground_truth(mask: jax.Array | np.ndarray, objective: str,
 
 
 def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
-    """Device arrays of ``run`` and the static filter config for it."""
+    """Device arrays of ``run`` (raw observations, to be refined on the device with the
+    config's or searched settings) and the static filter config for it."""
     T = run.num_frames
     gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
     arrays = RunArrays(
         controls=jnp.asarray(run.controls, jnp.float32),
         obs_index=jnp.asarray(run.obs_index, jnp.int32),
-        local_obs=jnp.asarray(map_observations(run, config)),
+        local_obs=jnp.asarray(raw_observations(run)),
         reference=jnp.asarray(np.nan_to_num(gt), jnp.float32),
         mask=jnp.asarray(ground_truth_mask(run)),
-        start=jnp.asarray(run.start_pose(), jnp.float32))
+        start=jnp.asarray(run.start_pose(), jnp.float32),
+        obs=obs_settings(config))
     return arrays, filter_config(config, run)
 
 

@@ -53,7 +53,7 @@ def test_shipped_configs_load():
     import tomllib
     from pathlib import Path
 
-    from gslam_jax.tuning.search import load_space
+    from gslam_jax.tuning.space import load_space
     from gslam_jax.config import load_table_config
 
     paths = sorted((Path(__file__).parents[1] / "configs").glob("*.toml"))

@@ -5,6 +5,7 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax.tuning import search as S
+from gslam_jax.tuning import space as SP
 from gslam_jax.config import Config, FilterSection, MapSection
 
 distributed = pytest.importorskip(
@@ -17,7 +18,7 @@ def test_two_worker_cluster_equals_single_process_search():
     run, _ = make_run(seed=2, steps=20)
     config = Config(filter=FilterSection(particles=8, unknown_cells="ignore"),
                     map=MapSection(margin=1.0))
-    space = S.parse_space({"alpha_d": {"range": [0.005, 0.2], "log": True},
+    space = SP.parse_space({"alpha_d": {"range": [0.005, 0.2], "log": True},
                            "beta_new": [0.02, 0.5], "obs_weight": [0.3, 1.0]})
     single = S.search(run, config, space, "sobol", 6, "rms", seed=7, batch=3)
     seen = []

@@ -13,7 +13,10 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import metrics
+from gslam_jax.tuning import designs as D
+from gslam_jax.tuning import evaluation as E
 from gslam_jax.tuning import search as S
+from gslam_jax.tuning import space as SP
 from gslam_jax.config import Config, FilterSection, MapSection
 from gslam_jax.vo.localmap import LocalMapParams
 
@@ -37,49 +40,49 @@ def small_run():
     ({}, "non-empty"),
 ])
 def test_bad_spaces_name_the_field(table, match):
-    with pytest.raises(S.SearchError, match=match):
-        S.parse_space(table)
+    with pytest.raises(SP.SearchError, match=match):
+        SP.parse_space(table)
 
 
 def test_load_space_file(tmp_path):
     p = tmp_path / "s.toml"
     p.write_text('[space]\nalpha_d = [0.01, 0.1]\nbeta_prev = { range = [0.01, 1.0], log = true }\n'
                  '[search]\ndesign = "sobol"\nn = 16\n')
-    space, opts = S.load_space(p)
+    space, opts = SP.load_space(p)
     assert space.names == ("alpha_d", "beta_prev") and space.log == (False, True)
     assert opts == {"design": "sobol", "n": 16}
     p.write_text('[space]\nalpha_d = [0.01, 0.1]\n[search]\nbogus = 1\n')
-    with pytest.raises(S.SearchError, match="unknown key 'bogus'"):
-        S.load_space(p)
-    space, _ = S.load_space(Path(__file__).parents[1] / "configs" / "search_example.toml")
+    with pytest.raises(SP.SearchError, match="unknown key 'bogus'"):
+        SP.load_space(p)
+    space, _ = SP.load_space(Path(__file__).parents[1] / "configs" / "search_example.toml")
     assert space.dim >= 2
 
 
 def test_designs_cover_the_ranges():
-    space = S.parse_space({"alpha_d": [0.01, 0.1], "alpha_theta": {"range": [1e-3, 1e-1], "log": True}})
-    for design in S.DESIGNS:
-        v = S.design_points(space, design, 16, seed=1)
+    space = SP.parse_space({"alpha_d": [0.01, 0.1], "alpha_theta": {"range": [1e-3, 1e-1], "log": True}})
+    for design in D.DESIGNS:
+        v = D.design_points(space, design, 16, seed=1)
         assert v.shape == (16, 2)
         assert np.all(v[:, 0] >= 0.01) and np.all(v[:, 0] <= 0.1)
         assert np.all(v[:, 1] >= 1e-3 - 1e-12) and np.all(v[:, 1] <= 1e-1 + 1e-12)
-    grid = S.design_points(space, "grid", 16)
+    grid = D.design_points(space, "grid", 16)
     assert len(np.unique(grid[:, 1].round(9))) == 4 and np.isclose(grid[:, 1].min(), 1e-3)
-    with pytest.raises(S.SearchError, match="design 'lhs' unknown"):
-        S.design_points(space, "lhs", 4)
+    with pytest.raises(SP.SearchError, match="design 'lhs' unknown"):
+        D.design_points(space, "lhs", 4)
 
 
 def test_sobol_points_are_stratified_and_seeded():
     """A scrambled Sobol net of 2^m points puts exactly one point in each of the 2^m equal
     intervals of every coordinate (a (0, m, 1)-net per axis), here in 8 dimensions; the seed
     picks the scrambling."""
-    u = S.unit_points("sobol", 64, 8, seed=3)
+    u = D.unit_points("sobol", 64, 8, seed=3)
     assert u.shape == (64, 8) and np.all((u >= 0) & (u < 1))
     for d in range(8):
         assert sorted(np.floor(u[:, d] * 64).astype(int)) == list(range(64))
-    np.testing.assert_array_equal(u, S.unit_points("sobol", 64, 8, seed=3))
-    assert not np.allclose(u, S.unit_points("sobol", 64, 8, seed=4))
-    assert S.unit_points("sobol", 48, 8, seed=3).shape == (48, 8)  # a prefix of 64
-    h = S.unit_points("halton", 30, 8, seed=1)
+    np.testing.assert_array_equal(u, D.unit_points("sobol", 64, 8, seed=3))
+    assert not np.allclose(u, D.unit_points("sobol", 64, 8, seed=4))
+    assert D.unit_points("sobol", 48, 8, seed=3).shape == (48, 8)  # a prefix of 64
+    h = D.unit_points("halton", 30, 8, seed=1)
     assert h.shape == (30, 8) and len(np.unique(h[:, 0])) == 30
 
 
@@ -93,7 +96,7 @@ def test_nan_is_never_ranked_best():
     res = S.SearchResult(("alpha_d",), vals, obj, "loglik", True, 0.0, 0.0)
     assert res.best() == {"alpha_d": 1.0} and res.num_nan == 3
     allnan = S.SearchResult(("alpha_d",), v, np.full(5, np.nan), "rms", False, 0.0, 0.0)
-    with pytest.raises(S.SearchError, match="NaN"):
+    with pytest.raises(SP.SearchError, match="NaN"):
         allnan.best()
 
 
@@ -106,7 +109,7 @@ def test_rigid_rms_matches_metrics():
     est[:, :2] = ref[:, :2] @ R.T + [5.0, -2.0] + rng.normal(0, 0.1, (50, 2))
     mask = np.ones(50, bool)
     mask[::7] = False
-    got = float(S.rigid_rms(jnp.asarray(est, jnp.float32), jnp.asarray(ref, jnp.float32), jnp.asarray(mask)))
+    got = float(E.rigid_rms(jnp.asarray(est, jnp.float32), jnp.asarray(ref, jnp.float32), jnp.asarray(mask)))
     want = metrics.rms_after_fit(est, ref, frames=np.flatnonzero(mask))
     assert abs(got - want) < 1e-4
 
@@ -116,7 +119,7 @@ def test_rigid_rms_matches_metrics():
 def test_chunks_are_balanced(sets, max_batch, devices):
     """Brute force: the fewest chunks of <= max_batch sets (at least one per device), padding
     below one set per device and chunk."""
-    b = S.chunk_size(sets, max_batch, devices)
+    b = E.chunk_size(sets, max_batch, devices)
     chunks = -(-sets // b)
     assert b % devices == 0
     assert b <= max(max_batch, devices) + devices - 1
@@ -125,7 +128,7 @@ def test_chunks_are_balanced(sets, max_batch, devices):
 
 
 def test_search_ranks_and_writes(small_run, tmp_path):
-    space = S.parse_space({"alpha_d": [0.01, 0.1], "alpha_theta_d": [0.002, 0.05]})
+    space = SP.parse_space({"alpha_d": [0.01, 0.1], "alpha_theta_d": [0.002, 0.05]})
     res = S.search(small_run, CONFIG, space, "halton", 5, "rms", batch=3)
     assert res.values.shape == (5, 2) and np.all(np.diff(res.objective) >= 0)
     # Every set is the filter's own output under the same key (common random numbers).
@@ -143,30 +146,30 @@ def test_search_ranks_and_writes(small_run, tmp_path):
 
 
 def test_search_nan_objective_errors_and_warnings(small_run):
-    space = S.parse_space({"beta_prev": [0.01, 0.1]})
-    with pytest.raises(S.SearchError, match="objective 'loglik'"):
+    space = SP.parse_space({"beta_prev": [0.01, 0.1]})
+    with pytest.raises(SP.SearchError, match="objective 'loglik'"):
         # beta = NaN makes every objective NaN: a clear error, not a silent "best".
         S.search(small_run, CONFIG, space, objective="loglik", values=np.full((2, 1), np.nan))
     with pytest.warns(RuntimeWarning, match="NaN for 1 of 2"):
         res = S.search(small_run, CONFIG, space, objective="loglik",
                        values=np.array([[np.nan], [0.05]]))
     assert res.values[0, 0] == 0.05 and np.isnan(res.objective[1])
-    with pytest.raises(S.SearchError, match="ground_truth"):
+    with pytest.raises(SP.SearchError, match="ground_truth"):
         S.search(small_run._replace(ground_truth=None), CONFIG, space, n=2, objective="rms")
 
 
 def test_rms_needs_a_frame_with_ground_truth(small_run):
     """Ground truth with no finite frame would score every set 0 m: an error instead."""
-    space = S.parse_space({"alpha_d": [0.01, 0.1]})
+    space = SP.parse_space({"alpha_d": [0.01, 0.1]})
     blind = small_run._replace(ground_truth=np.full_like(small_run.ground_truth, np.nan))
-    with pytest.raises(S.SearchError, match=r"no frame with a finite position \(x, y\)"):
+    with pytest.raises(SP.SearchError, match=r"no frame with a finite position \(x, y\)"):
         S.search(blind, CONFIG, space, n=2, objective="rms")
     import jax
 
     from gslam_jax import slam
     inputs, cfg = slam.run_arrays(blind, CONFIG)
-    with pytest.raises(S.SearchError, match=r"no frame with a finite position \(x, y\)"):
-        S.evaluate(np.array([[0.05]]), jax.random.key(0), inputs, slam.filter_params(CONFIG),
+    with pytest.raises(SP.SearchError, match=r"no frame with a finite position \(x, y\)"):
+        E.evaluate(np.array([[0.05]]), jax.random.key(0), inputs, slam.filter_params(CONFIG),
                    space.names, cfg, "rms")
     # One frame with ground truth is enough; loglik needs none.
     some = blind.ground_truth.copy()
@@ -181,7 +184,7 @@ def test_rms_scores_position_only_ground_truth(small_run):
     metrics.errors_over_known_frames does. Before, every frame was dropped and the search
     refused ("no frame with finite values")."""
     from gslam_jax import slam
-    space = S.parse_space({"alpha_d": [0.01, 0.1]})
+    space = SP.parse_space({"alpha_d": [0.01, 0.1]})
     gt = small_run.ground_truth.copy()
     gt[:, 2] = np.nan
     gt[5, 0] = np.nan  # a frame without a position is still skipped
@@ -200,7 +203,7 @@ def test_rms_scores_position_only_ground_truth(small_run):
 
 def test_result_times_are_named_for_what_they_hold(small_run, tmp_path):
     """total_seconds includes compilation; first_chunk_seconds is a part of it."""
-    space = S.parse_space({"alpha_d": [0.01, 0.1]})
+    space = SP.parse_space({"alpha_d": [0.01, 0.1]})
     res = S.search(small_run, CONFIG, space, n=4, objective="loglik", batch=2)
     assert 0 < res.first_chunk_seconds <= res.total_seconds
     res.to_json(tmp_path / "r.json")
@@ -208,7 +211,7 @@ def test_result_times_are_named_for_what_they_hold(small_run, tmp_path):
     assert doc["total_seconds"] == res.total_seconds
     assert doc["first_chunk_seconds"] == res.first_chunk_seconds
     assert "seconds" not in doc and "compile_seconds" not in doc
-    with pytest.raises(S.SearchError, match="crn=False is not supported"):
+    with pytest.raises(SP.SearchError, match="crn=False is not supported"):
         S.search(small_run, CONFIG, space, n=2, objective="loglik", crn=False)
 
 
@@ -222,15 +225,15 @@ def test_sharded_on_two_cpu_devices(tmp_path):
         import jax, numpy as np
         assert len(jax.devices()) == 2, jax.devices()
         from synthetic import make_run
-        from gslam_jax.tuning import search as S
+        from gslam_jax.tuning import designs as D, search as S, space as SP
         from gslam_jax.config import Config, FilterSection, MapSection
         from gslam_jax.vo.localmap import LocalMapParams
         run, _ = make_run(seed=1, steps=16, drift=0.01,
                           params=LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0))
         cfg = Config(filter=FilterSection(particles=8, unknown_cells="ignore"),
                      map=MapSection(margin=1.0))
-        space = S.parse_space({{"alpha_d": [0.01, 0.1]}})
-        vals = S.design_points(space, "halton", 6)
+        space = SP.parse_space({{"alpha_d": [0.01, 0.1]}})
+        vals = D.design_points(space, "halton", 6)
         two = S.search(run, cfg, space, values=vals, objective="loglik", batch=4)
         one = S.search(run, cfg, space, values=vals, objective="loglik", batch=4,
                        devices=jax.devices()[:1])
@@ -246,20 +249,19 @@ def test_sharded_on_two_cpu_devices(tmp_path):
 
 
 def test_observation_settings_match_the_config_path(small_run):
-    """Searching min_variance, obs_weight and min_points (refined on the device from raw
-    observations) scores each set as a run whose [map] config holds those values (observations
-    built on the host by cells.obs_from_stats)."""
+    """Searching min_variance, obs_weight and min_points scores each set as a run whose [map]
+    config holds those values (``config_with_values``: min_points rounded up)."""
     import dataclasses
 
     from gslam_jax import slam
 
-    space = S.parse_space({"min_variance": {"range": [1e-6, 1e-2], "log": True},
+    space = SP.parse_space({"min_variance": {"range": [1e-6, 1e-2], "log": True},
                            "obs_weight": [0.2, 1.0], "min_points": [2.0, 6.0],
                            "alpha_d": [0.01, 0.1]})
     values = np.array([[1e-3, 0.5, 3.2, 0.05], [1e-5, 1.0, 2.0, 0.02]])
     res = S.search(small_run, CONFIG, space, values=values, objective="rms")
     for row, f in zip(res.values, res.objective):
-        cfg = S.config_with_values(CONFIG, dict(zip(space.names, row)))
+        cfg = SP.config_with_values(CONFIG, dict(zip(space.names, row)))
         assert cfg.map.min_points == (4 if row[2] > 3 else 2)
         out = slam.run_slam(small_run, cfg)
         assert abs(metrics.rms_after_fit(out.mean_pose, small_run.ground_truth) - f) < 1e-3
@@ -269,11 +271,45 @@ def test_observation_settings_match_the_config_path(small_run):
 def test_config_with_values_sets_every_section():
     vals = {"alpha_d": 0.02, "beta_new": 0.3, "min_variance": 1e-4, "obs_weight": 0.5,
             "min_points": 2.5}
-    cfg = S.config_with_values(CONFIG, vals)
+    cfg = SP.config_with_values(CONFIG, vals)
     assert (cfg.motion.alpha_d, cfg.filter.beta_new, cfg.map.min_variance, cfg.map.obs_weight,
             cfg.map.min_points) == (0.02, 0.3, 1e-4, 0.5, 3)
-    assert S.base_values(cfg)["obs_weight"] == 0.5
-    with pytest.raises(S.SearchError, match="obs_weight must be positive"):
-        S.config_with_values(CONFIG, {"obs_weight": 0.0})
-    with pytest.raises(S.SearchError, match="min_points: range"):
-        S.parse_space({"min_points": [1.0, 4.0]})
+    assert SP.base_values(cfg)["obs_weight"] == 0.5
+    with pytest.raises(SP.SearchError, match="obs_weight must be positive"):
+        SP.config_with_values(CONFIG, {"obs_weight": 0.0})
+    with pytest.raises(SP.SearchError, match="min_points: range"):
+        SP.parse_space({"min_points": [1.0, 4.0]})
+
+
+def test_run_and_search_share_the_observation_route(small_run):
+    """A run, the search and the tuner refine the same raw observations on the device
+    (``slam.refine_observations``); with the default settings that equals the float64 host
+    conversion of ``cells.obs_from_stats`` bit for bit, and within float32 rounding with
+    others."""
+    from gslam_jax import slam
+
+    np.testing.assert_array_equal(np.asarray(slam.map_observations(small_run, CONFIG)),
+                                  slam.local_observations(small_run, 1e-6))
+    values = {"min_variance": 1e-3, "obs_weight": 0.4, "min_points": 3}
+    cfg = SP.config_with_values(CONFIG, values)
+    inputs, _ = slam.run_arrays(small_run, CONFIG)
+    row = jnp.asarray(list(values.values()), jnp.float32)
+    searched = SP.observations_from_values(row, tuple(values), inputs.obs, inputs.local_obs)
+    np.testing.assert_array_equal(np.asarray(searched),
+                                  np.asarray(slam.map_observations(small_run, cfg)))
+    np.testing.assert_allclose(np.asarray(searched),
+                               slam.local_observations(small_run, 1e-3, 0.4, 3), rtol=1e-6)
+
+
+def test_settings_table_names_config_fields_and_device_fields():
+    """Every searchable setting is a field of its Config section; the observation settings
+    are the fields of ``slam.ObsSettings``, the filter parameters those of FilterParams."""
+    from gslam_jax import rbpf, slam
+
+    for s in SP.SETTINGS.values():
+        assert hasattr(getattr(CONFIG, s.section), s.name), s
+    assert set(SP.OBS_PARAM_NAMES) == set(slam.ObsSettings._fields)
+    params = rbpf.FilterParams()
+    assert set(SP.FILTER_PARAM_NAMES) == (set(params.motion._fields)
+                                          | set(params._fields) - {"motion"})
+    assert tuple(SP.base_values(CONFIG)) == SP.PARAM_NAMES

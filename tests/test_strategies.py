@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
-from gslam_jax.tuning import search as S
+from gslam_jax.tuning import designs as D
+from gslam_jax.tuning import space as SP
 from gslam_jax.tuning import strategies as ST
 
-SPACE = S.parse_space({"alpha_d": {"range": [0.001, 1.0], "log": True}, "beta_new": [0.01, 1.0],
+SPACE = SP.parse_space({"alpha_d": {"range": [0.001, 1.0], "log": True}, "beta_new": [0.01, 1.0],
                        "obs_weight": [0.1, 1.0]})
 OPT = np.array([0.03, 0.4, 0.7])
 
@@ -37,7 +38,7 @@ def test_design_trace_keeps_the_best_so_far():
     tr = ST.design_trace(f, SPACE, "sobol", 64, 16, seed=2)
     assert calls == [16] * 4 and tr.evaluated == [16, 32, 48, 64]
     _check_trace(tr)
-    values = S.design_points(SPACE, "sobol", 64, seed=2)
+    values = D.design_points(SPACE, "sobol", 64, seed=2)
     for i, n in enumerate(tr.evaluated):  # brute force: the best of the first n points
         np.testing.assert_array_equal(tr.incumbents[i], values[np.argmin(bowl(values[:n]))])
 
@@ -47,7 +48,7 @@ def test_successive_halving_keeps_the_best_third_of_the_prefix_scores():
     prefix = lambda v: bowl(v) + noise[:len(v)]  # noqa: E731
     full, calls = counting(bowl)
     tr = ST.successive_halving(prefix, full, SPACE, 30, keep=1 / 3, seed=1)
-    values = S.design_points(SPACE, "sobol", 30, seed=1)
+    values = D.design_points(SPACE, "sobol", 30, seed=1)
     kept = values[np.argsort(prefix(values))[:10]]
     assert calls == [10] and tr.evaluated == [40]
     np.testing.assert_array_equal(tr.incumbents[0], kept[np.argmin(bowl(kept))])

@@ -262,6 +262,7 @@ def test_search_and_tune_do_not_score_a_run_whose_pool_ran_out():
     from synthetic import make_run
 
     from gslam_jax.tuning import search
+    from gslam_jax.tuning.space import SearchError, parse_space
     from gslam_jax.tuning import gradient as tuning
     from gslam_jax.config import Config
 
@@ -270,8 +271,8 @@ def test_search_and_tune_do_not_score_a_run_whose_pool_ran_out():
     config = dataclasses.replace(
         c, filter=dataclasses.replace(c.filter, particles=5),
         map=dataclasses.replace(c.map, store="shared", tile=16, pool_tiles=30))
-    space = search.parse_space({"alpha_d": [0.05, 0.2]})
-    with pytest.raises(search.SearchError, match=r"\[map\] pool_tiles"):
+    space = parse_space({"alpha_d": [0.05, 0.2]})
+    with pytest.raises(SearchError, match=r"\[map\] pool_tiles"):
         search.search(run, config, space, design="sobol", n=2)
     with pytest.raises(ts.PoolExhaustedError, match=r"^tune step 0: .*\[map\] pool_tiles = 30"):
         tuning.tune(run, config, "supervised", names=["alpha_d"], steps=1, runs_per_step=1)

@@ -47,6 +47,7 @@ def test_transition_score_is_the_motion_log_density_gradient():
 def test_forward_values_equal_the_filter(short_run):
     config = _config(8)
     inputs, cfg = TU.make_inputs(short_run, config)
+    inputs = inputs._replace(local_obs=slam.refine_observations(inputs.local_obs, inputs.obs))
     params = slam.filter_params(config)
     key = jax.random.key(5)
     obj = TU.sw_objectives(key, params, inputs, cfg)

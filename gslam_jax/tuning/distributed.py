@@ -1,5 +1,6 @@
 """The batched search on a Dask cluster: each worker evaluates vmapped, device-sharded chunks of
-parameter sets on its own devices (``search.evaluate``); the client designs, gathers and ranks.
+parameter sets on its own devices (``evaluation.evaluate``); the client designs, gathers and
+ranks.
 
 Why Dask (``pip install gslam-jax[distributed]``): the search is a map of independent chunks
 over workers, which is what ``Client.submit`` does; ``distributed`` is pure Python (a few MB,
@@ -10,7 +11,7 @@ who run this. Ray would serve as well but weighs far more to install and start f
 map.
 
 Results equal ``search.search`` for the same config, key and ``batch``: the chunks are the
-same (``search.chunk_size`` over the client's count of devices per worker), every set uses the
+same (``evaluation.chunk_size`` over the client's count of devices per worker), every set uses the
 same PRNG key (common random numbers), and a set's objective does not depend on the chunk it
 runs in.
 """
@@ -24,10 +25,12 @@ from typing import Any, Callable, Sequence
 import jax
 import numpy as np
 
-from gslam_jax.tuning import search as S
 from gslam_jax import slam
 from gslam_jax.config import Config
 from gslam_jax.run import Run
+from gslam_jax.tuning.evaluation import chunk_size, evaluate
+from gslam_jax.tuning.search import SearchResult, design_values, finish
+from gslam_jax.tuning.space import SearchError, SearchSpace
 
 __all__ = ["evaluate_chunk", "distributed_evaluate", "distributed_search"]
 
@@ -35,11 +38,11 @@ __all__ = ["evaluate_chunk", "distributed_evaluate", "distributed_search"]
 def evaluate_chunk(values: np.ndarray, run: Run, config: Config, names: tuple[str, ...],
                    key_data: np.ndarray, objective: str, path: str) -> np.ndarray:
     """On a worker: the objectives of one chunk [B, d], sharded over that worker's JAX devices
-    in one call (``search.evaluate`` with ``batch`` = B)."""
-    inputs, cfg = S.search_inputs(run, config, names)
+    in one call (``evaluation.evaluate`` with ``batch`` = B)."""
+    inputs, cfg = slam.run_arrays(run, config)
     key = jax.random.wrap_key_data(np.asarray(key_data))
-    return S.evaluate(values, key, inputs, slam.filter_params(config), names, cfg, objective,
-                      path, batch=len(values), obs_base=S.obs_settings(config))
+    return evaluate(values, key, inputs, slam.filter_params(config), names, cfg, objective,
+                    path, batch=len(values))
 
 
 def distributed_evaluate(client: Any, values: np.ndarray, run: Run, config: Config,
@@ -49,13 +52,13 @@ def distributed_evaluate(client: Any, values: np.ndarray, run: Run, config: Conf
                          progress: Callable[[int, int], None] | None = None) -> np.ndarray:
     """Objective of every row of ``values`` [P, d], chunks spread over ``client``'s workers
     (a ``distributed.Client``). batch: sets per chunk (default: the sets split evenly over the
-    workers), rounded like the single-process search (``search.chunk_size`` with
+    workers), rounded like the single-process search (``evaluation.chunk_size`` with
     ``devices_per_worker``, default this process's device count)."""
     values = np.asarray(values, np.float64)
     P = len(values)
     workers = max(1, len(client.scheduler_info()["workers"]))
     nd = devices_per_worker or len(jax.devices())
-    batch = S.chunk_size(P, batch or math.ceil(P / workers), nd)
+    batch = chunk_size(P, batch or math.ceil(P / workers), nd)
     run_f, config_f = client.scatter([run, config], broadcast=True)
     key_data = np.asarray(jax.random.key_data(key))
     futures = {client.submit(evaluate_chunk, values[i:i + batch], run_f, config_f, tuple(names),
@@ -75,16 +78,16 @@ def distributed_evaluate(client: Any, values: np.ndarray, run: Run, config: Conf
     return out
 
 
-def distributed_search(client: Any, run: Run, config: Config, space: S.SearchSpace,
+def distributed_search(client: Any, run: Run, config: Config, space: SearchSpace,
                        design: str = "halton", n: int = 64, objective: str = "rms", *,
                        path: str = "mean", key: jax.Array | None = None, seed: int = 0,
                        batch: int | None = None, values: np.ndarray | None = None,
                        devices_per_worker: int | None = None,
-                       progress: Callable[[int, int], None] | None = None) -> S.SearchResult:
+                       progress: Callable[[int, int], None] | None = None) -> SearchResult:
     """``search.search`` on a Dask cluster (same arguments, same checks, same ranking)."""
-    values = S.design_values(run, space, design, n, objective, path, seed, values)
+    values = design_values(run, space, design, n, objective, path, seed, values)
     if objective == "rms":
-        slam.require_ground_truth(slam.ground_truth_mask(run), "rms", S.SearchError)
+        slam.require_ground_truth(slam.ground_truth_mask(run), "rms", SearchError)
     key = jax.random.key(config.filter.seed) if key is None else key
     t0 = time.perf_counter()
     first: list[float] = []
@@ -97,4 +100,4 @@ def distributed_search(client: Any, run: Run, config: Config, space: S.SearchSpa
 
     f = distributed_evaluate(client, values, run, config, space.names, key, objective, path,
                              batch, devices_per_worker, timed)
-    return S.finish(space, values, f, objective, time.perf_counter() - t0, first[0])
+    return finish(space, values, f, objective, time.perf_counter() - t0, first[0])

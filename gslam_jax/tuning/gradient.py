@@ -47,12 +47,13 @@ from gslam_jax.errors import InputError
 from gslam_jax.rbpf.motion import MotionParams, motion_stds
 from gslam_jax.rbpf import tilestore
 from gslam_jax.run import Run
-from gslam_jax.tuning.search import (FILTER_PARAM_NAMES, PARAM_NAMES, ObsSettings, base_values,
-                              obs_settings, observations_from_values, params_from_values,
-                              refines_obs, search_inputs)
+from gslam_jax.tuning.space import (FILTER_PARAM_NAMES, MOTION_PARAM_NAMES, SETTINGS,
+                                    TUNABLE_NAMES, base_values, observations_from_values,
+                                    params_from_values)
 
 __all__ = ["TUNE_OBJECTIVES", "TuneError", "TuneInputs", "TuneResult", "transition_score",
-           "sw_propose", "sw_resample", "sw_objectives", "objective_fn", "make_inputs", "tune", "default_names"]
+           "sw_propose", "sw_resample", "sw_objectives", "objective_fn", "make_inputs", "tune",
+           "default_names"]
 
 TUNE_OBJECTIVES = choices.TUNE_OBJECTIVES
 sg = lax.stop_gradient
@@ -62,7 +63,7 @@ class TuneError(InputError):
     """A bad tuning request; the message names the field."""
 
 
-TuneInputs = slam.RunArrays  # the Run's device arrays (``slam.run_arrays``)
+TuneInputs = slam.RunArrays  # the Run's device arrays (``slam.run_arrays``, raw observations)
 
 
 class Objectives(NamedTuple):
@@ -147,17 +148,16 @@ def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, rbpf.FilterConfig
 
 
 def objective_fn(log_values: Array, keys: Array, base: rbpf.FilterParams, inputs: TuneInputs,
-                 names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str,
-                 obs_base: ObsSettings = ObsSettings()) -> tuple[Array, Array]:
+                 names: tuple[str, ...], cfg: rbpf.FilterConfig, objective: str
+                 ) -> tuple[Array, Array]:
     """Loss to minimise at log parameter values [d], averaged over independent runs ``keys``
     [K]: ``-loglik / updates`` or the mean expected squared error (m^2); and, as the auxiliary
-    output, the map store's error bits over the runs (0: fine). With an observation setting in
-    ``names``, ``inputs.local_obs`` are raw (``search.search_inputs``)."""
+    output, the map store's error bits over the runs (0: fine). The raw ``inputs.local_obs``
+    are refined with the named observation settings, the others from ``inputs.obs``."""
     values = jnp.exp(log_values)
     params = params_from_values(values, names, base)
-    if refines_obs(names):
-        inputs = inputs._replace(local_obs=observations_from_values(values, names, obs_base,
-                                                                    inputs.local_obs))
+    inputs = inputs._replace(local_obs=observations_from_values(values, names, inputs.obs,
+                                                                inputs.local_obs))
     # lax.map, not vmap: under vmap the data-dependent resampling cond would become a select
     # over every map (both branches run, the copy loop over the whole batch).
     obj = lax.map(lambda k: sw_objectives(k, params, inputs, cfg), keys)
@@ -213,8 +213,8 @@ class TuneResult(NamedTuple):
 
 def default_names(objective: str) -> tuple[str, ...]:
     """The alphas for "loglik" (the tempered likelihood is not normalised in the betas), the
-    five filter parameters for "supervised"."""
-    return FILTER_PARAM_NAMES[:3] if objective == "loglik" else FILTER_PARAM_NAMES
+    filter parameters (alphas and betas) for "supervised"."""
+    return MOTION_PARAM_NAMES if objective == "loglik" else FILTER_PARAM_NAMES
 
 
 def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "adam",
@@ -235,20 +235,19 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     finite ground-truth position (x, y; headings are not used), a TuneError otherwise (the loss
     would be 0 for every parameter value). on_step(step, loss, values) is called after every
     step with the loss at the step's parameters and the updated values. Tunable: every
-    search parameter but min_points (a threshold: no gradient).
+    searchable setting but the integer thresholds (min_points: no gradient).
     """
     if objective not in TUNE_OBJECTIVES:
         raise TuneError(f"objective '{objective}' unknown; choose one of "
                         f"{', '.join(TUNE_OBJECTIVES)}")
     names = tuple(names) if names is not None else default_names(objective)
     for n in names:
-        if n not in PARAM_NAMES:
-            raise TuneError(f"unknown parameter '{n}'; tunable: "
-                            f"{', '.join(p for p in PARAM_NAMES if p != 'min_points')}")
-    if "min_points" in names:
-        raise TuneError("min_points is a threshold (the loss is flat between integers, no "
-                        "gradient); search it with gslam search instead")
-    if objective == "loglik" and any(n not in FILTER_PARAM_NAMES[:3] for n in names):
+        if n not in SETTINGS:
+            raise TuneError(f"unknown parameter '{n}'; tunable: {', '.join(TUNABLE_NAMES)}")
+        if SETTINGS[n].integer:
+            raise TuneError(f"{n} is a threshold (the loss is flat between integers, no "
+                            f"gradient); search it with gslam search instead")
+    if objective == "loglik" and any(n not in MOTION_PARAM_NAMES for n in names):
         raise TuneError("objective 'loglik' tunes the alphas only: the tempered likelihood "
                         "(eqs. 29-31) is not normalised in beta_prev/beta_new, nor across "
                         "observation settings (they change the data); use 'supervised'")
@@ -258,13 +257,12 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
         raise TuneError(f"optimizer '{optimizer}' is not an optax optimiser")
     if steps < 1 or runs_per_step < 1:
         raise TuneError("steps and runs_per_step must be at least 1")
-    inputs, cfg = search_inputs(run, config, names)
+    inputs, cfg = slam.run_arrays(run, config)
     if objective == "supervised":
         slam.require_ground_truth(inputs.mask, objective, TuneError)
     base = slam.filter_params(config)
     cur = base_values(config)
     cur.update(start or {})
-    obs_base = obs_settings(config)
     for n in names:
         if not (math.isfinite(cur[n]) and cur[n] > 0):
             raise TuneError(f"start value of '{n}' must be positive and finite, got {cur[n]}")
@@ -275,8 +273,7 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     t0 = time.perf_counter()
     for s in range(steps):
         keys = jax.random.split(key if crn else jax.random.fold_in(key, s), runs_per_step)
-        (loss, status), g = _value_and_grad(x, keys, base, inputs, names, cfg, objective,
-                                            obs_base)
+        (loss, status), g = _value_and_grad(x, keys, base, inputs, names, cfg, objective)
         tilestore.check_status(status, cfg.pool_size, f"tune step {s}: ")
         if not np.all(np.isfinite(np.asarray(g))):
             raise TuneError(f"non-finite gradient at step {s} for "

@@ -1,7 +1,7 @@
 """Search strategies beyond one fixed design, over any batched evaluator.
 
 An evaluator maps parameter values [P, d] to objectives [P] (lower is better) in one batched
-call (``search.evaluate``: vmapped / sharded over sets). Each strategy records a ``Trace``:
+call (``evaluation.evaluate``: vmapped / sharded over sets). Each strategy records a ``Trace``:
 after every evaluator call, the wall time since it started and its incumbent (best set so far
 by the evaluator's own scores), so a benchmark can re-score the incumbents on fresh keys and
 read off the time to reach a target.
@@ -21,7 +21,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from gslam_jax.tuning.search import SearchSpace, design_points
+from gslam_jax.tuning.designs import design_points
+from gslam_jax.tuning.space import SearchSpace
 
 __all__ = ["Evaluator", "Trace", "design_trace", "successive_halving", "tpe_search"]
 
