@@ -251,8 +251,6 @@ def test_sharded_on_two_cpu_devices(tmp_path):
 def test_observation_settings_match_the_config_path(small_run):
     """Searching min_variance, obs_weight and min_points scores each set as a run whose [map]
     config holds those values (``config_with_values``: min_points rounded up)."""
-    import dataclasses
-
     from gslam_jax import slam
 
     space = SP.parse_space({"min_variance": {"range": [1e-6, 1e-2], "log": True},
