@@ -28,7 +28,7 @@ from gslam_jax.tuning.evaluation import (OBJECTIVES, PATHS, auto_batch, default_
                                          evaluate)
 from gslam_jax.tuning.space import SearchError, SearchSpace
 
-__all__ = ["SearchError", "SearchResult", "rank", "design_values", "search", "finish"]
+__all__ = ["SearchResult", "rank", "design_values", "search", "finish"]
 
 PROGRESS_CHUNKS = 8  # chunks of a search whose sets run one after another (progress reports)
 
