@@ -1,7 +1,7 @@
 """Throughput of the batched search: P parameter sets x J particles in one jitted, vmapped and
 sharded call vs looping over the P sets one by one with ``run_filter`` (same run, same key).
 
-    XLA_FLAGS=--xla_force_host_platform_device_count=2 python experiments/bench_search.py
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 python -m experiments.bench_search
 
 Both sides are timed after compilation; the ratio is printed with the machine and versions.
 The two sides' objectives are compared set by set (the search's rows, sorted best first, matched
@@ -11,15 +11,12 @@ to the design's rows by their parameter values).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gslam_jax import rbpf  # noqa: E402
 from gslam_jax.tuning import designs as D  # noqa: E402
@@ -31,7 +28,7 @@ from gslam_jax.machine import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
 from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
-from common import report  # noqa: E402
+from experiments.common import report  # noqa: E402
 
 
 def objective_in_design_order(values: np.ndarray, result: S.SearchResult) -> np.ndarray:

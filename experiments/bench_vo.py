@@ -3,7 +3,7 @@ dense stereo (StereoSGBM) ms/frame, on the real KITTI frames resized to 512x384.
 the dense stereo it reads feature disparities from (computed for the local maps anyway); the
 sparse-LK variant is timed too.
 
-    python experiments/bench_vo.py [--frames 30] [--max-features 600] [--repeats 3]
+    python -m experiments.bench_vo [--frames 30] [--max-features 600] [--repeats 3]
 
 Each frame's time is the best of ``--repeats`` passes over the same frames, so that load from
 other processes on a shared machine does not decide the figure.

@@ -6,23 +6,19 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 from pathlib import Path
 from typing import Callable
 
 import jax
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from gslam_jax import choices  # noqa: E402
-from gslam_jax.tuning.evaluation import evaluate  # noqa: E402
-from gslam_jax import slam  # noqa: E402
-from gslam_jax.config import Config  # noqa: E402
-from gslam_jax.datasets.sim import simulate_run  # noqa: E402
-from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
-from gslam_jax.run import Run  # noqa: E402
-from gslam_jax.sim.vonoise import VO_PROFILES  # noqa: E402
+from gslam_jax import choices, slam
+from gslam_jax.config import Config
+from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.run import Run
+from gslam_jax.sim.vonoise import VO_PROFILES
+from gslam_jax.tuning.evaluation import evaluate
+from gslam_jax.vo.localmap import LocalMapParams
 
 ALPHAS = ("alpha_d", "alpha_theta_d", "alpha_theta")
 

@@ -1,7 +1,7 @@
 """Dense JAX filter vs tiled copy-on-write reference (paper 6.3, Fig. 4): agreement, time, memory.
 
-    python experiments/compare_tiled.py --particles 200 --out results/compare_tiled
-    python experiments/compare_tiled.py --exact ...   # no FMA in XLA: bit-equal discrete choices
+    python -m experiments.compare_tiled --particles 200 --out results/compare_tiled
+    python -m experiments.compare_tiled --exact ...   # no FMA in XLA: bit-equal discrete choices
 
 Default course: the simulated mars-yard-a (first 600 frames); ``--run file.npz`` uses a Run file.
 """

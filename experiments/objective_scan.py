@@ -6,7 +6,7 @@ batched search, averaged over several keys: the log marginal likelihood estimate
 ``loglik`` objective of ``gslam search`` / ``gslam tune``) and the RMS position error. A
 recovery of the true alphas by tuning can only work where the objective peaks at factor 1.
 
-    python experiments/objective_scan.py --white --keys 4
+    python -m experiments.objective_scan --white --keys 4
 """
 
 from __future__ import annotations
@@ -14,11 +14,17 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_run, report
 
-from gslam_jax.tuning.evaluation import OBJECTIVES
-from gslam_jax.machine import environment
+from experiments.common import (
+    ALPHAS,
+    add_known_noise_arguments,
+    key_averaged,
+    known_noise_run,
+    report,
+)
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
+from gslam_jax.machine import environment
+from gslam_jax.tuning.evaluation import OBJECTIVES
 
 
 def main(argv: list[str] | None = None) -> dict:

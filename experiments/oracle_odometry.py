@@ -4,7 +4,7 @@ particles stay on the truth, so Gamma-SLAM's RMS measures how far the weights pu
 Also prints the tempering exponents the adaptive rule chose (their median is the factor by
 which the paper's 1/beta overstates the effective number of independent cells).
 
-    python experiments/oracle_odometry.py /tmp/kitti51.npz --seeds 0 1 2 3 [--set ...]
+    python -m experiments.oracle_odometry /tmp/kitti51.npz --seeds 0 1 2 3 [--set ...]
 """
 
 from __future__ import annotations

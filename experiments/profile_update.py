@@ -4,7 +4,7 @@ Runs the same chained updates as ``gslam bench`` under ``jax.profiler`` and sums
 events of every fused computation per update (XLA CPU runs independent thunks, e.g. the k and S
 scatter-adds, on different threads, so the rows can add up to more than the wall time).
 
-    python experiments/profile_update.py --particles 200 --local 64 --map 640
+    python -m experiments.profile_update --particles 200 --local 64 --map 640
 """
 
 from __future__ import annotations
@@ -12,15 +12,12 @@ from __future__ import annotations
 import argparse
 import collections
 import glob
-import sys
 import tempfile
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gslam_jax import choices, rbpf  # noqa: E402
 from gslam_jax.app.bench import _chained, _synthetic_state  # noqa: E402

@@ -17,7 +17,7 @@ Each strategy's incumbents (its best set after every call; the gradient's curren
 target is 1.05 x the fresh-key RMS of the Sobol-256 search's best set; the time to the target
 is the wall time at the first incumbent whose fresh-key RMS is within it.
 
-    nice -n 5 python experiments/search_strategies.py --kitti /tmp/kitti51.npz --out s.json
+    nice -n 5 python -m experiments.search_strategies --kitti /tmp/kitti51.npz --out s.json
 
 (the Run file from ``gslam run --source kitti --path ../shared/data/kitti-stereo-51
 --save-run /tmp/kitti51.npz``).
@@ -27,14 +27,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gslam_jax.tuning import designs as D  # noqa: E402
 from gslam_jax.tuning import evaluation as E  # noqa: E402
@@ -47,7 +45,7 @@ from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
 from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
 from gslam_jax.run import Run, load_run  # noqa: E402
-from common import report  # noqa: E402
+from experiments.common import report  # noqa: E402
 
 LOG = lambda lo, hi: {"range": [lo, hi], "log": True}  # noqa: E731
 SPACES = {

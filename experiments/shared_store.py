@@ -2,10 +2,10 @@
 length (issue 17): every point is one ``run_slam`` over a simulated course, in its own process
 (so its peak RSS is its own).
 
-    python experiments/shared_store.py --out results/shared_store            # the sweep + plot
+    python -m experiments.shared_store --out results/shared_store            # the sweep + plot
     (points are kept in OUT/points and reused; simulated courses in results/shared_store/runs)
-    python experiments/shared_store.py --point mars-yard-a 10000 shared 0   # one point (JSON)
-    python experiments/shared_store.py --ab 3      # dense vs shared per update as run, A/B x 3
+    python -m experiments.shared_store --point mars-yard-a 10000 shared 0   # one point (JSON)
+    python -m experiments.shared_store --ab 3      # dense vs shared per update as run, A/B x 3
 
 Time per update: the filter's wall time after its first chunk of ``CHUNK`` frames (which
 compiles), divided by the local-map updates after it, resampling included (as run). Memory:
@@ -35,6 +35,7 @@ def point(course: str, J: int, store: str, frames: int, unknown_cells: str = "ig
 
     from gslam_jax import slam
     from gslam_jax.config import Config
+    from gslam_jax.rbpf import maps
 
     c = Config()
     config = dataclasses.replace(
@@ -47,7 +48,8 @@ def point(course: str, J: int, store: str, frames: int, unknown_cells: str = "ig
     MB = 2 ** 20
     return {"course": course, "particles": J, "store": res.store, "unknown_cells": unknown_cells,
             "frames": run.num_frames, "updates": run.num_local_maps, "timed_updates": timed,
-            "map": list(cfg.map_shape), "pool_tiles": cfg.pool_size if res.store == "shared" else 0,
+            "map": list(cfg.map_shape),
+            "pool_tiles": maps.pool_tiles(cfg) if res.store == "shared" else 0,
             "ms_per_update": 1e3 * res.seconds / max(timed, 1),
             "resamplings": int(res.resampled.sum()),
             "map_alloc_MB": res.map_bytes / MB, "map_peak_MB": res.map_peak_bytes / MB,
@@ -91,7 +93,6 @@ RUN_CACHE = Path("results/shared_store/runs")  # simulated courses, made once pe
 
 def _course_run(course: str, frames: int, config):
     """The simulated course (seed 0, the config's local maps), cached as a Run file."""
-    from gslam_jax import slam
     from gslam_jax.datasets.sim import simulate_run
     from gslam_jax.vo.localmap import localmap_params
     from gslam_jax.run import load_run, save_run

@@ -3,7 +3,7 @@ stereo"): VO drift (final position error per distance travelled, start-anchored)
 end-to-end Gamma-SLAM RMS (after the 2-D rigid fit, all frames) for both sources, same course,
 same seed, same frames.
 
-    python experiments/sim_stereo.py [--course mars-yard-a] [--seed 0] [--frames 400]
+    python -m experiments.sim_stereo [--course mars-yard-a] [--seed 0] [--frames 400]
                                      [--particles 100] [--json out.json]
 
 The point-sensor run's VO is the simulator's noise model (``sim.vonoise``, calibrated to Table I);

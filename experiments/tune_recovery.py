@@ -5,7 +5,7 @@ alphas x 3), then reports tuned vs true alphas (target: within 25%) and the RMS 
 parameters vs the best RMS of a Sobol search (target: within 10%). RMS figures are means over
 fresh filter keys (``--eval-keys``); the search ranks by the mean over ``--search-keys`` keys.
 
-    python experiments/tune_recovery.py --frames 300 --steps 60 --search 256
+    python -m experiments.tune_recovery --frames 300 --steps 60 --search 256
 """
 
 from __future__ import annotations
@@ -15,13 +15,19 @@ import time
 
 import jax
 import numpy as np
-from common import ALPHAS, add_known_noise_arguments, key_averaged, known_noise_run, report
 
-from gslam_jax.tuning import designs as D
-from gslam_jax.tuning import space as SP
-from gslam_jax.tuning import gradient as TU
-from gslam_jax.machine import environment
+from experiments.common import (
+    ALPHAS,
+    add_known_noise_arguments,
+    key_averaged,
+    known_noise_run,
+    report,
+)
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
+from gslam_jax.machine import environment
+from gslam_jax.tuning import designs as D
+from gslam_jax.tuning import gradient as TU
+from gslam_jax.tuning import space as SP
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -4,7 +4,7 @@ of J), for a config with ``--set`` overrides.
 
     python -m gslam_jax.app.cli run --source kitti --path ../shared/data/kitti-stereo-51 \
         --save-run /tmp/kitti51.npz
-    python experiments/weights_scan.py /tmp/kitti51.npz --seeds 0 1 2 3 \
+    python -m experiments.weights_scan /tmp/kitti51.npz --seeds 0 1 2 3 \
         [--config configs/kitti.toml] [--set filter.tempering=fixed] [--json out.json]
 """
 

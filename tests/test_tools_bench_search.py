@@ -1,16 +1,11 @@
 """experiments/bench_search.py checks the batched search against the loop set by set."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "experiments"))
-
-import bench_search as B  # noqa: E402
-
-from gslam_jax.tuning import search as S  # noqa: E402
+from experiments import bench_search as B
+from gslam_jax.tuning import search as S
 
 
 def test_objectives_are_compared_per_parameter_set():

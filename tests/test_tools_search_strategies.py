@@ -1,17 +1,12 @@
 """experiments/search_strategies.py: the course prefix and the time to the 5% band."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 from synthetic import make_run
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "experiments"))
-
-import search_strategies as B  # noqa: E402
-
-from gslam_jax.tuning import strategies as ST  # noqa: E402
-from gslam_jax.run import validate_run  # noqa: E402
+from experiments import search_strategies as B
+from gslam_jax.run import validate_run
+from gslam_jax.tuning import strategies as ST
 
 
 def test_prefix_run_keeps_the_frames_and_the_local_maps_they_use():
