@@ -19,7 +19,6 @@ from typing import Any
 
 from gslam_jax import choices
 from gslam_jax.errors import InputError
-from gslam_jax.sim.courses import COURSES
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
            "StereoSection", "Config", "read_toml", "load_config", "parse_config",
@@ -290,6 +289,8 @@ def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config
     keys override the shared settings for that course only, as the paper tuned its noise
     parameters per environment (7.3). Unknown course names are errors that name the file.
     """
+    from gslam_jax.sim.courses import COURSES  # here: config stays below every other layer
+
     if path is None:
         return Config(), {}
     data = read_toml(path)

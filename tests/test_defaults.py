@@ -1,36 +1,53 @@
-"""One default per setting and one list of allowed values per enumerated setting: the filter's
-own defaults, the config's, the documented ones and the command line's must not drift apart."""
+"""One default per setting and one list of allowed values per enumerated setting: the config's
+defaults (which the filter's static config and params take as theirs), the documented ones and
+the command line's must not drift apart."""
 
 import dataclasses
 import re
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
+from synthetic import make_run
 
 from gslam_jax import choices, rbpf
 from gslam_jax.rbpf import resampling
 from gslam_jax.app.cli import build_parser
+from gslam_jax import slam
 from gslam_jax.config import Config, ConfigError, apply_overrides, load_config
 from gslam_jax.vo.localmap import LocalMapParams
-from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.tiled import numerics
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_filter_config_defaults_are_the_config_defaults():
-    f = Config().filter
-    cfg = rbpf.FilterConfig(f.particles, (8, 8), (0.0, 0.0), 0.16, 8)
-    for name, section_key in [("resampler", "resampler"), ("resample_ratio", "resample_ratio"),
-                              ("unknown_cells", "unknown_cells"),
-                              ("unknown_samples", "unknown_samples"),
-                              ("particle_block", "particle_block"),
-                              ("tempering", "tempering"), ("ess_target", "ess_target")]:
-        assert getattr(cfg, name) == getattr(f, section_key), name
-    params = rbpf.FilterParams()
-    assert (params.beta_prev, params.beta_new) == (f.beta_prev, f.beta_new)
-    assert MotionParams() == tuple(dataclasses.asdict(Config().motion).values())
+def test_every_filter_setting_of_the_config_reaches_the_filter():
+    """The filter's static config and params are built from a Config (``slam.filter_config``,
+    ``slam.filter_params``): each setting they share, set away from its default, arrives."""
+    run, _ = make_run(seed=1, steps=20)
+    changed = {"filter": dict(particles=9, resampler="systematic", resample_ratio=0.3,
+                              unknown_cells="sample", unknown_samples=77, particle_block=3,
+                              tempering="fixed", ess_target=0.7, beta_prev=0.2, beta_new=0.3),
+               "map": dict(store="shared", tile=16, pool_tiles=900),
+               "motion": dict(alpha_d=0.11, alpha_theta_d=0.12, alpha_theta=0.13)}
+    config = dataclasses.replace(Config(), **{
+        name: dataclasses.replace(getattr(Config(), name), **values)
+        for name, values in changed.items()})
+    cfg = slam.filter_config(config, run)
+    shared = [f for f in rbpf.FilterConfig._fields
+              if f in changed["filter"] or f in changed["map"]]
+    assert len(shared) == 10  # resampler .. ess_target, store, tile, pool_tiles
+    for name in shared:
+        assert getattr(cfg, name) == {**changed["filter"], **changed["map"]}[name], name
+    assert cfg.num_particles == 9
+    params = slam.filter_params(config)
+    np.testing.assert_allclose([float(v) for v in params.motion], [0.11, 0.12, 0.13], rtol=1e-6)
+    np.testing.assert_allclose([float(params.beta_prev), float(params.beta_new)], [0.2, 0.3],
+                               rtol=1e-6)
+
+
+def test_local_map_defaults_are_the_config_defaults():
     lm, m = Config().localmap, Config().map
     assert LocalMapParams() == LocalMapParams(resolution=m.resolution, cells=lm.cells,
                                               max_range=lm.max_range, min_height=lm.min_height,

@@ -21,11 +21,11 @@ __all__ = ["MotionParams", "motion_stds", "apply_motion", "sample_motion", "log_
 
 
 class MotionParams(NamedTuple):
-    """The three VO error constants of eqs. 2-3."""
+    """The three VO error constants of eqs. 2-3 (defaults: ``config.MotionSection``)."""
 
-    alpha_d: Array | float = 0.05
-    alpha_theta_d: Array | float = 0.01
-    alpha_theta: Array | float = 0.05
+    alpha_d: Array | float
+    alpha_theta_d: Array | float
+    alpha_theta: Array | float
 
 
 def motion_stds(u: Array, params: MotionParams) -> tuple[Array, Array, Array]:

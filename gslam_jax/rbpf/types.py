@@ -1,5 +1,9 @@
 """The filter's data: static settings, tunable parameters, the particle set, random numbers and
-per-frame outputs (NamedTuple pytrees)."""
+per-frame outputs (NamedTuple pytrees).
+
+The defaults of the settings a config file also holds are the config's own
+(``config.FilterSection``, ``MotionSection``, ``MapSection``): one place for each default.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ import jax
 from jax import Array
 
 from gslam_jax import choices
+from gslam_jax.config import FilterSection, MapSection, MotionSection
 from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.rbpf import tilestore
@@ -28,8 +33,7 @@ class FilterConfig(NamedTuple):
 
     map_origin is the world (x, y) of the corner of cell (0, 0); cell (i, j) covers
     x in [x0 + i res, x0 + (i+1) res), y likewise with j. map_shape entries are multiples of 8.
-    The defaults of the settings a config file also holds are ``config.FilterSection``'s (a
-    test checks that they agree).
+    ``slam.filter_config`` builds it from a ``Config``.
     """
 
     num_particles: int
@@ -37,18 +41,18 @@ class FilterConfig(NamedTuple):
     map_origin: tuple[float, float]
     resolution: float
     local_size: int
-    resampler: str = "multinomial"
-    resample_ratio: float = 0.5
-    unknown_cells: str = "ignore"
-    unknown_samples: int = 1024
-    update_map: bool = True
-    observed_cells: int = 0
-    particle_block: int = 0
-    tempering: str = "adaptive"  # "fixed": the paper's beta; "adaptive": ``gslam_jax.rbpf.tempering``
-    ess_target: float = 0.5    # "adaptive": conditional ESS fraction each update keeps
-    store: str = "dense"
-    tile: int = 32
-    pool_tiles: int = 0
+    resampler: str = FilterSection.resampler
+    resample_ratio: float = FilterSection.resample_ratio
+    unknown_cells: str = FilterSection.unknown_cells
+    unknown_samples: int = FilterSection.unknown_samples
+    update_map: bool = True    # False: weigh only, never write the maps (tests, diagnostics)
+    observed_cells: int = 0    # M, observed local cells one update evaluates (0: L*L)
+    particle_block: int = FilterSection.particle_block
+    tempering: str = FilterSection.tempering  # "fixed": the paper's beta; "adaptive": ``tempering``
+    ess_target: float = FilterSection.ess_target  # "adaptive": conditional ESS fraction kept
+    store: str = MapSection.store  # "dense" or "shared" (``rbpf.maps``; "auto" resolved before)
+    tile: int = MapSection.tile
+    pool_tiles: int = MapSection.pool_tiles
 
     @property
     def page_window(self) -> int:
@@ -149,9 +153,10 @@ class FilterConfig(NamedTuple):
 class FilterParams(NamedTuple):
     """The continuous (tunable, differentiable) parameters."""
 
-    motion: MotionParams = MotionParams()
-    beta_prev: Array | float = 0.05
-    beta_new: Array | float = 0.05
+    motion: MotionParams = MotionParams(MotionSection.alpha_d, MotionSection.alpha_theta_d,
+                                        MotionSection.alpha_theta)
+    beta_prev: Array | float = FilterSection.beta_prev
+    beta_new: Array | float = FilterSection.beta_new
 
 
 class FilterState(NamedTuple):
