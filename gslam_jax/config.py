@@ -57,7 +57,7 @@ class FilterSection:
     estimate: str = "smoothed"
     seed: int = 0
     # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
-    # a CPU, all particles on an accelerator; FilterConfig.update_block)
+    # a CPU, all particles on an accelerator; resolved on the host, slam.filter_config)
     particle_block: int = 0
 
 

@@ -16,25 +16,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from gslam_jax import rbpf
-from gslam_jax.rbpf import cells
-from gslam_jax.rbpf import unknown
+from gslam_jax.rbpf import cells, maps
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.rbpf.motion import MotionParams
-from gslam_jax.rbpf import tilestore
 from gslam_jax.run import Run, RunError, describe_cells, known_positions
 
 __all__ = ["MapExtent", "map_extent", "observed_cells", "filter_config",
-           "choose_store", "MapStoreNotice", "map_peak_bytes",
            "filter_params", "local_observations", "raw_observations", "ObsSettings",
-           "obs_settings", "refine_observations", "map_observations", "particle_map_bytes",
-           "map_memory", "check_map_memory", "RunArrays", "run_arrays", "ground_truth_mask",
+           "obs_settings", "refine_observations", "map_observations", "map_memory", "RunArrays",
+           "run_arrays", "ground_truth_mask",
            "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError"]
-
-
-class MapStoreNotice(UserWarning):
-    """``[map] store = "auto"`` chose the shared tile store: the dense maps would not fit."""
 
 
 class ExtentWarning(UserWarning):
@@ -82,31 +75,6 @@ def observed_cells(run: Run, multiple: int = 128) -> int:
     return min(L * L, multiple * max(1, math.ceil(most / multiple)))
 
 
-def particle_map_bytes(cfg: rbpf.FilterConfig) -> int:
-    """Bytes of the particles' maps: k and S [J, H, W] float32, plus the known-cell bits
-    [J, H/B, W/B, 2] uint32 in "sample" mode (resampling copies them in place); for the
-    shared store its pool (allocated up front), page tables and bookkeeping."""
-    J = cfg.num_particles
-    H, W = cfg.map_shape
-    B = unknown.BLOCK
-    if cfg.store == "shared":  # the pool (and its zero tile), page tables, refcounts, free stack
-        T = cfg.tile
-        bits = (T // B) ** 2 * 2 * 4 if cfg.unknown_cells == "sample" else 0
-        ty, tx = tilestore.pages_per_side(cfg.map_shape, T)
-        return (cfg.pool_size + 1) * (T * T * 2 * 4 + bits) + 4 * (J * ty * tx + 2 * cfg.pool_size)
-    bits = (H // B) * (W // B) * 2 * 4 if cfg.unknown_cells == "sample" else 0
-    return J * (H * W * 2 * 4 + bits)
-
-
-def map_peak_bytes(state: rbpf.FilterState, cfg: rbpf.FilterConfig) -> int:
-    """Most bytes the particle maps held at once: the dense maps (fixed), or the shared
-    store's peak of live tiles plus its page tables and bookkeeping."""
-    if state.tiles is None:
-        return particle_map_bytes(cfg)
-    unused = cfg.pool_size + 1 - int(state.tiles.peak)
-    return particle_map_bytes(cfg) - unused * tilestore.tile_bytes(state.tiles)
-
-
 def map_memory() -> tuple[int, str]:
     """(bytes, what): the memory the maps live in: the accelerator's limit where the device
     reports one, else the machine's physical memory or the process's limit (``ulimit -v``)
@@ -120,45 +88,11 @@ def map_memory() -> tuple[int, str]:
     return physical, "physical memory"
 
 
-def _gib(n: int) -> str:
-    """``n`` bytes in GiB, readable however large (Python ints beyond float range too)."""
-    return f"{n / 2**30:.1f}" if n < 2**50 else _large(n // 2**30)
-
-
-def _large(n: int) -> str:
-    """A whole number, as 1.23e45 beyond a billion (Python ints beyond float range too)."""
-    if n < 10**9:
-        return str(n)
-    digits = str(n)
-    return f"{digits[0]}.{digits[1:3]}e{len(digits) - 1}"
-
-
-def check_map_memory(cfg: rbpf.FilterConfig, available: int | None = None,
-                     extent: str = "") -> None:
-    """ConfigError, before anything is allocated, when the particle maps alone would exceed
-    ``available`` bytes (default: ``map_memory()``); ``extent`` says what sized the map."""
-    need = particle_map_bytes(cfg)
-    what = "memory"
-    if available is None:
-        available, what = map_memory()
-    if need > available:
-        H, W = cfg.map_shape
-        if cfg.store == "shared":
-            raise ConfigError(
-                f"the shared map store's pool needs {need / 2**30:.1f} GiB ([map] pool_tiles = "
-                f"{cfg.pool_size} tiles of {cfg.tile} x {cfg.tile} cells), more than this "
-                f"machine's {available / 2**30:.1f} GiB of {what}; lower [map] pool_tiles")
-        raise ConfigError(
-            f"the particle maps need {_gib(need)} GiB ({cfg.num_particles} particles x "
-            f"{_large(H)} x {_large(W)} cells of {cfg.resolution:g} m x 2 float32), more than "
-            f"this machine's {available / 2**30:.1f} GiB of {what}{extent}; use fewer [filter] "
-            f"particles, a coarser [map] resolution, a smaller [map] margin or [map] store = "
-            f"\"shared\"")
-
-
 def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
-    """Static filter settings for this Run (map sized from its VO path); a ConfigError when
-    the particle maps would not fit in memory (``check_map_memory``)."""
+    """Static filter settings for this Run: the map sized from its VO path, ``store = "auto"``
+    resolved for this machine's memory (``maps.choose_store``) and ``particle_block = 0``
+    for the default backend (``FilterConfig.update_block``); a ConfigError when the particle
+    maps would not fit in memory (``maps.check_memory``)."""
     if not math.isclose(run.resolution, config.map.resolution, rel_tol=1e-6):
         raise ConfigError(f"run resolution {run.resolution} m differs from [map] resolution "
                          f"{config.map.resolution} m; rebuild the local maps or change the config")
@@ -175,9 +109,11 @@ def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
         unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
         particle_block=f.particle_block, tempering=f.tempering, ess_target=f.ess_target,
         store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles)
-    cfg = choose_store(cfg).validate()
+    available, what = map_memory()
+    cfg = maps.choose_store(cfg, available, what).validate()
+    cfg = cfg._replace(particle_block=cfg.update_block)
     try:
-        check_map_memory(cfg, extent=_extent_cause(run, config))
+        maps.check_memory(cfg, available, what, extent=_extent_cause(run, config))
     except ConfigError as err:
         _check_steps(run, str(err))
         raise
@@ -202,26 +138,6 @@ def _check_steps(run: Run, memory: str) -> None:
         raise RunError(f"field 'controls': frame {t} moves {steps[t]:.4g} m in one step (the "
                        f"median step is {median:.3g} m), which makes the map too large: "
                        f"{memory.split(';')[0]}; check the Run's controls (units?)")
-
-
-def choose_store(cfg: rbpf.FilterConfig, available: int | None = None) -> rbpf.FilterConfig:
-    """Resolve ``store = "auto"``: dense when the dense maps fit in ``available`` bytes
-    (default: ``map_memory()``), else shared, saying so (``MapStoreNotice``)."""
-    if cfg.store != "auto":
-        return cfg
-    dense = cfg._replace(store="dense")
-    need = particle_map_bytes(dense)
-    what = "memory"
-    if available is None:
-        available, what = map_memory()
-    if need <= available:
-        return dense
-    shared = cfg._replace(store="shared")
-    warnings.warn(f"[map] store = \"auto\": dense maps would need {need / 2**30:.1f} GiB, more "
-                  f"than the {available / 2**30:.1f} GiB of {what}; using the shared tile store "
-                  f"({shared.pool_size} tiles, {particle_map_bytes(shared) / 2**30:.2f} GiB)",
-                  MapStoreNotice, stacklevel=2)
-    return shared
 
 
 def filter_params(config: Config) -> rbpf.FilterParams:
@@ -359,11 +275,11 @@ def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.n
 
 
 def _check_map_status(info: rbpf.StepInfo, start: int, cfg: rbpf.FilterConfig) -> None:
-    """The shared store's error (``tilestore.check_status``) at the first frame it flagged."""
+    """The map store's error (``maps.check_status``) at the first frame it flagged."""
     status = np.asarray(info.map_status)
     if status.any():
         i = int(np.argmax(status != 0))
-        tilestore.check_status(status[i], cfg.pool_size, where=f"frame {start + i}: ")
+        maps.check_status(status[i], cfg, where=f"frame {start + i}: ")
 
 
 class SlamResult(NamedTuple):
@@ -467,5 +383,5 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         exponent=infos.exponent, kmap=np.asarray(kmap), smap=np.asarray(smap),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
         empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
-        compile_seconds=compile_s, store=cfg.store, map_bytes=particle_map_bytes(cfg),
-        map_peak_bytes=map_peak_bytes(state, cfg), estimate=config.filter.estimate)
+        compile_seconds=compile_s, store=cfg.store, map_bytes=maps.map_bytes(cfg),
+        map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate)

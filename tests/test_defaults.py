@@ -88,7 +88,6 @@ def test_configuration_reference_shows_the_defaults():
 def test_one_list_of_allowed_values_per_setting():
     assert tuple(resampling.RESAMPLERS) == choices.RESAMPLERS
     assert tuple(numerics.RESAMPLERS) == choices.RESAMPLERS
-    assert rbpf.UNKNOWN_MODES == choices.UNKNOWN_CELLS
     for setting, allowed in (("resampler", choices.RESAMPLERS),
                              ("unknown_cells", choices.UNKNOWN_CELLS)):
         for value in allowed:

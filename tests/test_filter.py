@@ -9,7 +9,9 @@ import pytest
 from synthetic import World, make_run
 
 from gslam_jax import rbpf
-from gslam_jax.rbpf.importance import _log_importance
+from gslam_jax.rbpf.footprint import observation_cells
+from gslam_jax.rbpf.importance import _log_importance, log_importance
+from gslam_jax.rbpf.types import CPU_BLOCK_CELLS
 from gslam_jax import slam
 from gslam_jax.rbpf.cells import obs_from_stats
 from gslam_jax.config import Config, FilterSection, MotionSection
@@ -140,7 +142,7 @@ def test_observation_cells_match_float64_geometry():
     mismatches = 0
     for _ in range(50):
         pose = np.array([rng.uniform(-3.5, 3.5), rng.uniform(-2.5, 6.0), rng.uniform(-np.pi, np.pi)])
-        flat, on_map = map(np.asarray, rbpf.observation_cells(
+        flat, on_map = map(np.asarray, observation_cells(
             jnp.asarray(pose, jnp.float32), jnp.arange(L * L, dtype=jnp.int32), cfg))
         c, s = np.cos(pose[2]), np.sin(pose[2])
         gi = np.floor((pose[0] + c * a - s * b - cfg.map_origin[0]) / RES).astype(int).ravel()
@@ -165,9 +167,9 @@ def test_update_adds_every_on_map_cell_once():
         state = rbpf.init(cfg)._replace(pose=jnp.asarray([pose], jnp.float32))
         noise = rbpf.update_noise(jax.random.key(0), cfg)
         new, info = rbpf.observe(state, local, noise, rbpf.FilterParams(), cfg)
-        _, on_map = rbpf.observation_cells(state.pose[0], jnp.arange(L * L, dtype=jnp.int32), cfg)
+        _, on_map = observation_cells(state.pose[0], jnp.arange(L * L, dtype=jnp.int32), cfg)
         expected = float(np.sum(k.ravel()[np.asarray(on_map)]))
-        assert float(jnp.sum(new.kmap)) == expected
+        assert float(jnp.sum(new.maps.k)) == expected
         assert int(info.extent_violations) == int(expected < k.sum())
     assert expected < k.sum()  # the second pose really left the map
 
@@ -200,7 +202,7 @@ def test_compacted_update_equals_full_and_reports_overflow(mode):
                                     jnp.asarray(run.obs_index), obs, cfg))
     full, compact = outs
     np.testing.assert_allclose(compact.infos.log_w, full.infos.log_w, atol=1e-5)
-    np.testing.assert_array_equal(compact.final_state.kmap, full.final_state.kmap)
+    np.testing.assert_array_equal(compact.final_state.maps.k, full.final_state.maps.k)
     assert int(np.sum(compact.infos.dropped_cells)) == 0
     small = base._replace(observed_cells=8)
     state = rbpf.init(small)
@@ -228,16 +230,30 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
     np.testing.assert_array_equal(blocks.infos.ancestors, one.infos.ancestors)
     # float32 sums of a different fusion: a few ulp (the tiled equivalence tolerance is 1e-4)
     np.testing.assert_allclose(blocks.infos.log_w, one.infos.log_w, atol=1e-4)
-    np.testing.assert_array_equal(blocks.final_state.kmap, one.final_state.kmap)
-    np.testing.assert_allclose(blocks.final_state.smap, one.final_state.smap, rtol=1e-6)
-    np.testing.assert_array_equal(blocks.final_state.known_bits, one.final_state.known_bits)
+    np.testing.assert_array_equal(blocks.final_state.maps.k, one.final_state.maps.k)
+    np.testing.assert_allclose(blocks.final_state.maps.S, one.final_state.maps.S, rtol=1e-6)
+    np.testing.assert_array_equal(blocks.final_state.maps.known_bits,
+                                  one.final_state.maps.known_bits)
 
+    auto = CPU_BLOCK_CELLS // 4096 if jax.default_backend() == "cpu" else 200
     big = base._replace(num_particles=200, observed_cells=4096)
-    assert big.update_block == (rbpf.CPU_BLOCK_CELLS // 4096 if jax.default_backend() == "cpu"
-                                else 200)
+    assert big.update_block == auto
     assert big._replace(particle_block=7).update_block == 7
     with pytest.raises(ValueError, match="particle_block"):
         big._replace(particle_block=-1).validate()
+
+
+def test_filter_config_resolves_the_automatic_particle_block_on_the_host():
+    """``[filter] particle_block = 0`` becomes the default backend's block size when the config
+    is built, so the static config the update is traced with carries it; a set size is kept."""
+    run, _ = make_run(seed=2, steps=30)
+    cfg = slam.filter_config(_config(J=200, mode="ignore"), run)
+    auto = CPU_BLOCK_CELLS // cfg.max_observed if jax.default_backend() == "cpu" else 200
+    assert cfg.particle_block == min(auto, 200) > 0
+    config = _config(J=200, mode="ignore")
+    config = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
+                                                                    particle_block=7))
+    assert slam.filter_config(config, run).particle_block == 7
 
 
 @pytest.mark.parametrize("M", [200, 256])
@@ -253,8 +269,8 @@ def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
     kd = np.where(rng.uniform(size=D) < 0.8, rng.integers(1, 400, D), 0).astype(np.float32)
     Sd = (kd * rng.gamma(2.0, 0.02, D)).astype(np.float32)
     params = rbpf.FilterParams(beta_prev=0.3, beta_new=0.7)
-    spelled = rbpf.log_importance(k, S, kp, Sp, kd[np.arange(M) % D], Sd[np.arange(M) % D],
-                                  jnp.bool_(True), params, "sample")
+    spelled = log_importance(k, S, kp, Sp, kd[np.arange(M) % D], Sd[np.arange(M) % D],
+                             jnp.bool_(True), params, "sample")
     from gslam_jax.rbpf.cells import log_v_obs
     drawn = _log_importance(jnp.asarray(k), jnp.asarray(S), jnp.asarray(kp), jnp.asarray(Sp),
                                jnp.asarray(kd), jnp.asarray(Sd), jnp.bool_(True), params,
@@ -265,7 +281,7 @@ def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
 
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_written_rows_cover_every_written_cell(mode):
-    """FilterState.rows, which bounds what resampling copies, holds every map row with data
+    """DenseMaps.rows, which bounds what resampling copies, holds every map row with data
     after a run with resampling."""
     run, _ = make_run(seed=3, steps=40)
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
@@ -274,7 +290,7 @@ def test_written_rows_cover_every_written_cell(mode):
     out = rbpf.run_filter(jax.random.key(2), rbpf.FilterParams(),
                           jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs, cfg)
     assert int(np.sum(out.infos.resampled)) >= 2
-    lo, hi = (int(v) for v in out.final_state.rows)
-    written = np.nonzero(np.asarray(out.final_state.kmap).any(axis=(0, 2)))[0]
+    lo, hi = (int(v) for v in out.final_state.maps.rows)
+    written = np.nonzero(np.asarray(out.final_state.maps.k).any(axis=(0, 2)))[0]
     assert written.size and lo <= written.min() and written.max() < hi <= 160
     assert hi - lo < 160  # the bound is useful, not the whole map

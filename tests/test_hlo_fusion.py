@@ -2,7 +2,7 @@
 
 DESIGN.md asks that the log-gamma terms of all (particle, cell) pairs and their reduction to one
 log lambda per particle be one fused XLA computation, verified rather than assumed. What XLA
-(jax 0.10.2, CPU) actually produces for ``jax.vmap(rbpf.log_importance)`` over [J, W, W]
+(jax 0.10.2, CPU) actually produces for ``jax.vmap(importance.log_importance)`` over [J, W, W]
 windows, and what these tests pin down:
 
 * One elementwise loop fusion per importance term holds every lgamma table lookup (``gather``
@@ -24,7 +24,7 @@ windows, and what these tests pin down:
 * The cell-count reductions (N_prev, N_obs) are integer reductions of masks only and are not
   part of the log-gamma computation.
 
-Checked for ``cells.log_predictive_integer`` behind ``rbpf.log_importance``. ``rbpf.update``
+Checked for ``cells.log_predictive_integer`` behind ``importance.log_importance``. ``rbpf.update``
 runs the same kernel with log v of the observation passed in (computed once per update for all
 particles), which only moves those two logs out of the per-particle fusion.
 """
@@ -40,7 +40,7 @@ import pytest
 
 from gslam_jax.rbpf import cells
 from gslam_jax import rbpf
-from gslam_jax.rbpf.importance import _log_importance
+from gslam_jax.rbpf.importance import _log_importance, log_importance
 
 J, WN = 16, 96
 
@@ -102,7 +102,7 @@ def _compiled(mode: str, log_pred) -> list[Fusion]:
     x = jnp.ones((J, WN, WN), jnp.float32)
     fn = jax.jit(jax.vmap(lambda *a: _log_importance(*a, params, mode, log_pred)))
     if log_pred is cells.log_predictive_integer:  # the public entry point, same computation
-        fn = jax.jit(jax.vmap(lambda *a: rbpf.log_importance(*a, params, mode)))
+        fn = jax.jit(jax.vmap(lambda *a: log_importance(*a, params, mode)))
     hlo = fn.lower(x, x, x, x, x, x, jnp.ones((J,), bool)).compile().as_text()
     return _parse(hlo)
 

@@ -71,14 +71,14 @@ def test_keep_in_place_rearranges_without_changing_the_multiset():
 
 
 def test_gather_particles_in_place_equals_take():
-    from gslam_jax import rbpf
+    from gslam_jax.rbpf.densestore import gather_particles
 
     rng = np.random.default_rng(1)
     J = 12
     maps = (jnp.asarray(rng.normal(size=(J, 5, 7)), jnp.float32),
             jnp.asarray(rng.integers(0, 9, (J, 2, 3, 2)), jnp.uint32))
     anc = resampling.keep_in_place(jnp.asarray(rng.integers(0, 4, J), jnp.int32))
-    got = jax.jit(rbpf.gather_particles)(maps, anc)
+    got = jax.jit(gather_particles)(maps, anc)
     for g, m in zip(got, maps):
         np.testing.assert_array_equal(np.asarray(g), np.asarray(m)[np.asarray(anc)])
 
@@ -87,7 +87,7 @@ def test_gather_particles_in_place_equals_take():
 def test_gather_particles_copies_only_the_written_rows(lo, hi):
     """With a row range, maps whose rows outside [lo, hi) are zero come out as x[anc] (bands of
     ROW_BAND rows, the last one shifted back inside the map); rows outside are not copied."""
-    from gslam_jax import rbpf
+    from gslam_jax.rbpf.densestore import ROW_BAND, gather_particles
 
     rng = np.random.default_rng(lo + hi)
     J, H, W = 10, 150, 9
@@ -96,10 +96,10 @@ def test_gather_particles_copies_only_the_written_rows(lo, hi):
     bits = rng.integers(0, 9, (J, 3, 2, 2)).astype(np.uint32)
     anc = resampling.keep_in_place(jnp.asarray(rng.integers(0, 3, J), jnp.int32))
     rows = jnp.array([lo, hi], jnp.int32)
-    got = jax.jit(rbpf.gather_particles)((jnp.asarray(k), jnp.asarray(bits)), anc, rows)
+    got = jax.jit(gather_particles)((jnp.asarray(k), jnp.asarray(bits)), anc, rows)
     np.testing.assert_array_equal(np.asarray(got[0]), k[np.asarray(anc)])
     np.testing.assert_array_equal(np.asarray(got[1]), bits[np.asarray(anc)])
-    if hi <= H - rbpf.ROW_BAND:  # the last row, out of every band, keeps each slot's own value
+    if hi <= H - ROW_BAND:  # the last row, out of every band, keeps each slot's own value
         k[:, H - 1] = np.arange(J)[:, None]
-        got = jax.jit(rbpf.gather_particles)((jnp.asarray(k),), anc, rows)[0]
+        got = jax.jit(gather_particles)((jnp.asarray(k),), anc, rows)[0]
         np.testing.assert_array_equal(np.asarray(got)[:, H - 1, 0], np.arange(J))

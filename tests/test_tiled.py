@@ -86,8 +86,8 @@ def _equivalence() -> dict:
         d = rbpf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
                             jnp.asarray(run.obs_index), jnp.asarray(obs), cfg)
         i = jax.device_get(d.infos)
-        dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.kmap),
-                            np.asarray(d.final_state.smap), 0, 0.0, 0.0)
+        dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.maps.k),
+                            np.asarray(d.final_state.maps.S), 0, 0.0, 0.0)
         tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile_size=16 * 0.16)
         name = f"{mode}-{temper}"
         out[name] = check_agreement(dense, tiled, cfg)

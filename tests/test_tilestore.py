@@ -195,13 +195,14 @@ def test_filter_on_shared_store_equals_dense(mode):
     np.testing.assert_allclose(shared.infos.log_w, dense.infos.log_w, atol=1e-5)
     np.testing.assert_array_equal(shared.infos.pose, dense.infos.pose)
     assert not np.any(shared.infos.map_status)
-    tiles = shared.final_state.tiles
+    tiles = shared.final_state.maps
     k, S, bits = to_dense(tiles, base.map_shape)
-    np.testing.assert_array_equal(k, dense.final_state.kmap)
-    np.testing.assert_array_equal(S, dense.final_state.smap)
-    np.testing.assert_array_equal(bits, dense.final_state.known_bits)
+    np.testing.assert_array_equal(k, dense.final_state.maps.k)
+    np.testing.assert_array_equal(S, dense.final_state.maps.S)
+    np.testing.assert_array_equal(bits, dense.final_state.maps.known_bits)
     k5, S5 = gf.particle_map(shared.final_state, 5, shared_cfg)
-    np.testing.assert_array_equal(k5, dense.final_state.kmap[5])
+    np.testing.assert_array_equal(k5, dense.final_state.maps.k[5])
+    np.testing.assert_array_equal(S5, dense.final_state.maps.S[5])
     # the pool holds less than every particle's map
     assert int(tiles.peak) < 11 * int(np.prod(tiles.page.shape[1:]))
 
@@ -243,15 +244,34 @@ def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
 
 def test_auto_store_is_dense_when_it_fits_and_shared_with_a_notice_otherwise():
     from gslam_jax import rbpf as gf
-    from gslam_jax import slam
+    from gslam_jax.rbpf import maps
 
     cfg = gf.FilterConfig(100, (256, 256), (0.0, 0.0), 0.16, 64, store="auto")
-    need = slam.particle_map_bytes(cfg._replace(store="dense"))
-    assert slam.choose_store(cfg, available=need).store == "dense"
-    with pytest.warns(slam.MapStoreNotice, match="shared tile store"):
-        shared = slam.choose_store(cfg, available=need - 1)
+    need = maps.map_bytes(cfg._replace(store="dense"))
+    assert need == 100 * 256 * 256 * 2 * 4  # k and S, float32
+    assert maps.choose_store(cfg, available=need).store == "dense"
+    with pytest.warns(maps.MapStoreNotice, match="shared tile store"):
+        shared = maps.choose_store(cfg, available=need - 1)
     assert shared.store == "shared"
-    assert slam.particle_map_bytes(shared) < need
+    assert maps.map_bytes(shared) < need
+
+
+@pytest.mark.parametrize("mode", ["ignore", "sample"])
+def test_map_bytes_are_what_each_store_allocates(mode):
+    """The byte accounting the memory check and the results use (``maps.map_bytes``) is the
+    size of the arrays ``maps.init`` allocates, for either store (the dense store's two-int
+    row range and the tile store's three scalars aside); the dense store's peak is its
+    allocation."""
+    from gslam_jax import rbpf as gf
+    from gslam_jax.rbpf import maps
+
+    cfg = gf.FilterConfig(6, (96, 136), (0.0, 0.0), 0.16, 16, unknown_cells=mode)
+    for store, extra in (("dense", 2 * 4), ("shared", 3 * 4)):
+        c = cfg._replace(store=store, tile=16)
+        allocated = sum(x.nbytes for x in jax.tree.leaves(maps.init(c)))
+        assert allocated == maps.map_bytes(c) + extra, store
+    dense = cfg._replace(store="dense")
+    assert maps.peak_bytes(maps.init(dense), dense) == maps.map_bytes(dense)
 
 
 def test_search_and_tune_do_not_score_a_run_whose_pool_ran_out():

@@ -8,7 +8,7 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import slam
-from gslam_jax.rbpf import cells
+from gslam_jax.rbpf import cells, maps
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
 from gslam_jax.errors import InputError
 from gslam_jax.run import RunError
@@ -64,11 +64,11 @@ def test_map_memory_check_against_a_given_budget():
     run, _ = make_run(steps=15)
     cfg = slam.filter_config(_small_config(), run)
     H, W = cfg.map_shape
-    need = slam.particle_map_bytes(cfg)
+    need = maps.map_bytes(cfg)
     assert need == 8 * H * W * 2 * 4  # ignore mode: k and S only
-    slam.check_map_memory(cfg, available=need)
+    maps.check_memory(cfg, available=need)
     with pytest.raises(ConfigError, match="the particle maps need"):
-        slam.check_map_memory(cfg, available=need - 1)
+        maps.check_memory(cfg, available=need - 1)
 
 
 def test_weight_error_is_an_input_error():

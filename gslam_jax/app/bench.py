@@ -4,7 +4,7 @@ Times ``rbpf.update`` (footprint reads, fused log-gamma weights, scatter-add map
 normalisation, ESS; no resampling, which is a step of its own, so every update does the same work) the way
 ``run_filter`` executes it: ``chain`` updates in one ``lax.scan``, so buffers are reused and the
 maps are updated in place. Also times ``predict`` per frame and one forced resampling per update
-(``rbpf.gather_particles``: the maps of the particles left without offspring are overwritten by
+(``densestore.gather_particles``: the maps of the particles left without offspring are overwritten by
 their ancestors', over the map rows the updates have written so far; the survivors' maps are not
 copied). All after compilation, with the machine and library versions printed beside the figures.
 """
@@ -23,6 +23,7 @@ import numpy as np
 from jax import lax
 
 from gslam_jax import choices, rbpf
+from gslam_jax.rbpf import maps
 from gslam_jax.machine import environment, physical_memory
 
 __all__ = ["time_update", "time_course", "plot_scaling", "main"]
@@ -68,8 +69,6 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     """Per-update cost for J particles: best of ``repeats`` scans of ``chain`` updates. With
     ``store = "shared"`` the forced resamplings ("resample_ms") include the copy-on-write of
     every footprint's tiles at the next update."""
-    from gslam_jax.slam import particle_map_bytes
-
     rng = np.random.default_rng(seed)
     cfg = rbpf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
                             map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
@@ -87,7 +86,8 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     predict = _chained(lambda s: s._replace(pose=rbpf.predict(s.pose, u, eps, params)), chain)
     sec_predict, state = _best_seconds(predict, state, repeats)
     # The update and one forced resampling (``rbpf.observe``; the dead particles' maps copied
-    # from their ancestors over the written rows, ``rbpf.gather_particles``), minus the update.
+    # from their ancestors over the written rows, ``densestore.gather_particles``), minus the
+    # update.
     always = cfg._replace(resample_ratio=2.0)
     resample = _chained(lambda s: rbpf.observe(s, obs, noise, params, always)[0], chain)
     sec_resample, state = _best_seconds(resample, state, repeats)
@@ -97,7 +97,7 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
             "ms_per_update": 1e3 * sec * per, "us_per_particle": 1e6 * sec * per / J,
             "predict_us_per_particle": 1e6 * sec_predict * per / J,
             "resample_ms": 1e3 * max(sec_resample - sec, 0.0) * per,
-            "mb_per_particle": particle_map_bytes(cfg) / J / 1e6}
+            "mb_per_particle": maps.map_bytes(cfg) / J / 1e6}
 
 
 def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0) -> dict:

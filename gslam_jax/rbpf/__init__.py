@@ -1,39 +1,37 @@
-"""The Gamma-SLAM Rao-Blackwellized particle filter on dense per-particle maps (paper 6.1-6.2).
+"""The Gamma-SLAM Rao-Blackwellized particle filter (paper 6.1-6.2).
 
 Modules, one idea each:
 
+* ``cells``: the per-cell conjugate model (eq. 14) and its log predictive (eq. 26);
+* ``motion``: the motion model (eqs. 1-3); ``resampling``: the resamplers (eq. 23);
+  ``tempering``: the adaptive exponent on the importance factors; ``unknown``: eq. 31's
+  sampler of known cells;
 * ``types``: ``FilterConfig`` (static), ``FilterParams`` (tunable), ``FilterState`` (the
-  particles), ``UpdateNoise``, ``Observation``, ``UpdateInfo``, ``StepInfo``, ``RunOutput``;
+  particles), ``UpdateNoise``, ``UpdateInfo``, ``StepInfo``, ``RunOutput``;
 * ``footprint``: where a local map lands in each particle's map and what an update reads there;
 * ``importance``: the log importance factor of each particle (eqs. 26, 30 / 31);
-* ``maps``: the map store seam (allocate, read cells, scatter-add, copy on resampling), in
-  front of the dense store and the shared-tile store (``tilestore``);
+* ``maps``: the map-store seam (allocate, read, write, copy on resampling, sizing) in front
+  of the dense store (``densestore``) and the shared-tile store (``tilestore``);
 * ``kernel``: ``init``, ``predict``, ``update`` (weigh, write, normalise), ``resample``
   (ESS-gated), ``step`` (one frame), ``scan_frames`` and ``run_filter``.
+
+This package exports what a user of the filter calls; the rest is imported from its module.
 """
 
-from gslam_jax.rbpf.footprint import (compact_observation, observation_cells, window_origin,
-                                      written_rows)
-from gslam_jax.rbpf.importance import log_importance
-from gslam_jax.rbpf.kernel import (Proposal, Resampler, ancestors, backtrack_path, best_slot,
-                                   frame_keys, init, motion_noise, observe, predict, propagate,
-                                   resample, run_filter, scan_frames, smoothed_mean_path, step,
-                                   update,
-                                   update_noise)
-from gslam_jax.rbpf.maps import ROW_BAND, gather_particles, map_status, particle_map
-from gslam_jax.rbpf.types import (CPU_BLOCK_CELLS, STORES, UNKNOWN_MODES, FilterConfig,
-                                  FilterParams, FilterState, Observation, RunOutput, StepInfo,
+from gslam_jax.rbpf.kernel import (Proposal, Resampler, backtrack_path, frame_keys, init,
+                                   motion_noise, observe, predict, resample, run_filter,
+                                   scan_frames, smoothed_mean_path, step, update, update_noise)
+from gslam_jax.rbpf.maps import particle_map
+from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, RunOutput, StepInfo,
                                   UpdateInfo, UpdateNoise)
 
 __all__ = [
     # types
-    "FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "Observation", "UpdateInfo",
-    "StepInfo", "RunOutput", "UNKNOWN_MODES", "CPU_BLOCK_CELLS", "STORES",
-    # kernel
-    "Proposal", "Resampler", "init", "motion_noise", "update_noise", "predict", "propagate",
-    "update", "ancestors", "resample", "observe", "step", "scan_frames", "frame_keys",
-    "run_filter", "backtrack_path", "smoothed_mean_path", "best_slot",
-    # footprint, importance, map store
-    "compact_observation", "observation_cells", "window_origin", "written_rows",
-    "log_importance", "gather_particles", "ROW_BAND", "particle_map", "map_status",
+    "FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "UpdateInfo", "StepInfo",
+    "RunOutput", "Proposal", "Resampler",
+    # the filter
+    "init", "motion_noise", "update_noise", "predict", "update", "resample", "observe", "step",
+    "scan_frames", "frame_keys", "run_filter",
+    # results
+    "backtrack_path", "smoothed_mean_path", "particle_map",
 ]

@@ -13,8 +13,7 @@ from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.types import FilterConfig, Observation
 
-__all__ = ["Footprint", "compact_observation", "observation_cells", "window_origin",
-           "written_rows", "read_footprints"]
+__all__ = ["Footprint", "compact_observation", "observation_cells", "read_footprints"]
 
 
 def compact_observation(local_obs: Array, cfg: FilterConfig) -> Observation:
@@ -54,33 +53,6 @@ def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig) -> tup
     return jnp.where(on_map, gi * W + gj, H * W), on_map
 
 
-def window_origin(pose: Array, cfg: FilterConfig) -> tuple[Array, Array, Array]:
-    """Top-left cell (i, j) of the block-aligned window that holds a particle's footprint.
-
-    Only "sample" mode uses it, to refresh the known-cell bits after a write. The ideal window
-    is centred on the particle's cell (aligned to ``cfg.block``); a window that would leave the
-    map is shifted back inside and flagged, never wrapped.
-    """
-    H, W = cfg.map_shape
-    Wn, b = cfg.window, cfg.block
-    ci = jnp.floor((pose[0] - cfg.map_origin[0]) / cfg.resolution).astype(jnp.int32)
-    cj = jnp.floor((pose[1] - cfg.map_origin[1]) / cfg.resolution).astype(jnp.int32)
-    oi = ((ci - Wn // 2) // b) * b
-    oj = ((cj - Wn // 2) // b) * b
-    ci_, cj_ = jnp.clip(oi, 0, H - Wn), jnp.clip(oj, 0, W - Wn)
-    return ci_, cj_, (ci_ != oi) | (cj_ != oj)
-
-
-def written_rows(rows: Array, pose: Array, cfg: FilterConfig) -> Array:
-    """``rows`` [lo, hi) widened to every map row an update from ``pose`` [J, 3] can write
-    (``FilterConfig.reach`` rows either side of each particle's row)."""
-    H, reach = cfg.map_shape[0], cfg.reach
-    r = jnp.floor((pose[:, 0] - cfg.map_origin[0]) / cfg.resolution)
-    r = jnp.clip(jnp.nan_to_num(r, nan=0.0), -reach, H + reach).astype(jnp.int32)
-    return jnp.stack([jnp.maximum(jnp.minimum(rows[0], jnp.min(r) - reach), 0),
-                      jnp.minimum(jnp.maximum(rows[1], jnp.max(r) + reach + 1), H)])
-
-
 class Footprint(NamedTuple):
     """What one update reads from the maps for a block of n particles ([n, ...] leaves)."""
 
@@ -95,11 +67,11 @@ class Footprint(NamedTuple):
     can_borrow: Array  # [n]
 
 
-def read_footprints(store, bits: Array, pose: Array, rows: Array,
+def read_footprints(store: maps.Maps, bits: Array, pose: Array, rows: Array,
                     unknown_u: Array, obs: Observation, cfg: FilterConfig) -> Footprint:
     """Everything the update reads from the maps of particles ``rows`` ([n]; ``pose``, ``bits``
-    and ``unknown_u`` are theirs). store: the maps of all particles (``maps.store_maps``:
-    dense [J, H*W] maps or the shared tile store)."""
+    and ``unknown_u`` are theirs). store: the maps of all particles (``FilterState.maps``),
+    read through ``maps.read``."""
     flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(pose)
     k_obs = jnp.where(on_map, obs.k, 0.0)
     S_obs = jnp.where(on_map, obs.S, 0.0)

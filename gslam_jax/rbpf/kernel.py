@@ -16,7 +16,7 @@ Run is a ``lax.scan`` of ``step`` (``scan_frames``, ``run_filter``); poses and r
 ancestors are kept per frame so the best particle's full path survives resampling
 (``backtrack_path``). Random numbers come from ``motion_noise`` and ``update_noise`` so that
 another implementation can be driven with exactly the same draws. The maps are touched only
-through ``rbpf.maps`` (the map store seam).
+through ``rbpf.maps`` (the map-store seam): nothing here knows which store holds them.
 """
 
 from __future__ import annotations
@@ -29,14 +29,9 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from gslam_jax.rbpf import cells
-from gslam_jax.rbpf import resampling
-from gslam_jax.rbpf import tempering
-from gslam_jax.rbpf import unknown
+from gslam_jax.rbpf import cells, maps, resampling, tempering
 from gslam_jax.rbpf.motion import apply_motion
-from gslam_jax.rbpf import maps, tilestore
-from gslam_jax.rbpf.footprint import (compact_observation, read_footprints, window_origin,
-                                      written_rows)
+from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import log_lambda
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Observation,
                                   RunOutput, StepInfo, UpdateInfo, UpdateNoise)
@@ -53,28 +48,13 @@ Resampler = Callable[[FilterState, Array, FilterConfig], tuple[FilterState, Arra
 
 
 def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
-    """All particles at ``start_pose`` with equal weights and empty maps."""
+    """All particles at ``start_pose`` with equal weights and empty maps (``maps.init``)."""
     cfg.validate()
     J = cfg.num_particles
-    H, W = cfg.map_shape
     start = jnp.zeros(3, jnp.float32) if start_pose is None else jnp.asarray(start_pose, jnp.float32)
-    nb = (H // unknown.BLOCK, W // unknown.BLOCK) if cfg.unknown_cells == "sample" else (0, 0)
-    tiles = None
-    if cfg.store == "shared":
-        tiles = tilestore.init(J, cfg.map_shape, cfg.tile, cfg.pool_size,
-                               bits=cfg.unknown_cells == "sample")
-        nb = (0, 0)
-    kmap, smap = maps.empty_maps(J, (0, 0) if tiles is not None else cfg.map_shape)
-    return FilterState(
-        pose=jnp.broadcast_to(start, (J, 3)),
-        log_w=jnp.full((J,), -math.log(J), jnp.float32),
-        kmap=kmap,
-        smap=smap,
-        known_bits=jnp.zeros((J,) + nb + (2,), jnp.uint32),
-        rows=jnp.array([H, 0], jnp.int32),
-        best=jnp.int32(0),
-        tiles=tiles,
-    )
+    return FilterState(pose=jnp.broadcast_to(start, (J, 3)),
+                       log_w=jnp.full((J,), -math.log(J), jnp.float32),
+                       maps=maps.init(cfg), best=jnp.int32(0))
 
 
 def motion_noise(key: Array, cfg: FilterConfig) -> Array:
@@ -103,7 +83,7 @@ def propagate(state: FilterState, u: Array, eps: Array, params: FilterParams) ->
 
 
 class _Weighed(NamedTuple):
-    maps: maps.Maps  # maps after eq. 14 (``maps.store_maps``)
+    maps: maps.Maps  # the maps after eq. 14
     log_lam: Array   # [J] log importance factors (eqs. 26, 30 / 31) against the old maps
     off_map: Array   # [J] some observed local cell fell outside the map
 
@@ -114,8 +94,8 @@ def _weigh_block(w: _Weighed, j0: Array, n: int, state: FilterState, obs: Observ
     """Particles j0 .. j0+n-1: read their footprints, weigh them, add the local map."""
     rows = j0 + jnp.arange(n, dtype=jnp.int32)
     take = partial(lax.dynamic_slice_in_dim, start_index=j0, slice_size=n)
-    f = read_footprints(w.maps, maps.block_bits(state, w.maps, j0, n, cfg), take(state.pose),
-                        rows, take(unknown_u), obs, cfg)
+    f = read_footprints(w.maps, maps.known_bits(w.maps, j0, n, cfg), take(state.pose), rows,
+                        take(unknown_u), obs, cfg)
     log_lam = log_lambda(f, log_v, params, cfg)
     new = w.maps
     if cfg.update_map:
@@ -135,8 +115,7 @@ def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
     of ``cfg.update_block`` particles at a time (see ``FilterConfig.particle_block``)."""
     J = cfg.num_particles
     B = cfg.update_block
-    w = _Weighed(maps.store_maps(state, cfg), jnp.zeros((J,), state.log_w.dtype),
-                 jnp.zeros((J,), bool))
+    w = _Weighed(state.maps, jnp.zeros((J,), state.log_w.dtype), jnp.zeros((J,), bool))
     # log v of each observed cell is shared by every particle: computed once, not J times.
     block = partial(_weigh_block, state=state, obs=obs, log_v=cells.log_v_obs(obs.k, obs.S),
                     unknown_u=unknown_u, params=params, cfg=cfg)
@@ -148,20 +127,6 @@ def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
     if tail:
         w = block(w, jnp.int32(full * B), tail)
     return w
-
-
-def _refresh_known_bits(kmap: Array, bits: Array, pose: Array, cfg: FilterConfig) -> Array:
-    """"sample" mode: the known-cell bits around each particle's footprint, after eq. 14."""
-    if cfg.unknown_cells != "sample" or not cfg.update_map:
-        return bits
-
-    def refresh(kmap, bits, pose):
-        b, Wn = unknown.BLOCK, cfg.window
-        oi, oj, _ = window_origin(pose, cfg)
-        known = maps.read_window(kmap, (oi, oj), Wn) > 0
-        return lax.dynamic_update_slice(bits, unknown.pack_known(known), (oi // b, oj // b, 0))
-
-    return jax.vmap(refresh)(kmap, bits, pose)
 
 
 def best_slot(log_w: Array, ancestors: Array) -> Array:
@@ -190,20 +155,13 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     unnorm = state.log_w + phi * w.log_lam
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
-    if isinstance(w.maps, tilestore.TileStore):  # its writes refreshed the known-cell bits
-        kmap, smap, bits, tiles = state.kmap, state.smap, state.known_bits, w.maps
-    else:
-        kmap = maps.unflat_maps(w.maps[0], cfg.map_shape)
-        smap = maps.unflat_maps(w.maps[1], cfg.map_shape)
-        bits = _refresh_known_bits(kmap, state.known_bits, state.pose, cfg)
-        tiles = None
-    rows = written_rows(state.rows, state.pose, cfg)
+    new_maps = maps.finish_update(w.maps, state.pose, cfg)
     best = best_slot(log_w, jnp.arange(J, dtype=jnp.int32))
     info = UpdateInfo(ess=resampling.ess(log_w), log_lik=log_lik,
                       extent_violations=jnp.sum(w.off_map).astype(jnp.int32),
                       empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped,
                       exponent=phi)
-    return FilterState(state.pose, log_w, kmap, smap, bits, rows, best, tiles), info
+    return FilterState(state.pose, log_w, new_maps, best), info
 
 
 def ancestors(log_w: Array, u: Array, cfg: FilterConfig) -> Array:
@@ -221,7 +179,7 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
              ) -> tuple[FilterState, Array, Array]:
     """ESS-gated resampling (eq. 23; a ``Resampler``): when ESS < ``resample_ratio * J``
     (``resampling.below_threshold``: a tie within float rounding resamples), particles are
-    drawn by ``ancestors`` and take their maps (``maps.resample_maps``: dense maps copied over
+    drawn by ``ancestors`` and take their maps (``maps.resample``: dense maps copied over
     the rows written so far, shared page tables gathered). Returns (state,
     ancestors [J], resampled []).
 
@@ -236,8 +194,7 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
 
     def yes(s: FilterState) -> tuple[FilterState, Array]:
         anc = ancestors(lw, u, cfg)
-        s = maps.resample_maps(s, anc)
-        return s._replace(pose=jnp.take(s.pose, anc, axis=0),
+        return s._replace(maps=maps.resample(s.maps, anc), pose=jnp.take(s.pose, anc, axis=0),
                           log_w=new_log_w(jnp.take(s.log_w, anc))), anc
 
     def keep(s: FilterState) -> tuple[FilterState, Array]:
@@ -256,7 +213,7 @@ def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fi
                            ess=upd.ess, resampled=resampled, updated=jnp.bool_(True),
                            log_lik=upd.log_lik, extent_violations=upd.extent_violations,
                            empty_obs=upd.empty_obs, dropped_cells=upd.dropped_cells,
-                           map_status=maps.map_status(state), exponent=upd.exponent)
+                           map_status=maps.status(state.maps), exponent=upd.exponent)
 
 
 def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
@@ -266,7 +223,7 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
                     ess=resampling.ess(state.log_w), resampled=jnp.bool_(False),
                     updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
                     extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False),
-                    dropped_cells=jnp.int32(0), map_status=maps.map_status(state),
+                    dropped_cells=jnp.int32(0), map_status=maps.status(state.maps),
                     exponent=jnp.float32(1.0))
 
 

@@ -104,7 +104,7 @@ def keep_in_place(ancestors: Array) -> Array:
     Slot i gets ancestor i when particle i has offspring; the slots of particles without
     offspring, in increasing order, get the extra copies, parents in increasing order. Maps then
     only move into slots whose particle died, from slots that keep theirs, so resampling can
-    copy them in place (``rbpf.gather_particles``). Particle order carries no meaning in the
+    copy them in place (``densestore.gather_particles``). Particle order carries no meaning in the
     filter, so this changes nothing but the cost.
     """
     J = ancestors.shape[0]

@@ -36,7 +36,8 @@ from gslam_jax.errors import InputError
 
 __all__ = ["TileStore", "POOL_EXHAUSTED", "WINDOW_EXCEEDED", "PoolExhaustedError", "init",
            "pages_per_side", "window_tiles", "pool_index", "read", "known_bits", "prepare",
-           "add", "write", "resample", "to_dense", "live_tiles", "tile_bytes", "check_status"]
+           "add", "write", "resample", "to_dense", "live_tiles", "tile_bytes", "nbytes",
+           "peak_bytes", "check_status"]
 
 POOL_EXHAUSTED = 1   # status bit: a block needed more fresh tiles than the pool had free
 WINDOW_EXCEEDED = 2  # status bit: a particle's written cells spanned more pages than ``window``
@@ -306,6 +307,26 @@ def tile_bytes(store: TileStore) -> int:
     """Bytes of one pool tile: its k, S and known-cell bits."""
     return sum(x.dtype.itemsize * math.prod(x.shape[1:])
                for x in (store.kpool, store.spool, store.bpool))
+
+
+def nbytes(num_particles: int, map_shape: tuple[int, int], tile: int, pool_tiles: int,
+           bits: bool) -> int:
+    """Bytes ``init`` allocates: the pool with its zero tile (k, S and, with ``bits``, the
+    known-cell bits of each tile), the page tables, the reference counts and the free stack."""
+    T, B = tile, unknown.BLOCK
+    bit_bytes = (T // B) ** 2 * 2 * 4 if bits else 0
+    ty, tx = pages_per_side(map_shape, T)
+    return (pool_tiles + 1) * (T * T * 2 * 4 + bit_bytes) + 4 * (num_particles * ty * tx
+                                                                 + 2 * pool_tiles)
+
+
+def peak_bytes(store: TileStore) -> int:
+    """Most bytes the store held at once (``nbytes`` less the tiles never live together): its
+    peak of live tiles plus the page tables and bookkeeping (host side: reads ``peak``)."""
+    J, ty, tx = store.page.shape
+    P, T = store.refcount.shape[0], _tile(store)
+    allocated = nbytes(J, (ty * T, tx * T), T, P, bits=store.bpool.shape[1] > 0)
+    return allocated - (P + 1 - int(store.peak)) * tile_bytes(store)
 
 
 def check_status(status: int | Array, pool_tiles: int, where: str = "") -> None:

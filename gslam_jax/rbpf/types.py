@@ -8,7 +8,7 @@ The defaults of the settings a config file also holds are the config's own
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 from jax import Array
@@ -17,15 +17,12 @@ from gslam_jax import choices
 from gslam_jax.config import FilterSection, MapSection, MotionSection
 from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf.motion import MotionParams
-from gslam_jax.rbpf import tilestore
 
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "UpdateInfo",
-           "StepInfo", "RunOutput", "Observation", "UNKNOWN_MODES", "CPU_BLOCK_CELLS"]
+           "StepInfo", "RunOutput", "Observation", "CPU_BLOCK_CELLS", "STORES"]
 
-UNKNOWN_MODES = choices.UNKNOWN_CELLS
 CPU_BLOCK_CELLS = 102_400  # footprint cells per update pass on CPU (FilterConfig.update_block)
 STORES = tuple(s for s in choices.MAP_STORES if s != "auto")  # "auto" is resolved before
-AUTO_POOL_MAPS = 4  # FilterConfig.pool_size: whole maps of shared history an auto pool holds
 
 
 class FilterConfig(NamedTuple):
@@ -55,34 +52,16 @@ class FilterConfig(NamedTuple):
     pool_tiles: int = MapSection.pool_tiles
 
     @property
-    def page_window(self) -> int:
-        """Pages per side one particle's update can write in the shared store (its reach)."""
-        return tilestore.window_tiles(self.reach, self.tile)
-
-    @property
-    def pool_size(self) -> int:
-        """Tiles in the shared store's pool (``pool_tiles``; 0: auto). Auto: four whole maps of
-        shared history plus, for every particle, the most tiles one update can give it
-        (``page_window`` squared: after a resampling each particle copies the tiles under its
-        footprint); never more than every particle's whole map (which cannot run out)."""
-        if self.pool_tiles:
-            return self.pool_tiles
-        ty, tx = tilestore.pages_per_side(self.map_shape, self.tile)
-        auto = AUTO_POOL_MAPS * ty * tx + self.num_particles * self.page_window ** 2
-        return min(auto, self.num_particles * ty * tx)
-
-    @property
     def update_block(self) -> int:
         """Particles per pass of the update's read-weigh-write (``particle_block``; 0: auto).
 
         Each pass reads a block's footprints, weighs them (eq. 26) and adds the local map to
         them (eq. 14) while they are still in cache. Auto: on a CPU, blocks of about
-        ``CPU_BLOCK_CELLS`` footprint cells (25 particles of a 64 x 64 local map: 34-36 us per
-        particle against 57-60 for one pass over J = 200, A/B in one process); on
-        accelerators, one pass over all particles (the device wants them all at once). Auto
-        reads the default backend when the update is traced; JAX may reuse that trace on
-        another backend in the same process, so set ``particle_block`` there (the block size
-        changes the speed; the results agree to float rounding).
+        ``CPU_BLOCK_CELLS`` footprint cells; on accelerators, one pass over all particles (the
+        device wants them all at once). A config built from a ``Config`` (``slam.
+        filter_config``) carries the size chosen on the host for the default backend; a
+        config built directly with 0 reads the default backend when the update is traced
+        (the block size changes the speed; the results agree to float rounding).
         """
         J = self.num_particles
         if self.particle_block:
@@ -160,23 +139,15 @@ class FilterParams(NamedTuple):
 
 
 class FilterState(NamedTuple):
-    """Particle set. known_bits is the unknown-cell sampler's state ([J, 0, 0, 2] if unused).
-
-    kmap, smap and known_bits are the dense map store, ``tiles`` the shared one (then kmap,
-    smap are [J, 0, 0] and known_bits [J, 0, 0, 2]; ``store = "dense"``: tiles is None). Only
-    ``rbpf.maps`` reads, writes and copies them (``init`` allocates them).
-    """
+    """The particle set. Only ``rbpf.maps`` reads, writes and copies ``maps``."""
 
     pose: Array        # [J, 3]
     log_w: Array       # [J] normalised
-    kmap: Array        # [J, H, W] degrees of freedom k
-    smap: Array        # [J, H, W] sums of squared deviations S
-    known_bits: Array  # [J, H/8, W/8, 2] uint32
-    rows: Array        # [2] int32: map rows [lo, hi) that any update may have written so far
+    maps: Any          # the particles' maps (``maps.Maps``): ``densestore.DenseMaps`` or
+                       # ``tilestore.TileStore``
     best: Array        # [] int32: slot of the highest-weight particle (``kernel.best_slot``):
                        # after a resampling, the one that was best before it (the weights are
                        # then all equal)
-    tiles: tilestore.TileStore | None = None  # the shared store's pool and page tables
 
 
 class UpdateNoise(NamedTuple):
@@ -225,7 +196,7 @@ class StepInfo(NamedTuple):
     empty_obs: Array     # bool: the local map had no informative cell
     dropped_cells: Array  # observed local cells beyond cfg.max_observed (0 when M suffices)
     map_status: Array    # [] int32 the shared store's sticky error bits (0: fine; dense: 0),
-                         # raised on the host by ``tilestore.check_status``
+                         # raised on the host by ``maps.check_status``
     exponent: Array      # exponent applied to the update's log importance factors (1: the
                          # paper's fixed beta or no update; < 1: adaptive tempering flattened them)
 

@@ -45,7 +45,7 @@ from gslam_jax import choices, rbpf, slam
 from gslam_jax.config import Config
 from gslam_jax.errors import InputError
 from gslam_jax.rbpf.motion import MotionParams, motion_stds
-from gslam_jax.rbpf import tilestore
+from gslam_jax.rbpf import maps
 from gslam_jax.run import Run
 from gslam_jax.tuning.space import (FILTER_PARAM_NAMES, MOTION_PARAM_NAMES, SETTINGS,
                                     TUNABLE_NAMES, base_values, observations_from_values,
@@ -109,12 +109,10 @@ def sw_resample(state: rbpf.FilterState, u: Array, cfg: rbpf.FilterConfig
                 ) -> tuple[rbpf.FilterState, Array, Array]:
     """The Scibior-Wood resampler (an ``rbpf.Resampler``): the filter's ESS-gated resampling
     (stop-gradient choice and ancestors) with new log weights ``-log J + lw[a] - sg(lw[a])``,
-    equal in value, so the ancestry's gradient survives."""
+    equal in value, so the ancestry's gradient survives. No gradient flows through the maps'
+    copies (the map lookup carries none either)."""
     J = cfg.num_particles
-    state = state._replace(kmap=sg(state.kmap), smap=sg(state.smap))
-    if state.tiles is not None:
-        state = state._replace(tiles=state.tiles._replace(kpool=sg(state.tiles.kpool),
-                                                          spool=sg(state.tiles.spool)))
+    state = state._replace(maps=sg(state.maps))
     return rbpf.resample(state, u, cfg, new_log_w=lambda lwa: -math.log(J) + (lwa - sg(lwa)))
 
 
@@ -139,7 +137,7 @@ def sw_objectives(key: Array, params: rbpf.FilterParams, inputs: TuneInputs,
     state, (ll, err) = lax.scan(frame, state, (keys, inputs.controls, inputs.obs_index,
                                                inputs.reference, inputs.mask))
     n = jnp.maximum(jnp.sum(inputs.mask), 1)
-    return Objectives(jnp.sum(ll), jnp.sum(err) / n, rbpf.map_status(state))
+    return Objectives(jnp.sum(ll), jnp.sum(err) / n, maps.status(state.maps))
 
 
 def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, rbpf.FilterConfig]:
@@ -274,7 +272,7 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     for s in range(steps):
         keys = jax.random.split(key if crn else jax.random.fold_in(key, s), runs_per_step)
         (loss, status), g = _value_and_grad(x, keys, base, inputs, names, cfg, objective)
-        tilestore.check_status(status, cfg.pool_size, f"tune step {s}: ")
+        maps.check_status(status, cfg, f"tune step {s}: ")
         if not np.all(np.isfinite(np.asarray(g))):
             raise TuneError(f"non-finite gradient at step {s} for "
                             f"{dict(zip(names, np.exp(np.asarray(x)).round(6)))}")

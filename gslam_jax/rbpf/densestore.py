@@ -1,0 +1,199 @@
+"""Dense map store: every particle owns whole [H, W] maps of k and S.
+
+Simple to index, and the fastest store while the maps fit in memory; but memory grows with
+particles x map area, and resampling copies the maps of the particles left without offspring
+(``gather_particles``). ``tilestore`` shares tiles between particles instead; ``rbpf.maps``
+chooses between the two. "sample" mode also keeps each map's known-cell bitmasks
+(``unknown.pack_known``), refreshed around every footprint after a write (``finish_update``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array, lax
+
+from gslam_jax.rbpf import unknown
+from gslam_jax.rbpf.types import FilterConfig
+
+__all__ = ["DenseMaps", "ROW_BAND", "init", "nbytes", "read_cells", "add_to_cells", "read",
+           "add", "known_bits", "window_origin", "written_rows", "finish_update",
+           "gather_particles", "resample"]
+
+ROW_BAND = 64  # map rows per copy when resampling copies only the written rows
+
+
+class DenseMaps(NamedTuple):
+    """The maps of J particles, one whole [H, W] map each."""
+
+    k: Array           # [J, H, W] float32 degrees of freedom k
+    S: Array           # [J, H, W] float32 sums of squared deviations S
+    known_bits: Array  # [J, H/8, W/8, 2] uint32 known-cell bits ("sample" mode; else [J, 0, 0, 2])
+    rows: Array        # [2] int32 map rows [lo, hi) that any update may have written so far
+
+
+def init(num_particles: int, map_shape: tuple[int, int], bits: bool) -> DenseMaps:
+    """J empty maps (every cell unknown). ``bits``: keep known-cell bitmasks."""
+    H, W = map_shape
+    shape = (num_particles, H, W)
+    nb = (H // unknown.BLOCK, W // unknown.BLOCK) if bits else (0, 0)
+    return DenseMaps(k=jnp.zeros(shape, jnp.float32), S=jnp.zeros(shape, jnp.float32),
+                     known_bits=jnp.zeros((num_particles,) + nb + (2,), jnp.uint32),
+                     rows=jnp.array([H, 0], jnp.int32))
+
+
+def nbytes(num_particles: int, map_shape: tuple[int, int], bits: bool) -> int:
+    """Bytes ``init`` allocates for the maps: k and S [J, H, W] float32, plus the known-cell
+    bits [J, H/8, W/8, 2] uint32 with ``bits`` (resampling copies them in place)."""
+    H, W = map_shape
+    B = unknown.BLOCK
+    bit_bytes = (H // B) * (W // B) * 2 * 4 if bits else 0
+    return num_particles * (H * W * 2 * 4 + bit_bytes)
+
+
+def _flat(maps: Array) -> Array:
+    """[J, H, W] -> [J, H*W], the layout ``read_cells`` and ``add_to_cells`` index."""
+    return maps.reshape(maps.shape[0], -1)
+
+
+def _indices(maps: Array, rows: Array, cells_: Array) -> tuple[Array, ...]:
+    """Index of cells_[i, m] of particle rows[i] in ``maps`` [J, H*W]: one flat index into
+    ``maps.reshape(-1)`` where J*H*W fits int32 (a 1-D gather or scatter is cheaper on CPU
+    than a batched one), else the (row, cell) pair."""
+    J, HW = maps.shape
+    if J * HW < 2 ** 31:
+        return (rows[:, None] * HW + cells_,)
+    return jnp.broadcast_to(rows[:, None], cells_.shape), cells_
+
+
+def read_cells(maps: Array, rows: Array, cells_: Array, on_map: Array) -> Array:
+    """maps[rows[i], cells_[i, m]] where on_map, else 0 ([J, H*W], [n], [n, M] -> [n, M])."""
+    idx = _indices(maps, rows, jnp.where(on_map, cells_, 0))
+    flat = maps.reshape(-1) if len(idx) == 1 else maps
+    return jnp.where(on_map, flat.at[idx].get(mode="promise_in_bounds"), 0.0)
+
+
+def add_to_cells(maps: Array, rows: Array, cells_: Array, values: Array) -> Array:
+    """maps[rows[i], cells_[i, m]] += values[m] (eq. 14); cells_ >= H*W (off the map) skipped.
+
+    Skipped entries add 0 to cell 0 instead of being dropped as out of bounds, so the scatter
+    can promise in-bounds indices: no bounds check per element."""
+    on_map = cells_ < maps.shape[1]
+    idx = _indices(maps, rows, jnp.where(on_map, cells_, 0))
+    vals = jnp.where(on_map, jnp.broadcast_to(values, cells_.shape), 0.0)
+    if len(idx) == 1:
+        return maps.reshape(-1).at[idx].add(vals, mode="promise_in_bounds").reshape(maps.shape)
+    return maps.at[idx].add(vals, mode="promise_in_bounds")
+
+
+def read(store: DenseMaps, particles: Array, cells_: Array, on_map: Array
+         ) -> tuple[Array, Array]:
+    """(k, S) [n, M] at flat map cells cells_ [n, M] of particles [n]; 0 where not on_map."""
+    return (read_cells(_flat(store.k), particles, cells_, on_map),
+            read_cells(_flat(store.S), particles, cells_, on_map))
+
+
+def add(store: DenseMaps, particles: Array, cells_: Array, k: Array, S: Array) -> DenseMaps:
+    """Eq. 14: add (k, S) [M] at flat map cells cells_ [n, M] (H*W: off the map, skipped) of
+    particles [n]."""
+    shape = store.k.shape
+    return store._replace(k=add_to_cells(_flat(store.k), particles, cells_, k).reshape(shape),
+                          S=add_to_cells(_flat(store.S), particles, cells_, S).reshape(shape))
+
+
+def known_bits(store: DenseMaps, j0: Array, n: int) -> Array:
+    """Known-cell bits [n, H/8, W/8, 2] of particles j0 .. j0+n-1."""
+    return lax.dynamic_slice_in_dim(store.known_bits, j0, n)
+
+
+def window_origin(pose: Array, cfg: FilterConfig) -> tuple[Array, Array, Array]:
+    """Top-left cell (i, j) of the block-aligned window that holds a particle's footprint.
+
+    The known-cell bits are refreshed over this window after a write. The ideal window is
+    centred on the particle's cell (aligned to ``cfg.block``); a window that would leave the
+    map is shifted back inside and flagged, never wrapped.
+    """
+    H, W = cfg.map_shape
+    Wn, b = cfg.window, cfg.block
+    ci = jnp.floor((pose[0] - cfg.map_origin[0]) / cfg.resolution).astype(jnp.int32)
+    cj = jnp.floor((pose[1] - cfg.map_origin[1]) / cfg.resolution).astype(jnp.int32)
+    oi = ((ci - Wn // 2) // b) * b
+    oj = ((cj - Wn // 2) // b) * b
+    ci_, cj_ = jnp.clip(oi, 0, H - Wn), jnp.clip(oj, 0, W - Wn)
+    return ci_, cj_, (ci_ != oi) | (cj_ != oj)
+
+
+def written_rows(rows: Array, pose: Array, cfg: FilterConfig) -> Array:
+    """``rows`` [lo, hi) widened to every map row an update from ``pose`` [J, 3] can write
+    (``FilterConfig.reach`` rows either side of each particle's row)."""
+    H, reach = cfg.map_shape[0], cfg.reach
+    r = jnp.floor((pose[:, 0] - cfg.map_origin[0]) / cfg.resolution)
+    r = jnp.clip(jnp.nan_to_num(r, nan=0.0), -reach, H + reach).astype(jnp.int32)
+    return jnp.stack([jnp.maximum(jnp.minimum(rows[0], jnp.min(r) - reach), 0),
+                      jnp.minimum(jnp.maximum(rows[1], jnp.max(r) + reach + 1), H)])
+
+
+def finish_update(store: DenseMaps, pose: Array, cfg: FilterConfig) -> DenseMaps:
+    """After an update from ``pose`` [J, 3] wrote the maps: the known-cell bits refreshed
+    around each footprint ("sample" mode) and the written rows widened (``written_rows``)."""
+    bits = store.known_bits
+    if cfg.unknown_cells == "sample" and cfg.update_map:
+
+        def refresh(k, bits, pose):
+            b, Wn = unknown.BLOCK, cfg.window
+            oi, oj, _ = window_origin(pose, cfg)
+            known = lax.dynamic_slice(k, (oi, oj), (Wn, Wn)) > 0
+            return lax.dynamic_update_slice(bits, unknown.pack_known(known),
+                                            (oi // b, oj // b, 0))
+
+        bits = jax.vmap(refresh)(store.k, bits, pose)
+    return store._replace(known_bits=bits, rows=written_rows(store.rows, pose, cfg))
+
+
+def gather_particles(particles, ancestors: Array, rows: Array | None = None):
+    """``x[ancestors]`` for every array of the pytree ``particles`` ([J, ...] leaves), in place.
+
+    ``ancestors`` must keep every surviving particle in its own slot (``resampling.
+    keep_in_place``): then only the slots of particles without offspring are overwritten, one
+    [H, W] map at a time, from slots that are never overwritten. No second [J, H, W] buffer is
+    allocated, and only the dead particles' maps are copied (about a third of J for uniform
+    weights) instead of all J. With ``rows`` [lo, hi) (``DenseMaps.rows``), the [J, H, W]
+    leaves are copied only over those rows, in bands of ``ROW_BAND``: no update has written
+    the others, which are zero in every map.
+    """
+    J = ancestors.shape[0]
+    moved = ancestors != jnp.arange(J, dtype=ancestors.dtype)
+    slots = jnp.nonzero(moved, size=J, fill_value=0)[0]
+
+    def whole(x, src, dst):
+        return lax.dynamic_update_index_in_dim(
+            x, lax.dynamic_index_in_dim(x, src, keepdims=False), dst, 0)
+
+    def banded(x, src, dst):
+        H, W = x.shape[1:]
+        band = min(ROW_BAND, H)
+
+        def one_band(b, x):
+            start = jnp.minimum(rows[0] + b * band, H - band)
+            piece = lax.dynamic_slice(x, (src, start, 0), (1, band, W))
+            return lax.dynamic_update_slice(x, piece, (dst, start, 0))
+
+        return lax.fori_loop(0, (rows[1] - rows[0] + band - 1) // band, one_band, x)
+
+    def copy_one(n, particles):
+        dst = slots[n]
+        src = ancestors[dst]
+        return jax.tree.map(
+            lambda x: banded(x, src, dst) if rows is not None and x.ndim == 3
+            else whole(x, src, dst), particles)
+
+    return lax.fori_loop(0, jnp.sum(moved), copy_one, particles)
+
+
+def resample(store: DenseMaps, ancestors: Array) -> DenseMaps:
+    """Particle i takes the maps of particle ancestors[i] (survivors kept in place,
+    ``resampling.keep_in_place``): the dead particles' maps copied over the written rows."""
+    k, S, bits = gather_particles((store.k, store.S, store.known_bits), ancestors, store.rows)
+    return store._replace(k=k, S=S, known_bits=bits)
