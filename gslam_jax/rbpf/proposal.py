@@ -1,0 +1,218 @@
+"""The observation-informed proposal: each particle's pose at an update drawn from a Gaussian
+fitted to its map score times its motion prior (as GMapping's improved proposal, Grisetti,
+Stachniss and Burgard 2007), weighted so that the filter stays a correct SMC.
+
+Between updates the particles move by the motion model's mean (eqs. 1-3 with zero noise) and
+carry the linearised covariance of the motion noise accumulated since their last update
+(``propagate_mean``). At an update, particle j's prior over its pose is N(m_j, P_j). In the
+whitened coordinates g (pose = m_j + C_j g, C_j C_j^T = P_j) the prior is N(0, I). The local map
+is scored (eq. 26 with eq. 30 / 31, tempered by phi) at candidates g_k; the target at a
+candidate is
+
+    s_k = phi log lambda_j(m_j + C_j g_k) - |g_k|^2 / 2,
+
+and the proposal is the Gaussian q_j = N(mu_j, Q_j) of the quadratic fitted to s at the
+candidates (``fit_proposal``): a grid around the prior mean first, then the same grid in the
+coordinates of that first fit, so that the last fit is made where the target's mass is. Where
+the score is flat (a straight road's along-track direction) the weights follow the prior there,
+so q_j follows the prior in that direction and is sharp only where the map is informative: no
+global switch. A pose drawn from q_j gets the exact importance weight of the tempered target,
+
+    log w_j += phi log lambda_j(x) + log N(g; 0, I) - log N(g; mu_j, Q_j),
+
+whatever q_j is: the fit only decides how efficient the draw is, never what the filter targets.
+With a single candidate (``proposal_points = 1``) q_j is the prior itself and the increment is
+the motion proposal's, phi log lambda_j(x).
+
+The tempering exponent phi is chosen once per update from the scores at the prior means (the
+adaptive rule of ``tempering``, or 1) and used by both the fit and the weights. The candidates
+are scored for all particles at once, one candidate after another (``lax.map``), through the
+same footprint reads and eq. 26 kernel as the update.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array, lax
+
+from gslam_jax.rbpf import cells, maps
+from gslam_jax.rbpf.footprint import read_footprints
+from gslam_jax.rbpf.importance import log_lambda
+from gslam_jax.rbpf.motion import MotionParams, motion_stds
+from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
+
+__all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
+           "score_candidates", "fit_proposal", "draw", "JITTER"]
+
+# Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
+# moves the position along-track only, so the covariance is singular until the heading noise
+# has spread it across; the floor keeps the Cholesky factor finite.
+JITTER = (1e-8, 1e-8, 1e-10)
+
+
+def motion_covariance_step(pose: Array, cov: Array, u: Array, params: MotionParams) -> Array:
+    """Linearised covariance [..., 3, 3] of the pose after one motion step from ``pose`` with
+    covariance ``cov`` and control ``u`` (eqs. 1-3: along-track scale noise alpha_d, heading
+    noise sigma_theta): F P F^T + G G^T."""
+    _, _, sigma_theta = motion_stds(u, params)
+    c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
+    wx = c * u[..., 0] - s * u[..., 1]  # the step in the world frame
+    wy = s * u[..., 0] + c * u[..., 1]
+    zero, one = jnp.zeros_like(wx), jnp.ones_like(wx)
+    F = jnp.stack([jnp.stack([one, zero, -wy], -1),
+                   jnp.stack([zero, one, wx], -1),
+                   jnp.stack([zero, zero, one], -1)], -2)
+    G = jnp.stack([jnp.stack([params.alpha_d * wx, zero], -1),
+                   jnp.stack([params.alpha_d * wy, zero], -1),
+                   jnp.stack([zero, sigma_theta * one], -1)], -2)
+    return F @ cov @ jnp.swapaxes(F, -1, -2) + G @ jnp.swapaxes(G, -1, -2)
+
+
+def propagate_mean(pose: Array, cov: Array, u: Array, params: MotionParams
+                   ) -> tuple[Array, Array]:
+    """One frame of the informed proposal's prediction: the motion model's mean (eq. 1 without
+    noise) and the accumulated covariance (``motion_covariance_step``)."""
+    from gslam_jax.rbpf.motion import apply_motion
+
+    new = apply_motion(pose, u, jnp.zeros(pose.shape[:-1] + (2,), pose.dtype), params)
+    return new, motion_covariance_step(pose, cov, u, params)
+
+
+def candidate_grid(points: int, span: float) -> tuple[Array, float]:
+    """The whitened candidate offsets [points^3, 3] on a regular grid over [-span, span] per
+    axis (the centre, g = 0, first), and the grid spacing h (0 for a single point)."""
+    if points == 1:
+        return jnp.zeros((1, 3), jnp.float32), 0.0
+    axis = jnp.linspace(-span, span, points, dtype=jnp.float32)
+    g = jnp.stack(jnp.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    order = jnp.argsort(jnp.sum(g * g, axis=1), stable=True)  # the centre first
+    return g[order], 2.0 * span / (points - 1)
+
+
+def _factor(cov: Array) -> Array:
+    """Lower Cholesky factor [J, 3, 3] of the prior covariance with the JITTER floor."""
+    return jnp.linalg.cholesky(cov + jnp.diag(jnp.asarray(JITTER, cov.dtype)))
+
+
+def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unknown_u: Array,
+                     obs: Observation, params: FilterParams, cfg: FilterConfig) -> Array:
+    """log lambda [J, K] (eq. 26 with eq. 30 / 31) of the local map at every particle's
+    candidate poses m_j + C_j g_jk (``g`` [J, K, 3]), against the maps before this update."""
+    J = cfg.num_particles
+    rows = jnp.arange(J, dtype=jnp.int32)
+    bits = maps.known_bits(store, jnp.int32(0), J, cfg)
+    log_v = cells.log_v_obs(obs.k, obs.S)
+
+    def one(g_k: Array) -> Array:
+        pose = mean + jnp.einsum("jab,jb->ja", chol, g_k)
+        f = read_footprints(store, bits, pose, rows, unknown_u, obs, cfg)
+        return log_lambda(f, log_v, params, cfg)
+
+    return lax.map(one, jnp.swapaxes(g, 0, 1)).T
+
+
+Score = Callable[[Array], Array]
+"""Candidates g [J, K, 3] (whitened) -> their log importance factors [J, K]."""
+
+
+def _quadratic_design(t: Array) -> Array:
+    """Least-squares operator [10, K] that takes values at the grid points ``t`` [K, 3] to the
+    coefficients of c + b.t + sum_a q_aa t_a^2 + sum_{a<b} q_ab t_a t_b."""
+    x, y, z = t[:, 0], t[:, 1], t[:, 2]
+    X = jnp.stack([jnp.ones_like(x), x, y, z, x * x, y * y, z * z, x * y, x * z, y * z], -1)
+    return jnp.linalg.pinv(X)
+
+
+def _gaussian_of_quadratic(coef: Array, span: float, spacing: float) -> tuple[Array, Array]:
+    """Mean [J, 3] and covariance [J, 3, 3] of exp(quadratic) (the coefficients [J, 10] of
+    ``_quadratic_design``), in grid coordinates: precision P = -Hessian with its eigenvalues
+    at least 1 / span^2 (a flat or convex direction gets the grid's width), the mode P^-1 b
+    clipped to the grid, and a covariance never sharper than the grid resolves (precision at
+    most 64 / spacing^2: a later stage, on a finer grid, sharpens it)."""
+    b = coef[:, 1:4]
+    d, xy, xz, yz = coef[:, 4:7], coef[:, 7], coef[:, 8], coef[:, 9]
+    H = jnp.stack([jnp.stack([2 * d[:, 0], xy, xz], -1),
+                   jnp.stack([xy, 2 * d[:, 1], yz], -1),
+                   jnp.stack([xz, yz, 2 * d[:, 2]], -1)], -2)
+    vals, vecs = jnp.linalg.eigh(-H)
+    vals = jnp.maximum(vals, 1.0 / span ** 2)
+    mode = jnp.einsum("jab,jb,jcb,jc->ja", vecs, 1.0 / vals, vecs, b)
+    vals = jnp.minimum(vals, 64.0 / spacing ** 2)
+    cov = jnp.einsum("jab,jb,jcb->jac", vecs, 1.0 / vals, vecs)
+    return jnp.clip(mode, -span, span), cov
+
+
+def fit_proposal(score: Score, num: int, points: int, span: float, stages: int,
+                 exponent: Callable[[Array], Array]) -> tuple[Array, Array, Array]:
+    """The proposal N(mu, Q) [J, 3], Cholesky factor of Q [J, 3, 3], in whitened coordinates,
+    and the tempering exponent phi: the Gaussian of the quadratic fitted by least squares to
+    the tempered target s = phi log lambda - |g|^2 / 2 at candidate grids (the Laplace
+    approximation from points around the mode, as GMapping fits its proposal).
+
+    Stage 1 scores ``candidate_grid(points, span)`` around the prior mean (g = 0 first:
+    ``exponent(log_lam[:, 0])`` gives phi from the prior means' scores); each later stage scores
+    the same grid in the coordinates of the previous stage's Gaussian (centred on its mean,
+    scaled by its factor), so the last fit is made where the target's mass is. An exactly
+    quadratic target is fitted exactly at the first stage."""
+    t, spacing = candidate_grid(points, span)
+    design = _quadratic_design(t)
+    a = jnp.zeros((num, 3), jnp.float32)
+    B = jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (num, 3, 3))
+    phi = None
+    for _ in range(stages):
+        g = a[:, None, :] + jnp.einsum("jab,kb->jka", B, t)
+        log_lam = score(g)
+        if phi is None:
+            phi = exponent(log_lam[:, 0])
+        s = phi * log_lam - 0.5 * jnp.sum(g * g, axis=-1)
+        finite = jnp.isfinite(s)
+        floor = jnp.min(jnp.where(finite, s, jnp.inf), axis=1, keepdims=True)
+        s = jnp.where(finite, s, floor)
+        m, C = _gaussian_of_quadratic(s @ design.T, span, spacing)
+        a = a + jnp.einsum("jab,jb->ja", B, m)
+        B = B @ jnp.linalg.cholesky(C)
+    return a, B, phi
+
+
+def _log_normal(x: Array, mu: Array, chol: Array) -> Array:
+    """log N(x; mu, L L^T) for [J, 3] points, [J, 3] means and [J, 3, 3] factors."""
+    z = jax.scipy.linalg.solve_triangular(chol, (x - mu)[..., None], lower=True)[..., 0]
+    log_det = jnp.sum(jnp.log(jnp.abs(jnp.diagonal(chol, axis1=-2, axis2=-1))), axis=-1)
+    return -0.5 * jnp.sum(z * z, axis=-1) - log_det - 1.5 * math.log(2.0 * math.pi)
+
+
+class Draw(NamedTuple):
+    """The informed proposal's draw at one update."""
+
+    pose: Array            # [J, 3] drawn poses
+    log_correction: Array  # [J] log N(g; 0, I) - log N(g; mu, Q): the prior over the proposal
+    phi: Array             # [] the tempering exponent the proposal and the weights share
+
+
+def draw(store: maps.Maps, mean: Array, cov: Array, z: Array,
+         exponent: Callable[[Array], Array], unknown_u: Array, obs: Observation,
+         params: FilterParams, cfg: FilterConfig) -> Draw:
+    """Each particle's pose from its informed proposal, given standard-normal draws z [J, 3];
+    ``exponent(log_lam)`` [J] -> phi tempers the update (``tempering``).
+
+    With ``cfg.proposal_points == 1`` no candidate is scored: the proposal is the prior
+    N(m_j, P_j), the correction is exactly 0 and phi is left to the update (NaN here)."""
+    chol = _factor(cov)
+    J = mean.shape[0]
+    if cfg.proposal_points == 1:
+        return Draw(mean + jnp.einsum("jab,jb->ja", chol, z), jnp.zeros(J, mean.dtype),
+                    jnp.full((), jnp.nan, mean.dtype))
+
+    def score(g: Array) -> Array:
+        return score_candidates(store, mean, chol, g, unknown_u, obs, params, cfg)
+
+    mu, q_chol, phi = fit_proposal(score, J, cfg.proposal_points, cfg.proposal_span,
+                                   cfg.proposal_stages, exponent)
+    g = mu + jnp.einsum("jab,jb->ja", q_chol, z)
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=mean.dtype), q_chol.shape)
+    correction = _log_normal(g, jnp.zeros_like(mu), eye) - _log_normal(g, mu, q_chol)
+    return Draw(mean + jnp.einsum("jab,jb->ja", chol, g), correction, phi)
