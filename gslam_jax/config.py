@@ -45,15 +45,15 @@ class FilterSection:
     beta_new: float = 0.05
     # "fixed": every update's log importance factors tempered by beta alone, as in the paper;
     # "adaptive": also by the largest exponent <= 1 that keeps the conditional ESS of the
-    # update at ess_target * J (adaptive SMC; issue 16, see gslam_jax/tempering.py). Adaptive
+    # update at ess_target * J (adaptive SMC, gslam_jax/rbpf/tempering.py). Adaptive
     # is the default: the paper's beta collapsed the particles on real stereo, and on the
-    # simulated Table I courses adaptive was within 2% of fixed or better (README Status)
+    # simulated Table I courses adaptive was within 2% of fixed or better (docs/results.md)
     tempering: str = "adaptive"
     ess_target: float = 0.5
     # the reported trajectory (slam.SlamResult.path): "best", the final best particle's path
     # through its ancestry (the paper); "mean", each frame's weighted mean pose (filtering);
     # "smoothed" (default), the final weights' mean over every final particle's ancestral path,
-    # as good as "best" or better on every course and clip measured (issue 16)
+    # as good as "best" or better on every course and clip in docs/results.md
     estimate: str = "smoothed"
     seed: int = 0
     # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
