@@ -5,6 +5,8 @@ VO increments with known noise -> point sensor at the *true* poses -> local maps
 poses (as the robot does in reality) -> ``Run`` with ground truth, plus ``SimInfo`` with what was
 drawn. Random streams are independent per stage and derived from ``seed`` alone, so a run is
 reproducible, and e.g. changing the sensor does not change the world or the VO noise.
+``drive_course`` (truth and VO) and ``sense_run`` (sensor and local maps) are the two halves every
+simulated source shares; only the course and the world differ between sources.
 """
 
 from __future__ import annotations
@@ -27,8 +29,8 @@ from gslam_jax.sim.vonoise import (VO_PROFILES, VONoiseDraw, VONoiseParams, appl
 from gslam_jax.sim.world import World
 from gslam_jax.vo.localmap import LocalMapParams, build_local_maps, localmap_params
 
-__all__ = ["SimInfo", "Odometry", "simulate_odometry", "simulate_run", "course_names",
-           "ProgressFn"]
+__all__ = ["SimInfo", "Odometry", "drive_course", "simulate_odometry", "sense_run",
+           "simulate_run", "course_names", "ProgressFn"]
 
 ProgressFn = Callable[[int, int], None]
 """Called as progress(frames_done, frames_total) while the sensor runs."""
@@ -101,17 +103,13 @@ class Odometry(NamedTuple):
         return integrate_controls(self.controls, self.trajectory.poses[0])
 
 
-def simulate_odometry(course: str, seed: int = 0, *, drive_params: DriveParams | None = None,
-                      vo_noise: VONoiseParams | None = None,
-                      max_frames: int | None = None) -> Odometry:
-    """Course, ground truth and VO increments exactly as ``simulate_run`` draws them (same seed,
-    same numbers), without the world and the sensor: for VO-only statistics in milliseconds."""
-    if course not in COURSES:
-        raise ValueError(f"unknown course {course!r}; valid courses: {', '.join(COURSES)}")
+def drive_course(crs: Course, seed: int, noise: VONoiseParams, *,
+                 drive_params: DriveParams | None = None,
+                 max_frames: int | None = None) -> Odometry:
+    """Drive ``crs`` (ground truth at the frame rate) and draw its VO increments with ``noise``
+    from the stream of ``seed``: the odometry half of every simulated source."""
     if max_frames is not None and max_frames < 1:
         raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
-    noise = vo_noise or VO_PROFILES[course]
-    crs = make_course(course, seed)
     traj = drive(crs, drive_params)
     # Noise is drawn for the whole course, then cut: a truncated run is a prefix of the full one.
     controls, draw = apply_vo_noise(true_increments(traj.poses), noise, _stream(seed, 1))
@@ -120,9 +118,21 @@ def simulate_odometry(course: str, seed: int = 0, *, drive_params: DriveParams |
         traj = Trajectory(traj.timestamps[:n], traj.poses[:n], traj.s[:n],
                           traj.survey_frames[traj.survey_frames < n])
         controls = controls[:n]
-        draw = replace(draw, scale_bias=draw.scale_bias[:n],
-                                   heading_bias=draw.heading_bias[:n], vo_failed=draw.vo_failed[:n])
+        draw = replace(draw, scale_bias=draw.scale_bias[:n], heading_bias=draw.heading_bias[:n],
+                       vo_failed=draw.vo_failed[:n])
     return Odometry(crs, traj, controls, draw, noise)
+
+
+def simulate_odometry(course: str, seed: int = 0, *, drive_params: DriveParams | None = None,
+                      vo_noise: VONoiseParams | None = None,
+                      max_frames: int | None = None) -> Odometry:
+    """Course, ground truth and VO increments exactly as ``simulate_run`` draws them (same seed,
+    same numbers), without the world and the sensor: for VO-only statistics in milliseconds."""
+    if course not in COURSES:
+        raise ValueError(f"unknown course {course!r}; valid courses: {', '.join(COURSES)}")
+    noise = vo_noise or VO_PROFILES[course]
+    return drive_course(make_course(course, seed), seed, noise, drive_params=drive_params,
+                        max_frames=max_frames)
 
 
 def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = None, *,
@@ -137,15 +147,27 @@ def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = Non
     progress: optional callback ``progress(done, total)`` called every few frames.
     """
     params = params or LocalMapParams()
-    sensor_params = sensor or SensorParams(max_range=params.max_range)
-    timings: dict[str, float] = {}
-
     t0 = time.perf_counter()
     odo = simulate_odometry(course, seed, drive_params=drive_params, vo_noise=vo_noise,
                             max_frames=max_frames)
+    world = world_for_course(odo.course, seed)
+    timings = {"world_s": time.perf_counter() - t0}
+    return sense_run(odo, world, seed, params, sensor, progress=progress, timings=timings,
+                     t0=t0)
+
+
+def sense_run(odo: Odometry, world: World, seed: int, params: LocalMapParams,
+              sensor: SensorParams | None = None, *, progress: ProgressFn | None = None,
+              timings: dict[str, float] | None = None,
+              t0: float | None = None) -> tuple[Run, SimInfo]:
+    """The sensing half of every simulated source: the point sensor at the true poses of ``odo``
+    in ``world`` (its stream drawn from ``seed``), local maps fused at the VO poses, and the
+    ``Run`` with its ``SimInfo``. ``sensor`` defaults to ``params``' range; ``timings`` (e.g.
+    the world's) gain the sensing time and the total since ``t0``."""
+    sensor_params = sensor or SensorParams(max_range=params.max_range)
+    timings = {} if timings is None else timings
+    t0 = time.perf_counter() if t0 is None else t0
     crs, traj, controls, draw, noise = odo
-    world = world_for_course(crs, seed)
-    timings["world_s"] = time.perf_counter() - t0
     gt = traj.poses
     T = gt.shape[0]
     vo_poses = odo.vo_poses()
