@@ -6,6 +6,7 @@ environments.py the three environments: mars-yard, arroyo, maze
 trajectory.py   speed profile and ground-truth poses at the frame rate
 sensor.py       the stereo point sensor (ray casting, range^2 noise, dropouts, range gate)
 vonoise.py      VO increments with eqs. 1-3 noise, slow bias and failures (true params kept)
+corridor.py     tiled worlds only in a corridor around a long path (kilometres in memory)
 
 ``gslam_jax.datasets.sim.simulate_run`` assembles them into a ``Run``.
 """

@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 
 __all__ = ["CourseSpec", "Course", "COURSES", "course_names", "make_course", "resample_path",
-           "path_length"]
+           "path_length", "course_from_path"]
 
 _STEP = 0.05  # path sampling, metres
 
@@ -265,3 +265,31 @@ def _maze_offshoots(rng: np.random.Generator, poly: np.ndarray) -> list[np.ndarr
         direction *= rng.choice([-1.0, 1.0])
         out.append(np.stack([start, start + rng.uniform(3.0, 8.0) * direction]))
     return out
+
+
+def course_from_path(xy: np.ndarray, name: str, kind: str, description: str, seed: int = 0, *,
+                     spacing: float = 0.5, iterations: int = 3) -> Course:
+    """A course along a given planar path ``xy`` [N, 2] (e.g. a recorded trajectory).
+
+    Repeated points (a vehicle standing still) are dropped; the path is resampled every
+    ``spacing`` metres and corner-cut (Chaikin, ``iterations``) so the heading turns smoothly
+    between a recording's vertices (corners move by a fraction of ``spacing``), then sampled
+    every 5 cm like every course. Survey stops only at the start and the end.
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        raise ValueError(f"path must be finite [N, 2] positions, got shape {xy.shape}")
+    keep = np.concatenate([[True], np.hypot(*np.diff(xy, axis=0).T) > 1e-6])
+    xy = xy[keep]
+    length = path_length(xy)
+    if length < 4 * spacing:
+        raise ValueError(f"path {name!r} is {length:.2f} m long; a course needs at least "
+                         f"{4 * spacing:g} m")
+    path = resample_path(_chaikin(resample_path(xy, spacing), iterations))
+    d = np.diff(path, axis=0)
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    heading = np.concatenate([heading, heading[-1:]])
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(d[:, 0], d[:, 1]))])
+    spec = CourseSpec(name, kind, float(s[-1]), 0, description, survey_every=float(s[-1]))
+    return Course(spec=spec, seed=int(seed), path=path, s=s, heading=heading,
+                  survey_s=np.array([0.0, s[-1]]))

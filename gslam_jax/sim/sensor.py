@@ -78,21 +78,27 @@ class PointSensor:
     def __init__(self, world: World, params: SensorParams | None = None) -> None:
         self.world = world
         self.params = p = params or SensorParams()
-        self._height = np.ascontiguousarray(world.height, np.float32).ravel()
-        self._canopy = world.has_canopy
-        self._clo = np.ascontiguousarray(world.canopy_lo, np.float32).ravel()
-        self._chi = np.ascontiguousarray(world.canopy_hi, np.float32).ravel()
         self._s = np.concatenate([np.arange(p.min_range, p.near_limit, p.near_step),
                                   np.arange(p.near_limit, p.max_range + p.far_step, p.far_step)]
                                  ).astype(np.float32)
         self._ds = np.diff(self._s, prepend=self._s[0]).astype(np.float32)
-        self._s_px = self._s / np.float32(world.resolution)
-        self._ny = world.shape[1]
-        self._n = world.shape[0] * world.shape[1]
         lo = max(p.camera_height / np.tan(-p.min_elevation), p.min_range)
         self._ground_r = np.linspace(lo, p.max_range, p.n_ground_rows)
         self._high_el = np.linspace(-np.arctan2(p.camera_height, p.max_range * 1.5),
                                     p.max_elevation, p.n_high_rows)
+        self._w: World | None = None  # the raster rays read, bound at the first frame
+
+    def _bind(self, world: World) -> None:
+        """Read rays from the dense raster ``world`` (the world itself, or the window of a
+        tiled world around the robot: ``World.local``)."""
+        self._w = world
+        self._height = np.ascontiguousarray(world.height, np.float32).ravel()
+        self._canopy = world.has_canopy
+        self._clo = np.ascontiguousarray(world.canopy_lo, np.float32).ravel()
+        self._chi = np.ascontiguousarray(world.canopy_hi, np.float32).ravel()
+        self._s_px = self._s / np.float32(world.resolution)
+        self._ny = world.shape[1]
+        self._n = world.shape[0] * world.shape[1]
 
     @property
     def rays_per_frame(self) -> int:
@@ -116,8 +122,12 @@ class PointSensor:
 
     def observe(self, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Points [N, 3] (robot frame) seen from the ground-truth world pose (x, y, theta)."""
-        p, w = self.params, self.world
+        p = self.params
         x, y, th = (float(v) for v in pose)
+        local = self.world.local(x, y, float(self._s[-1]) + self.world.resolution)
+        if local is not self._w:
+            self._bind(local)
+        w = local
         g_robot = float(w.ground_at(np.array([x, y])))
         cam_z = g_robot + p.camera_height
         az, el = self._rays(rng)

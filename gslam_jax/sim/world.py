@@ -74,6 +74,11 @@ class World:
         j = np.floor((xy[..., 1] - self.origin[1]) / self.resolution).astype(np.int64)
         return np.clip(i, 0, self.shape[0] - 1), np.clip(j, 0, self.shape[1] - 1)
 
+    def local(self, x: float, y: float, reach: float) -> "World":
+        """A dense raster holding every pixel within ``reach`` metres of (x, y), for the
+        sensor: the world itself (a tiled world gives a window of its tiles)."""
+        return self
+
     def ground_at(self, xy: np.ndarray) -> np.ndarray:
         i, j = self.cell_of(xy)
         return self.ground[i, j].astype(np.float64)
