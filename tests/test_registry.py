@@ -15,11 +15,11 @@ from gslam_jax.datasets.registry import RUN_FILE, Source, check_source, get_sour
 
 def test_every_dataset_module_with_a_source_is_registered():
     names = set(registry.sources())
-    assert names == {"sim", "sim-stereo", "kitti", "euroc", RUN_FILE}
+    assert names == {"sim", "sim-path", "sim-stereo", "kitti", "euroc", RUN_FILE}
     assert RUN_FILE not in registry.source_names()  # the positional argument, not --source
     flags = {n: (s.simulated, s.images) for n, s in registry.sources().items()}
-    assert flags == {"sim": (True, False), "sim-stereo": (True, True), "kitti": (False, True),
-                     "euroc": (False, True), RUN_FILE: (False, False)}
+    assert flags == {"sim": (True, False), "sim-path": (True, False), "sim-stereo": (True, True),
+                     "kitti": (False, True), "euroc": (False, True), RUN_FILE: (False, False)}
 
 
 def test_a_new_module_with_a_source_is_found_without_touching_another_file(tmp_path,
@@ -42,7 +42,7 @@ def test_a_new_module_with_a_source_is_found_without_touching_another_file(tmp_p
 
 
 def test_options_a_source_does_not_take_are_refused():
-    with pytest.raises(registry.ConfigError, match="--path is for --source euroc/kitti"):
+    with pytest.raises(registry.ConfigError, match="--path is for --source sim-path/euroc/kitti"):
         check_source(Source(source="sim", path=Path("x")))
     with pytest.raises(registry.ConfigError, match="--sequence is for --source kitti"):
         check_source(Source(source="euroc", path=Path("x"), sequence="00"))
@@ -60,5 +60,5 @@ def test_options_a_source_does_not_take_are_refused():
 
 
 def test_an_unknown_source_names_the_known_ones():
-    with pytest.raises(registry.ConfigError, match="known sources: sim, sim-stereo"):
+    with pytest.raises(registry.ConfigError, match="known sources: sim, sim-path, sim-stereo"):
         get_source("rosbag")
