@@ -9,12 +9,15 @@ these tuples; a test checks that the implementations behind them match.
 from __future__ import annotations
 
 __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJECTIVES",
-           "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS",
+           "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "PROPOSALS",
            "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
 MAP_STORES = ("dense", "shared", "auto")  # ``[map] store``; "auto" resolves to one of the others
+# ``[filter] proposal``: the motion model alone (eq. 24) or informed by the local map
+# (``rbpf.proposal``)
+PROPOSALS = ("motion", "informed")
 TEMPERING = ("fixed", "adaptive")  # ``[filter] tempering`` (paper's beta / ``tempering``)
 TUNE_OBJECTIVES = ("loglik", "supervised")  # ``gslam tune --objective``
 SEARCH_OBJECTIVES = ("rms", "loglik")  # ``gslam search --objective``

@@ -55,6 +55,13 @@ class FilterSection:
     # "smoothed" (default), the final weights' mean over every final particle's ancestral path,
     # as good as "best" or better on every course and clip in docs/results.md
     estimate: str = "smoothed"
+    # "motion": each particle's pose drawn from the motion model alone (eq. 24, the paper);
+    # "informed": at a local map, drawn from a Gaussian fitted to its map score times its
+    # motion prior, with the exact importance weight (rbpf/proposal.py)
+    proposal: str = "motion"
+    proposal_points: int = 3    # "informed": candidates per axis of each grid (odd)
+    proposal_span: float = 2.0  # "informed": half-width of the first grid, in prior stds
+    proposal_stages: int = 2    # "informed": grids, each in the previous fit's coordinates
     seed: int = 0
     # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
     # a CPU, all particles on an accelerator; resolved on the host, slam.filter_config)
@@ -150,6 +157,13 @@ class Config:
             (f.estimate in choices.ESTIMATES, "filter", "estimate",
              f"must be one of {', '.join(choices.ESTIMATES)} (final best particle's path, "
              "each frame's weighted mean pose, or the smoother's mean path)"),
+            (f.proposal in choices.PROPOSALS, "filter", "proposal",
+             f"must be one of {', '.join(choices.PROPOSALS)} (the motion model alone, or "
+             "informed by the local map)"),
+            (f.proposal_points >= 1 and f.proposal_points % 2 == 1, "filter",
+             "proposal_points", "must be odd and >= 1 (1: the prior itself)"),
+            (f.proposal_span > 0, "filter", "proposal_span", "must be positive"),
+            (f.proposal_stages >= 1, "filter", "proposal_stages", "must be at least 1"),
             (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             (all(getattr(self.motion, k) >= 0 for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),

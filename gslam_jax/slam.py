@@ -108,7 +108,9 @@ def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
         unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
         particle_block=f.particle_block, tempering=f.tempering, ess_target=f.ess_target,
-        store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles)
+        store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles,
+        proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
+        proposal_stages=f.proposal_stages)
     available, what = map_memory()
     cfg = maps.choose_store(cfg, available, what).validate()
     cfg = cfg._replace(particle_block=cfg.update_block)

@@ -29,7 +29,7 @@ def _fit(centre: np.ndarray, precision: np.ndarray, phi: float, points: int = 3,
         return jnp.asarray(_quadratic_score(np.asarray(g), centre, precision), jnp.float32)
 
     mu, q_chol, got = proposal.fit_proposal(score, 1, points, 2.0, stages,
-                                            lambda centre_scores: jnp.float32(phi))
+                                            lambda log_lam, log_prior: jnp.float32(phi))
     assert float(got) == pytest.approx(phi)
     return mu, q_chol
 
@@ -97,3 +97,123 @@ def test_accumulated_covariance_matches_monte_carlo_of_the_motion_model():
     emp = np.cov(np.asarray(samples, np.float64).T)
     np.testing.assert_allclose(np.asarray(samples).mean(0), np.asarray(pose), atol=3e-3)
     np.testing.assert_allclose(np.asarray(cov), emp, rtol=0.08, atol=2e-5)
+
+
+# ------------------------------------------------------------------ the filter with it
+
+
+def _small_case(points: int = 3, J: int = 4, seed: int = 0):
+    """A 64 x 64 map with known and unknown cells, a 16 x 16 local map, J particles around
+    the map's centre with an accumulated prior covariance."""
+    from gslam_jax.rbpf import densestore
+    from gslam_jax.rbpf.types import FilterConfig, FilterState
+
+    rng = np.random.default_rng(seed)
+    cfg = FilterConfig(num_particles=J, map_shape=(64, 64), map_origin=(0.0, 0.0),
+                       resolution=0.16, local_size=16, proposal="informed",
+                       proposal_points=points, tempering="fixed")
+    known = rng.uniform(size=(64, 64)) < 0.8
+    k = np.where(known, rng.integers(1, 30, (64, 64)), 0).astype(np.float32)
+    S = np.where(known, k * rng.uniform(0.001, 0.05, (64, 64)), 0).astype(np.float32)
+    dense = densestore.DenseMaps(jnp.broadcast_to(k, (J, 64, 64)), jnp.broadcast_to(S, (J, 64, 64)),
+                                 jnp.zeros((J, 0, 0, 2), jnp.uint32), jnp.array([0, 64], jnp.int32))
+    pose = jnp.asarray(np.column_stack([5.1 + 0.05 * rng.normal(size=J),
+                                        5.0 + 0.05 * rng.normal(size=J),
+                                        0.3 + 0.02 * rng.normal(size=J)]), jnp.float32)
+    cov = jnp.broadcast_to(jnp.diag(jnp.asarray([0.01, 0.004, 0.002], jnp.float32)), (J, 3, 3))
+    state = FilterState(pose, jnp.full((J,), -math.log(J), jnp.float32), dense, jnp.int32(0),
+                        cov)
+    lk = np.where(rng.uniform(size=(16, 16)) < 0.6, rng.integers(1, 12, (16, 16)), 0)
+    local = np.stack([lk, lk * rng.uniform(0.001, 0.05, (16, 16))], -1).astype(np.float32)
+    return cfg, state, jnp.asarray(local), (k, S)
+
+
+def _brute_log_lambda(pose, local, k_map, S_map, cfg, beta):
+    """Eq. 26 with eq. 30 in float64 with SciPy, one observed cell at a time."""
+    from scipy.special import gammaln
+
+    L = cfg.local_size
+    total, n = 0.0, 0
+    for a in range(L):
+        for b in range(L):
+            ko, So = float(local[a, b, 0]), float(local[a, b, 1])
+            if ko <= 0:
+                continue
+            ca, cb = a - L // 2 + 0.5, b - L // 2 + 0.5
+            c, s = math.cos(pose[2]), math.sin(pose[2])
+            i = math.floor(pose[0] / cfg.resolution + c * ca - s * cb)
+            j = math.floor(pose[1] / cfg.resolution + s * ca + c * cb)
+            kp, Sp = float(k_map[i, j]), float(S_map[i, j])
+            if kp <= 0:
+                continue
+            k2, S2 = ko + kp, So + Sp
+            total += (gammaln(k2 / 2) - gammaln(ko / 2) - gammaln(kp / 2)
+                      + 0.5 * (ko * math.log(So) + kp * math.log(Sp) - k2 * math.log(S2))
+                      - math.log(So / ko))
+            n += 1
+    return total / (beta * n) if n else 0.0
+
+
+def test_candidate_scores_match_brute_force_eq_26():
+    from gslam_jax.rbpf.footprint import compact_observation
+    from gslam_jax.rbpf.types import FilterParams
+
+    cfg, state, local, (k, S) = _small_case()
+    params = FilterParams()
+    obs = compact_observation(local, cfg)
+    chol = proposal._factor(state.prior_cov)
+    grid, _ = proposal.candidate_grid(3, 2.0)
+    g = jnp.broadcast_to(grid, (cfg.num_particles,) + grid.shape)
+    got = np.asarray(proposal.score_candidates(state.maps, state.pose, chol, g,
+                                               jnp.zeros((cfg.num_particles, 0)), obs, params,
+                                               cfg))
+    poses = np.asarray(state.pose)[:, None, :] + np.einsum("jab,kb->jka", np.asarray(chol),
+                                                           np.asarray(grid))
+    for j, kk in [(0, 0), (1, 5), (2, 13), (3, 26)]:
+        want = _brute_log_lambda(poses[j, kk].astype(np.float64), np.asarray(local), k, S, cfg,
+                                 float(params.beta_prev))
+        assert got[j, kk] == pytest.approx(want, rel=2e-4, abs=1e-2)
+
+
+def test_one_candidate_reduces_to_the_motion_proposals_update():
+    """proposal_points = 1: the pose is a draw of the prior, and the update is exactly the
+    motion proposal's update at that pose (no correction, the same weights and maps)."""
+    from gslam_jax.rbpf import kernel
+
+    cfg, state, local, _ = _small_case(points=1)
+    z = jax.random.normal(jax.random.key(3), (cfg.num_particles, 3))
+    params = kernel.FilterParams()
+    informed, info_i = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params,
+                                     cfg, z)
+    drawn = state.pose + jnp.einsum("jab,jb->ja", proposal._factor(state.prior_cov), z)
+    motion_cfg = cfg._replace(proposal="motion")
+    moved = state._replace(pose=drawn, prior_cov=None)
+    plain, info_m = kernel.update(moved, local, jnp.zeros((cfg.num_particles, 0)), params,
+                                  motion_cfg)
+    np.testing.assert_array_equal(informed.pose, drawn)
+    np.testing.assert_array_equal(informed.log_w, plain.log_w)
+    np.testing.assert_array_equal(informed.maps.k, plain.maps.k)
+    np.testing.assert_array_equal(np.asarray(informed.prior_cov), 0.0)
+    assert float(info_i.log_lik) == float(info_m.log_lik)
+
+
+def test_informed_weights_are_the_tempered_score_plus_the_correction():
+    """The update's weights with the informed proposal: phi log lambda at the drawn pose (eq.
+    26, brute force) plus the proposal's correction, normalised."""
+    from gslam_jax.rbpf import kernel
+    from gslam_jax.rbpf.footprint import compact_observation
+
+    cfg, state, local, (k, S) = _small_case(points=3)
+    z = jax.random.normal(jax.random.key(4), (cfg.num_particles, 3))
+    params = kernel.FilterParams()
+    new, info = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
+    d = proposal.draw(state.maps, state.pose, state.prior_cov, z, lambda l, p: jnp.float32(1.0),
+                      jnp.zeros((cfg.num_particles, 0)), compact_observation(local, cfg),
+                      params, cfg)
+    np.testing.assert_allclose(new.pose, d.pose, atol=1e-6)
+    lam = np.array([_brute_log_lambda(np.asarray(p, np.float64), np.asarray(local), k, S, cfg,
+                                      float(params.beta_prev)) for p in np.asarray(d.pose)])
+    unnorm = np.asarray(state.log_w, np.float64) + lam + np.asarray(d.log_correction)
+    want = unnorm - np.logaddexp.reduce(unnorm)
+    np.testing.assert_allclose(new.log_w, want, atol=2e-3)
+    assert float(info.exponent) == 1.0  # fixed tempering: the paper's beta alone

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from gslam_jax.rbpf import cells, maps, resampling, tempering
+from gslam_jax.rbpf import cells, maps, proposal, resampling, tempering
 from gslam_jax.rbpf.motion import apply_motion
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import log_lambda
@@ -37,8 +37,9 @@ from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Obser
                                   RunOutput, StepInfo, UpdateInfo, UpdateNoise)
 
 __all__ = ["Proposal", "Resampler", "init", "motion_noise", "update_noise", "predict",
-           "propagate", "update", "ancestors", "resample", "observe", "step", "scan_frames",
-           "frame_keys", "run_filter", "backtrack_path", "smoothed_mean_path", "best_slot"]
+           "propagate", "propagate_mean", "update", "ancestors", "resample", "observe", "step",
+           "scan_frames", "frame_keys", "run_filter", "backtrack_path", "smoothed_mean_path",
+           "best_slot"]
 
 Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
 """(state, u [3], standard-normal draws [J, 2], params) -> state with the particles moved."""
@@ -51,10 +52,12 @@ def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
     """All particles at ``start_pose`` with equal weights and empty maps (``maps.init``)."""
     cfg.validate()
     J = cfg.num_particles
-    start = jnp.zeros(3, jnp.float32) if start_pose is None else jnp.asarray(start_pose, jnp.float32)
+    start = (jnp.zeros(3, jnp.float32) if start_pose is None
+             else jnp.asarray(start_pose, jnp.float32))
+    cov = jnp.zeros((J, 3, 3), jnp.float32) if cfg.proposal == "informed" else None
     return FilterState(pose=jnp.broadcast_to(start, (J, 3)),
                        log_w=jnp.full((J,), -math.log(J), jnp.float32),
-                       maps=maps.init(cfg), best=jnp.int32(0))
+                       maps=maps.init(cfg), best=jnp.int32(0), prior_cov=cov)
 
 
 def motion_noise(key: Array, cfg: FilterConfig) -> Array:
@@ -66,15 +69,27 @@ def update_noise(key: Array, cfg: FilterConfig) -> UpdateNoise:
     """Uniforms for one update (unknown-cell sampling, then resampling)."""
     k_unknown, k_resample = jax.random.split(key)
     n = cfg.unknown_samples if cfg.unknown_cells == "sample" else 0
+    z = (jax.random.normal(jax.random.fold_in(key, 1), (cfg.num_particles, 3), jnp.float32)
+         if cfg.proposal == "informed" else None)
     return UpdateNoise(
         unknown_u=jax.random.uniform(k_unknown, (cfg.num_particles, n), jnp.float32),
         resample_u=resampling.draw_uniforms(k_resample, cfg.num_particles),
+        proposal_z=z,
     )
 
 
 def predict(pose: Array, u: Array, eps: Array, params: FilterParams) -> Array:
     """Prediction step (eq. 24) for all particles, given their standard-normal draws."""
     return apply_motion(pose, u, eps, params.motion)
+
+
+def propagate_mean(state: FilterState, u: Array, eps: Array, params: FilterParams
+                   ) -> FilterState:
+    """The "informed" proposal's frame (a ``Proposal``; ``eps`` unused): every particle moved
+    by the motion model's mean, its motion covariance accumulated (``proposal.propagate_mean``);
+    the pose is drawn at the next update (``update``)."""
+    pose, cov = proposal.propagate_mean(state.pose, state.prior_cov, u, params.motion)
+    return state._replace(pose=pose, prior_cov=cov)
 
 
 def propagate(state: FilterState, u: Array, eps: Array, params: FilterParams) -> FilterState:
@@ -137,22 +152,57 @@ def best_slot(log_w: Array, ancestors: Array) -> Array:
     return jnp.argmax(log_w[ancestors]).astype(jnp.int32)
 
 
+def _informed_draw(state: FilterState, obs: Observation, unknown_u: Array, z: Array,
+                   params: FilterParams, cfg: FilterConfig) -> tuple[FilterState, proposal.Draw]:
+    """The "informed" proposal's draw of every particle's pose at this update (``proposal``),
+    its prior covariance spent."""
+
+    def exponent(log_lam: Array, log_prior: Array) -> Array:
+        # the candidates of every particle as one weighted cloud: w_j N(g_k; 0, I), normalised
+        cloud = state.log_w[:, None] + log_prior
+        cloud = cloud - jax.nn.logsumexp(cloud)
+        return _exponent(cloud.reshape(-1), log_lam.reshape(-1), cfg)
+
+    d = proposal.draw(state.maps, state.pose, state.prior_cov, z, exponent, unknown_u, obs,
+                      params, cfg)
+    return state._replace(pose=d.pose, prior_cov=jnp.zeros_like(state.prior_cov)), d
+
+
+def _exponent(log_w: Array, log_lam: Array, cfg: FilterConfig) -> Array:
+    """The tempering exponent of an update's log importance factors: ``tempering.
+    adaptive_exponent`` or 1 (the paper's fixed beta)."""
+    if cfg.tempering == "adaptive":
+        return tempering.adaptive_exponent(log_w, log_lam, cfg.ess_target)
+    return jnp.ones((), log_lam.dtype)
+
+
 def update(state: FilterState, local_obs: Array, unknown_u: Array, params: FilterParams,
-           cfg: FilterConfig) -> tuple[FilterState, UpdateInfo]:
+           cfg: FilterConfig, proposal_z: Array | None = None
+           ) -> tuple[FilterState, UpdateInfo]:
     """Weigh, write, normalise: eq. 26 with eq. 30 / 31 against each particle's map, eq. 14
     into it, the weights multiplied (eq. 27; with ``cfg.tempering == "adaptive"`` the log
     factors are first scaled by ``tempering.adaptive_exponent``) and normalised. No resampling
     (``resample``).
+
+    With ``cfg.proposal == "informed"`` each particle's pose is first drawn from its informed
+    proposal (``proposal.draw``, standard normals ``proposal_z`` [J, 3]) and its weight takes
+    the proposal's exact correction; with more than one candidate the exponent is the one the
+    proposal was fitted with (chosen from the scores at the prior means).
 
     local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred; unknown_u:
     ``UpdateNoise.unknown_u``. The state's ``best`` becomes the highest-weight particle.
     """
     J = cfg.num_particles
     obs = compact_observation(local_obs, cfg)
+    correction = jnp.zeros((J,), state.log_w.dtype)
+    fitted_phi = None
+    if cfg.proposal == "informed":
+        state, d = _informed_draw(state, obs, unknown_u, proposal_z, params, cfg)
+        correction = d.log_correction
+        fitted_phi = d.phi if cfg.proposal_points > 1 else None
     w = _weigh_and_write(state, obs, unknown_u, params, cfg)
-    phi = (tempering.adaptive_exponent(state.log_w, w.log_lam, cfg.ess_target)
-           if cfg.tempering == "adaptive" else jnp.ones((), w.log_lam.dtype))
-    unnorm = state.log_w + phi * w.log_lam
+    phi = _exponent(state.log_w, w.log_lam, cfg) if fitted_phi is None else fitted_phi
+    unnorm = state.log_w + phi * w.log_lam + correction
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
     new_maps = maps.finish_update(w.maps, state.pose, cfg)
@@ -161,7 +211,7 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
                       extent_violations=jnp.sum(w.off_map).astype(jnp.int32),
                       empty_obs=~jnp.any(obs.k > 0), dropped_cells=obs.dropped,
                       exponent=phi)
-    return FilterState(state.pose, log_w, new_maps, best), info
+    return state._replace(log_w=log_w, maps=new_maps, best=best), info
 
 
 def ancestors(log_w: Array, u: Array, cfg: FilterConfig) -> Array:
@@ -194,8 +244,9 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
 
     def yes(s: FilterState) -> tuple[FilterState, Array]:
         anc = ancestors(lw, u, cfg)
+        cov = None if s.prior_cov is None else jnp.take(s.prior_cov, anc, axis=0)
         return s._replace(maps=maps.resample(s.maps, anc), pose=jnp.take(s.pose, anc, axis=0),
-                          log_w=new_log_w(jnp.take(s.log_w, anc))), anc
+                          log_w=new_log_w(jnp.take(s.log_w, anc)), prior_cov=cov), anc
 
     def keep(s: FilterState) -> tuple[FilterState, Array]:
         return s, jnp.arange(J, dtype=jnp.int32)
@@ -207,7 +258,7 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
 def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: FilterParams,
             cfg: FilterConfig, resampler: Resampler = resample) -> tuple[FilterState, StepInfo]:
     """``update`` with ``noise.unknown_u``, then ``resampler`` with ``noise.resample_u``."""
-    state, upd = update(state, local_obs, noise.unknown_u, params, cfg)
+    state, upd = update(state, local_obs, noise.unknown_u, params, cfg, noise.proposal_z)
     state, anc, resampled = resampler(state, noise.resample_u, cfg)
     return state, StepInfo(pose=state.pose, ancestors=anc, best=state.best, log_w=state.log_w,
                            ess=upd.ess, resampled=resampled, updated=jnp.bool_(True),
@@ -229,15 +280,19 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
 
 def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
          params: FilterParams, cfg: FilterConfig, has_obs: Array | bool = True, *,
-         propose: Proposal = propagate, resampler: Resampler = resample
+         propose: Proposal | None = None, resampler: Resampler = resample
          ) -> tuple[FilterState, StepInfo]:
     """One frame, the filter's only one: ``propose`` (predict, eq. 24), then, if the frame has
     a local map, ``observe`` (update, then ``resampler``).
 
     ``local_obs`` None: no update (a Python-level choice); else ``has_obs`` says whether the
     frame has one: True (Python) updates, a traced bool chooses under ``lax.cond``. The key is
-    split once into the motion draws and the update's draws (``update_noise``).
+    split once into the motion draws and the update's draws (``update_noise``). ``propose``
+    None: ``propagate`` (the motion proposal) or, with ``cfg.proposal == "informed"``,
+    ``propagate_mean``.
     """
+    if propose is None:
+        propose = propagate_mean if cfg.proposal == "informed" else propagate
     k_motion, k_update = jax.random.split(key)
     state = propose(state, u, motion_noise(k_motion, cfg), params)
     if local_obs is None or has_obs is False:

@@ -24,8 +24,11 @@ whatever q_j is: the fit only decides how efficient the draw is, never what the 
 With a single candidate (``proposal_points = 1``) q_j is the prior itself and the increment is
 the motion proposal's, phi log lambda_j(x).
 
-The tempering exponent phi is chosen once per update from the scores at the prior means (the
-adaptive rule of ``tempering``, or 1) and used by both the fit and the weights. The candidates
+The tempering exponent phi is chosen once per update from the first grid's scores (the
+adaptive rule of ``tempering`` applied to the cloud of every particle's candidates weighted by
+their prior density: the spread the motion proposal's particles would have, which the
+particles themselves, all at their prior means, do not show; or 1) and used by both the fit
+and the weights. The candidates
 are scored for all particles at once, one candidate after another (``lax.map``), through the
 same footprint reads and eq. 26 kernel as the update.
 """
@@ -118,6 +121,10 @@ def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unkno
 Score = Callable[[Array], Array]
 """Candidates g [J, K, 3] (whitened) -> their log importance factors [J, K]."""
 
+Exponent = Callable[[Array, Array], Array]
+"""(log lambda [J, K], log prior density [J, K]) of the first grid's candidates -> the
+tempering exponent phi []."""
+
 
 def _quadratic_design(t: Array) -> Array:
     """Least-squares operator [10, K] that takes values at the grid points ``t`` [K, 3] to the
@@ -147,14 +154,14 @@ def _gaussian_of_quadratic(coef: Array, span: float, spacing: float) -> tuple[Ar
 
 
 def fit_proposal(score: Score, num: int, points: int, span: float, stages: int,
-                 exponent: Callable[[Array], Array]) -> tuple[Array, Array, Array]:
+                 exponent: Exponent) -> tuple[Array, Array, Array]:
     """The proposal N(mu, Q) [J, 3], Cholesky factor of Q [J, 3, 3], in whitened coordinates,
     and the tempering exponent phi: the Gaussian of the quadratic fitted by least squares to
     the tempered target s = phi log lambda - |g|^2 / 2 at candidate grids (the Laplace
     approximation from points around the mode, as GMapping fits its proposal).
 
-    Stage 1 scores ``candidate_grid(points, span)`` around the prior mean (g = 0 first:
-    ``exponent(log_lam[:, 0])`` gives phi from the prior means' scores); each later stage scores
+    Stage 1 scores ``candidate_grid(points, span)`` around the prior mean, and
+    ``exponent(log_lam, log_prior)`` chooses phi from those scores; each later stage scores
     the same grid in the coordinates of the previous stage's Gaussian (centred on its mean,
     scaled by its factor), so the last fit is made where the target's mass is. An exactly
     quadratic target is fitted exactly at the first stage."""
@@ -167,7 +174,7 @@ def fit_proposal(score: Score, num: int, points: int, span: float, stages: int,
         g = a[:, None, :] + jnp.einsum("jab,kb->jka", B, t)
         log_lam = score(g)
         if phi is None:
-            phi = exponent(log_lam[:, 0])
+            phi = exponent(log_lam, -0.5 * jnp.sum(g * g, axis=-1))
         s = phi * log_lam - 0.5 * jnp.sum(g * g, axis=-1)
         finite = jnp.isfinite(s)
         floor = jnp.min(jnp.where(finite, s, jnp.inf), axis=1, keepdims=True)
@@ -194,10 +201,10 @@ class Draw(NamedTuple):
 
 
 def draw(store: maps.Maps, mean: Array, cov: Array, z: Array,
-         exponent: Callable[[Array], Array], unknown_u: Array, obs: Observation,
+         exponent: Exponent, unknown_u: Array, obs: Observation,
          params: FilterParams, cfg: FilterConfig) -> Draw:
     """Each particle's pose from its informed proposal, given standard-normal draws z [J, 3];
-    ``exponent(log_lam)`` [J] -> phi tempers the update (``tempering``).
+    ``exponent`` chooses the update's tempering exponent from the first grid's scores.
 
     With ``cfg.proposal_points == 1`` no candidate is scored: the proposal is the prior
     N(m_j, P_j), the correction is exactly 0 and phi is left to the update (NaN here)."""

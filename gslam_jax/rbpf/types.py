@@ -50,6 +50,10 @@ class FilterConfig(NamedTuple):
     store: str = MapSection.store  # "dense" or "shared" (``rbpf.maps``; "auto" resolved before)
     tile: int = MapSection.tile
     pool_tiles: int = MapSection.pool_tiles
+    proposal: str = FilterSection.proposal  # "motion" (eq. 24) or "informed" (``proposal``)
+    proposal_points: int = FilterSection.proposal_points
+    proposal_span: float = FilterSection.proposal_span
+    proposal_stages: int = FilterSection.proposal_stages
 
     @property
     def update_block(self) -> int:
@@ -117,6 +121,13 @@ class FilterConfig(NamedTuple):
             raise ValueError(f"particle_block {self.particle_block} must be >= 0 (0: auto)")
         if self.store not in STORES:
             raise ValueError(f"store '{self.store}' unknown; choose one of {list(STORES)}")
+        if self.proposal not in choices.PROPOSALS:
+            raise ValueError(f"proposal '{self.proposal}' unknown; choose one of "
+                             f"{list(choices.PROPOSALS)}")
+        if self.proposal_points < 1 or self.proposal_points % 2 == 0:
+            raise ValueError(f"proposal_points {self.proposal_points} must be odd and >= 1")
+        if not self.proposal_span > 0 or self.proposal_stages < 1:
+            raise ValueError("proposal_span must be positive and proposal_stages at least 1")
         if self.tile < unknown.BLOCK or self.tile % unknown.BLOCK:
             raise ValueError(f"tile {self.tile} must be a positive multiple of {unknown.BLOCK}")
         if self.pool_tiles < 0:
@@ -148,6 +159,8 @@ class FilterState(NamedTuple):
     best: Array        # [] int32: slot of the highest-weight particle (``kernel.best_slot``):
                        # after a resampling, the one that was best before it (the weights are
                        # then all equal)
+    prior_cov: Array | None = None  # [J, 3, 3] "informed" proposal: the motion covariance
+                                    # accumulated since each particle's last update (else None)
 
 
 class UpdateNoise(NamedTuple):
@@ -155,6 +168,7 @@ class UpdateNoise(NamedTuple):
 
     unknown_u: Array   # [J, unknown_samples] uniforms ([J, 0] in "ignore" mode)
     resample_u: Array  # [J]
+    proposal_z: Array | None = None  # [J, 3] standard normals of the "informed" proposal
 
 
 class Observation(NamedTuple):

@@ -238,6 +238,9 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     if objective not in TUNE_OBJECTIVES:
         raise TuneError(f"objective '{objective}' unknown; choose one of "
                         f"{', '.join(TUNE_OBJECTIVES)}")
+    if config.filter.proposal != "motion":
+        raise TuneError(f"[filter] proposal = \"{config.filter.proposal}\": gradient tuning "
+                        "differentiates the motion proposal only; tune with proposal = \"motion\"")
     names = tuple(names) if names is not None else default_names(objective)
     for n in names:
         if n not in SETTINGS:
