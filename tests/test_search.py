@@ -117,14 +117,18 @@ def test_rigid_rms_matches_metrics():
 @pytest.mark.parametrize("sets, max_batch, devices", [(64, 47, 1), (64, 47, 2), (100, 30, 2),
                                                       (5, 3, 1), (7, 64, 2), (3, 1, 2)])
 def test_chunks_are_balanced(sets, max_batch, devices):
-    """Brute force: the fewest chunks of <= max_batch sets (at least one per device), padding
-    below one set per device and chunk."""
+    """Against brute force over every chunk size: the fewest chunks of at most max_batch sets
+    (at least one per device, a multiple of the device count), then the least padding."""
+    cap = devices * -(-min(max_batch, sets) // devices)
+
+    def cost(b: int) -> tuple[int, int]:
+        chunks = -(-sets // b)
+        return chunks, chunks * b - sets
+
+    best = min(cost(b) for b in range(devices, cap + 1, devices))
     b = E.chunk_size(sets, max_batch, devices)
-    chunks = -(-sets // b)
-    assert b % devices == 0
-    assert b <= max(max_batch, devices) + devices - 1
-    assert chunks == -(-sets // max(1, min(max_batch, sets))) or b == devices
-    assert chunks * b - sets < chunks * devices
+    assert b % devices == 0 and b <= cap
+    assert cost(b) == best
 
 
 def test_search_ranks_and_writes(small_run, tmp_path):
