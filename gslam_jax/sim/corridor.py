@@ -31,7 +31,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from gslam_jax.sim.environments import _GROUND, _KIND_IDS, WORLD_KINDS
+from gslam_jax.sim.environments import _GROUND, _KIND_IDS, WORLD_KINDS, paint_grass
 from gslam_jax.sim.world import (Material, World, stamp_box, stamp_canopy, stamp_clump,
                                  stamp_disk, stamp_dome)
 
@@ -246,14 +246,8 @@ class _Context:
 def _grass(tile: World, ctx: _Context, rng: np.random.Generator, mean: float, spread: float,
            sandy_fraction: float) -> None:
     x0, y0 = tile.origin
-    field = ctx.field(2, x0, y0, 6.0)
-    sandy = ctx.field(3, x0, y0, 9.0) < sandy_fraction
-    gh = (mean + spread * (field - 0.5)).clip(0.02, None)
-    blade = gh * rng.uniform(0.3, 1.0, tile.shape).astype(np.float32)
-    grass = ~sandy
-    tile.height[grass] = tile.ground[grass] + blade[grass]
-    tile.rough[grass] = 0.3 * gh[grass]
-    tile.material[grass] = int(Material.GRASS)
+    paint_grass(tile, ctx.field(2, x0, y0, 6.0), ctx.field(3, x0, y0, 9.0) < sandy_fraction,
+                rng, mean, spread)
 
 
 def _mars_yard_fields(tile: World, ctx: _Context, rng: np.random.Generator) -> None:

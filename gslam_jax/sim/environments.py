@@ -96,6 +96,13 @@ def _grass(world: World, rng: np.random.Generator, res: float, mean: float, spre
            sandy_fraction: float) -> None:
     field = smooth_noise(world.shape, 6.0 / res, rng)
     sandy = smooth_noise(world.shape, 9.0 / res, rng) < sandy_fraction
+    paint_grass(world, field, sandy, rng, mean, spread)
+
+
+def paint_grass(world: World, field: np.ndarray, sandy: np.ndarray, rng: np.random.Generator,
+                mean: float, spread: float) -> None:
+    """Grass blades over the ground outside the ``sandy`` patches, their height set by the
+    smooth ``field`` in [0, 1] around ``mean`` (spread ``spread``), rough in proportion."""
     gh = (mean + spread * (field - 0.5)).clip(0.02, None)
     blade = gh * rng.uniform(0.3, 1.0, world.shape).astype(np.float32)
     grass = ~sandy
