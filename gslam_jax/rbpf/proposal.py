@@ -45,7 +45,7 @@ from jax import Array, lax
 from gslam_jax.rbpf import cells, maps
 from gslam_jax.rbpf.footprint import read_footprints
 from gslam_jax.rbpf.importance import log_lambda
-from gslam_jax.rbpf.motion import MotionParams, motion_stds
+from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
@@ -79,8 +79,6 @@ def propagate_mean(pose: Array, cov: Array, u: Array, params: MotionParams
                    ) -> tuple[Array, Array]:
     """One frame of the informed proposal's prediction: the motion model's mean (eq. 1 without
     noise) and the accumulated covariance (``motion_covariance_step``)."""
-    from gslam_jax.rbpf.motion import apply_motion
-
     new = apply_motion(pose, u, jnp.zeros(pose.shape[:-1] + (2,), pose.dtype), params)
     return new, motion_covariance_step(pose, cov, u, params)
 
