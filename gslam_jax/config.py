@@ -239,12 +239,17 @@ def parse_config(data: dict[str, Any], source: str = "<config>", base: Config | 
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:
-    """A config file's TOML table; a missing file or bad TOML is a ConfigError naming it."""
+    """A config file's TOML table; a missing or empty file or bad TOML is a ConfigError naming
+    it."""
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: no such config file")
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        if not text.strip():  # e.g. left by a write that failed: not "all defaults" silently
+            raise ConfigError(f"{path}: the config file is empty; give the settings it should "
+                              "hold, or leave out --config for the defaults")
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: malformed TOML: {err}") from err
     except UnicodeDecodeError as err:

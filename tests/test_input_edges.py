@@ -1,5 +1,8 @@
 """Inputs that used to give a traceback or be accepted silently: each is now a named error."""
 
+from pathlib import Path
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from synthetic import make_run
@@ -141,3 +144,188 @@ def test_stereo_settings_reach_the_front_end(tmp_path, capsys, monkeypatch, run_
     assert "[stereo] settings apply to stereo images" in capsys.readouterr().err
     with pytest.raises(ConfigError, match=r"\[stereo\] num_disparities must be a multiple of 16"):
         apply_overrides(Config(), ["stereo.num_disparities=100"])
+
+
+@pytest.fixture
+def slow_work(monkeypatch):
+    """Fail the test if bench, table1 or compare start their work: checks come first."""
+    def boom(*args, **kwargs):
+        raise AssertionError("work started before the arguments were checked")
+    monkeypatch.setattr("gslam_jax.app.bench.time_update", boom)
+    monkeypatch.setattr("gslam_jax.app.bench.time_course", boom)
+    monkeypatch.setattr("gslam_jax.app.table1.run_course", boom)
+    monkeypatch.setattr("gslam_jax.app.compare._default_run", boom)
+    monkeypatch.setattr("gslam_jax.app.compare.run_dense", boom)
+    monkeypatch.setattr("gslam_jax.tuning.motion_fit.fit_run", boom)
+
+
+@pytest.fixture
+def read_only_dir(tmp_path):
+    """A folder where no file can be created: a chmod 555 folder, or for root (whom
+    permissions do not stop) /sys where that is read-only."""
+    import os
+    import tempfile
+
+    def writable(folder):
+        try:
+            fd, probe = tempfile.mkstemp(dir=folder)
+        except OSError:
+            return False
+        os.close(fd)
+        os.unlink(probe)
+        return True
+
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        if not writable(folder):
+            yield folder
+        elif os.path.isdir("/sys") and not writable("/sys"):
+            yield Path("/sys")
+        else:
+            pytest.skip("no read-only folder on this machine")
+    finally:
+        folder.chmod(0o755)
+
+
+def test_bench_map_smaller_than_the_window_is_refused_first(capsys, slow_work):
+    assert main(["bench", "--local", "128", "--map", "64"]) == 2
+    err = capsys.readouterr().err
+    assert "gslam: error: --map 64: smaller than the update window of --local 128 (" in err
+    assert "use --map " in err
+    assert main(["bench", "--local", "16", "--map", "100"]) == 2
+    assert "--map 100: must be a multiple of 8 cells" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["bench", "--particle-block", "-1"],
+     "argument --particle-block: expected an integer >= 0 (0: automatic), got -1"),
+    (["compare", "--store", "shared", "--pool-tiles", "-1"],
+     "argument --pool-tiles: expected an integer >= 0 (0: automatic), got -1"),
+])
+def test_negative_block_and_pool_are_usage_errors(argv, message, capsys, slow_work):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_bench_and_compare_check_counts_as_functions_too(slow_work):
+    from gslam_jax.app import bench, compare
+
+    with pytest.raises(bench.BenchError, match=r"--particle-block -2: must be >= 0"):
+        bench.main(particles=[8], local=[16], map_side=[64], particle_block=[-2])
+    with pytest.raises(compare.CompareError, match=r"--pool-tiles -1: must be >= 0"):
+        compare.compare(pool_tiles=-1)
+
+
+@pytest.mark.parametrize("size, message", [
+    ("1e300", "--tile-size 1e+300 m is 6.25e+300 cells per side at resolution 0.16 m, more "
+              "than 4096; use at most 655.36 m"),
+    ("1e-9", "--tile-size 1e-09 m is under one cell at resolution 0.16 m; use 0.16 m (1 cell)"),
+    ("0.25", "--tile-size 0.25 m is 1.562 cells at resolution 0.16 m, not a whole number of "
+             "cells; use e.g. 0.16 m (1 cells) or 0.32 m (2 cells)"),
+])
+def test_compare_tile_size_is_checked_before_the_run(size, message, capsys, slow_work):
+    assert main(["compare", "--tile-size", size]) == 2
+    assert f"gslam: error: {message}" in capsys.readouterr().err
+
+
+def test_compare_tile_wider_than_the_map_is_refused_before_the_filters(run_file, run, capsys,
+                                                                       slow_work):
+    size = f"{3000 * run.resolution:g}"
+    assert main(["compare", str(run_file), "--particles", "4", "--tile-size", size]) == 2
+    assert f"--tile-size {size} m is 3000 cells per side, wider than the map (" in \
+        capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["bench", "--particles", "8"], ["table1", "--quick"]])
+def test_json_that_is_a_folder_is_refused_first(argv, tmp_path, capsys, slow_work):
+    assert main([*argv, "--json", str(tmp_path)]) == 2
+    assert f"gslam: error: --json {tmp_path}: is a directory; give a file name" in \
+        capsys.readouterr().err
+
+
+def test_bench_plot_into_a_read_only_place_is_refused_first(read_only_dir, capsys, slow_work):
+    plot = read_only_dir / "bench.png"
+    assert main(["bench", "--particles", "8", "--plot", str(plot)]) == 2
+    err = capsys.readouterr().err
+    assert f"gslam: error: --plot {plot}: cannot write in {read_only_dir} (" in err
+    assert "nothing was run" in err
+
+
+def test_table1_gets_the_checks_of_run(tmp_path, capsys, slow_work):
+    config = tmp_path / "fine.toml"
+    config.write_text("[map]\nresolution = 1e-9\n")
+    assert main(["table1", "--quick", "--config", str(config)]) == 2
+    err = capsys.readouterr().err
+    assert f"gslam: error: {config}: course mars-yard-a: [localmap] max_range 10 m at [map] " \
+           "resolution 1e-09 m gives local maps of" in err
+
+
+def test_compare_out_is_a_staged_results_folder(tmp_path, capsys, slow_work, monkeypatch):
+    from gslam_jax.app import compare
+
+    taken = tmp_path / "taken"
+    taken.write_text("a file")
+    assert main(["compare", "--out", str(taken)]) == 2
+    assert f"gslam: error: --out {taken}: exists and is not a directory" in \
+        capsys.readouterr().err
+    assert taken.read_text() == "a file"
+
+    def fake_compare(run, config, say, **options):  # the comparison's result, no work
+        cfg = SimpleNamespace(num_particles=4, unknown_cells="ignore")
+        return {"agreement": {"ok": True}}, None, None, cfg
+    monkeypatch.setattr(compare, "_compare", fake_compare)
+    monkeypatch.setattr(compare, "_plot", lambda path, *a: path.write_text("png"))
+    out = tmp_path / "cmp"
+    assert main(["compare", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["COMPLETE", "compare.json",
+                                                     "compare_fig4.png"]
+    assert main(["compare", "--out", str(out)]) == 2
+    assert "is a finished results folder" in capsys.readouterr().err
+    assert main(["compare", "--out", str(out), "--overwrite"]) == 0
+
+
+def test_fit_motion_out_is_checked_before_the_fit(tmp_path, run_file, read_only_dir, capsys,
+                                                  slow_work):
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    assert main(["fit-motion", str(run_file), "--out", str(folder), "--overwrite"]) == 2
+    assert f"gslam: error: --out {folder}: is a directory; give a file name" in \
+        capsys.readouterr().err
+    out = read_only_dir / "fitted.toml"
+    assert main(["fit-motion", str(run_file), "--out", str(out)]) == 2
+    assert f"gslam: error: --out {out}: cannot write in {read_only_dir} (" in \
+        capsys.readouterr().err
+
+
+def test_fit_motion_on_a_full_disk_leaves_no_file(tmp_path, run_file, capsys, monkeypatch):
+    import errno
+
+    from gslam_jax.app import outfile
+    from gslam_jax.tuning import motion_fit
+
+    fit = motion_fit.MotionFit(0.05, 0.01, 0.02, 10, 1, 0.01, 0.01, 0.001, 0.2, 0.01, False)
+    monkeypatch.setattr(motion_fit, "fit_run", lambda run, window: fit)
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(outfile.os, "fsync", full)
+    out = tmp_path / "fitted.toml"
+    assert main(["fit-motion", str(run_file), "--out", str(out)]) == 2
+    assert f"gslam: error: --out {out}: cannot write it (No space left on device); nothing " \
+           "was written there" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.npz"]
+    monkeypatch.undo()
+    monkeypatch.setattr(motion_fit, "fit_run", lambda run, window: fit)
+    assert main(["fit-motion", str(run_file), "--out", str(out)]) == 0
+    assert "alpha_d = 0.05" in out.read_text()
+
+
+def test_an_empty_config_file_is_an_error(tmp_path, run_file, capsys, no_work):
+    empty = tmp_path / "empty.toml"
+    empty.write_text("\n")
+    assert main(["run", str(run_file), "--config", str(empty), "--out", str(tmp_path / "o")]) == 2
+    assert f"gslam: error: {empty}: the config file is empty" in capsys.readouterr().err

@@ -23,10 +23,50 @@ import numpy as np
 from jax import lax
 
 from gslam_jax import choices, rbpf
-from gslam_jax.rbpf import maps
+from gslam_jax.app.outfile import atomic_file, check_output_file, write_text_atomic
+from gslam_jax.errors import InputError
+from gslam_jax.rbpf import maps, unknown
 from gslam_jax.machine import environment, physical_memory
 
-__all__ = ["time_update", "time_course", "plot_scaling", "main"]
+__all__ = ["BenchError", "check_arguments", "time_update", "time_course", "plot_scaling", "main"]
+
+
+class BenchError(InputError):
+    """A ``gslam bench`` argument the filter cannot run with: the message names the option."""
+
+
+def _bench_config(J: int, local: int, map_side: int, mode: str, particle_block: int = 0,
+                  store: str = "dense") -> rbpf.FilterConfig:
+    """The filter config ``time_update`` times (0.16 m cells, map centred on the origin)."""
+    return rbpf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
+                             map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
+                             local_size=local, unknown_cells=mode,
+                             particle_block=particle_block, store=store)
+
+
+def check_arguments(particles, local, map_side, modes, particle_block, stores) -> None:
+    """BenchError, before any timing, for a combination the filter refuses: a map side that is
+    not a multiple of the bitmask block or smaller than a local map's update window, a
+    negative particle block, or anything else ``FilterConfig.validate`` rejects."""
+    for b in particle_block:
+        if b < 0:
+            raise BenchError(f"--particle-block {b}: must be >= 0 (0: automatic)")
+    for side in map_side:
+        if side % unknown.BLOCK:
+            raise BenchError(f"--map {side}: must be a multiple of {unknown.BLOCK} cells")
+    for L, side in itertools.product(local, map_side):
+        window, mode = max((_bench_config(1, L, side, m).window, m) for m in modes)
+        if side < window:
+            raise BenchError(f"--map {side}: smaller than the update window of --local {L} "
+                             f"({window} cells with --mode {mode}); use --map {window} or more, "
+                             "or a smaller --local")
+    for L, side, mode, J, b, store in itertools.product(local, map_side, modes, particles,
+                                                        particle_block, stores):
+        try:
+            _bench_config(J, L, side, mode, b, store).validate()
+        except ValueError as err:
+            raise BenchError(f"--particles {J} --local {L} --map {side} --mode {mode} "
+                             f"--particle-block {b} --store {store}: {err}") from err
 
 def _synthetic_state(cfg: rbpf.FilterConfig, rng: np.random.Generator) -> rbpf.FilterState:
     """Particles scattered around the map centre (1 m standard deviation, any heading) on
@@ -70,10 +110,7 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     ``store = "shared"`` the forced resamplings ("resample_ms") include the copy-on-write of
     every footprint's tiles at the next update."""
     rng = np.random.default_rng(seed)
-    cfg = rbpf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
-                            map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
-                            local_size=local, unknown_cells=mode,
-                            particle_block=particle_block, store=store)
+    cfg = _bench_config(J, local, map_side, mode, particle_block, store)
     k = rng.integers(0, 30, (local, local)).astype(np.float32)
     obs = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
     params = rbpf.FilterParams()
@@ -130,6 +167,13 @@ def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3}
 
 
+def _plot_file(path: str | Path) -> Path:
+    """The file a plot is written to: ``path``, with ".png" added when it has no suffix (as
+    matplotlib adds it)."""
+    path = Path(path)
+    return path if path.suffix else path.with_name(path.name + ".png")
+
+
 def plot_scaling(rows: list[dict], path: Path) -> None:
     """us per particle per update against J, one line per (mode, local, map, block setting)."""
     from gslam_jax.app.plots import plt
@@ -149,7 +193,8 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
     ax.set_ylim(bottom=0)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with atomic_file(_plot_file(path), "--plot") as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
 
@@ -161,11 +206,18 @@ def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int =
 
     The cost should be flat in the map size (each update touches one footprint per particle) and
     linear in J; the last column divides by J so both are easy to read off. ``particle_block``
-    (0: automatic) takes several values to compare block sizes in one process.
+    (0: automatic) takes several values to compare block sizes in one process. The arguments
+    and the output paths are checked before any timing (``check_arguments``,
+    ``check_output_file``); the outputs are written atomically.
     """
     particle_block = [particle_block] if isinstance(particle_block, int) else list(particle_block)
     local = [local] if isinstance(local, int) else list(local)
     map_side = [map_side] if isinstance(map_side, int) else list(map_side)
+    check_arguments(particles, local, map_side, modes, particle_block, stores)
+    if json_path:
+        check_output_file(json_path, "--json")
+    if plot_path:
+        check_output_file(_plot_file(plot_path), "--plot")
     env = environment()
     print("gslam bench: local-map update (footprint reads + fused log-gamma weights + scatter-add"
           " map update + normalise), chained in a lax.scan as runs execute it")
@@ -202,5 +254,5 @@ def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int =
     if plot_path:
         plot_scaling(rows, Path(plot_path))
     if json_path:
-        Path(json_path).write_text(json.dumps(result, indent=2))
+        write_text_atomic(json_path, json.dumps(result, indent=2), "--json")
     return 0

@@ -39,6 +39,17 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (else a usage error); 0 means automatic."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0 (0: automatic), got {value}")
+    return value
+
+
 def _seed(text: str) -> int:
     """argparse type: a seed 0 <= seed < 2^32 (else a usage error)."""
     try:
@@ -180,11 +191,14 @@ def _fit_text(fit: MotionFit, frames: int) -> str:
 
 
 def cmd_fit_motion(args: argparse.Namespace) -> int:
+    from gslam_jax.app.outfile import check_output_file, write_text_atomic
     from gslam_jax.config import MotionSection, config_to_toml, section_to_toml
     from gslam_jax.tuning.motion_fit import fit_run
 
-    if args.out is not None and args.out.exists() and not args.overwrite:
-        raise ConfigError(f"{args.out}: exists (--overwrite replaces it)")
+    if args.out is not None:  # a folder, a read-only place: refused before the fit
+        check_output_file(args.out, "--out")
+        if args.out.exists() and not args.overwrite:
+            raise ConfigError(f"--out {args.out}: exists (--overwrite replaces it)")
     config, run = _config_and_run(args)
     fit = fit_run(run, args.window)
     fitted = dataclasses.replace(config, motion=MotionSection(
@@ -192,7 +206,7 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
     print(section_to_toml(fitted, "motion"))
     print(_fit_text(fit, run.num_frames))
     if args.out is not None:
-        args.out.write_text(config_to_toml(fitted))
+        write_text_atomic(args.out, config_to_toml(fitted), "--out")
         print(f"config: {args.out} (the config with the fitted [motion], for --config)")
     return 0
 
@@ -229,7 +243,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     run = load_run(args.run_file) if args.run_file else None
     result = compare(run, config, particles=args.particles,
                      unknown_cells=args.unknown_cells, tile_size=args.tile_size, seed=args.seed,
-                     out_dir=args.out, store=args.store, pool_tiles=args.pool_tiles)
+                     out_dir=args.out, store=args.store, pool_tiles=args.pool_tiles,
+                     overwrite=args.overwrite)
     return 0 if result.get("agreement", {}).get("ok", True) else 1
 
 
@@ -342,7 +357,7 @@ def _build_rest(sub) -> None:
                    help="also time a whole simulated course after compilation "
                    "(e.g. mars-yard-a), default settings")
     p.add_argument("--course-particles", type=_positive_int, default=200)
-    p.add_argument("--particle-block", type=int, nargs="+", default=[0],
+    p.add_argument("--particle-block", type=_nonnegative_int, nargs="+", default=[0],
                    help="particles per pass of the update (0: automatic); several values "
                    "compare block sizes in one process")
     p.add_argument("--store", choices=[s for s in choices.MAP_STORES if s != "auto"], nargs="+",
@@ -369,13 +384,16 @@ def _build_rest(sub) -> None:
     p.add_argument("--unknown-cells", choices=choices.UNKNOWN_CELLS)
     p.add_argument("--tile-size", type=_positive_float, help="tile side, metres (default 10)")
     p.add_argument("--seed", type=_seed, default=0)
-    p.add_argument("--out", type=Path, help="write compare.json and compare_fig4.png here")
+    p.add_argument("--out", type=Path, help="write compare.json and compare_fig4.png into "
+                   "this results folder when complete; an existing, non-empty folder is "
+                   "refused unless --overwrite")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     p.add_argument("--exact", action="store_true",
                    help="disable XLA's fused multiply-adds so both filters round identically")
     p.add_argument("--store", choices=choices.MAP_STORES,
                    help="the JAX filter's map store (default: the config's [map] store)")
-    p.add_argument("--pool-tiles", type=int, help="shared store pool size (default: the "
-                   "config's [map] pool_tiles; 0: automatic)")
+    p.add_argument("--pool-tiles", type=_nonnegative_int, help="shared store pool size "
+                   "(default: the config's [map] pool_tiles; 0: automatic)")
     p.set_defaults(func=cmd_compare)
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import re
 import time
@@ -28,15 +29,56 @@ import jax.numpy as jnp
 import numpy as np
 
 from gslam_jax import rbpf
+from gslam_jax.app.results import results_folder
+from gslam_jax.errors import InputError
 from gslam_jax.rbpf import maps
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 from gslam_jax.tiled.reference import DEFAULT_TILE_SIZE, TiledOutput, draw_noise, run_tiled
+from gslam_jax.vo.localmap import LocalMapParams
 
-__all__ = ["TOLERANCES", "default_tile_size", "dense_label", "DenseOutput", "run_dense",
-           "time_dense_updates", "check_agreement", "compare"]
+__all__ = ["TOLERANCES", "MAX_TILE_CELLS", "CompareError", "default_tile_size",
+           "check_tile_size", "dense_label", "DenseOutput", "run_dense", "time_dense_updates",
+           "check_agreement", "compare"]
 
 TOLERANCES = {"log_w": 1e-4, "pose": 1e-5, "k": 1e-6, "S_rel": 1e-5}
+
+# Most cells per side of a tile: the paper's 10 m tiles are 62 cells at 0.16 m; one tile of
+# 4096 x 4096 cells holds 128 MB of (k, S) and is copied whole on a particle's first write.
+MAX_TILE_CELLS = 4096
+
+
+class CompareError(InputError):
+    """A ``gslam compare`` option the comparison cannot run with: the message names it."""
+
+
+def check_tile_size(tile_size: float, resolution: float,
+                    map_shape: tuple[int, int] | None = None) -> int:
+    """The tile side in cells of ``--tile-size`` (metres); CompareError, before any work, when
+    it is under one cell, not a whole number of cells (with the two nearest sizes that are),
+    over ``MAX_TILE_CELLS`` or, when ``map_shape`` is given, wider than the map."""
+    name = f"--tile-size {tile_size:g}"
+    n = tile_size / resolution
+    if not math.isfinite(n):
+        raise CompareError(f"{name} m is not a usable tile size at resolution {resolution:g} m")
+    if n < 1.0 - 1e-6:
+        raise CompareError(f"{name} m is under one cell at resolution {resolution:g} m; use "
+                           f"{resolution:.6g} m (1 cell) or a whole number of cells more")
+    if n > MAX_TILE_CELLS:
+        raise CompareError(f"{name} m is {n:.4g} cells per side at resolution {resolution:g} m, "
+                           f"more than {MAX_TILE_CELLS}; use at most "
+                           f"{MAX_TILE_CELLS * resolution:.6g} m (the paper's tiles are 10 m)")
+    side = round(n)
+    if abs(n - side) > 1e-6 * max(1.0, n):  # the tolerance of tiled.tiles.tile_cells
+        lo = math.floor(n)
+        raise CompareError(f"{name} m is {n:.4g} cells at resolution {resolution:g} m, not a "
+                           f"whole number of cells; use e.g. {lo * resolution:.6g} m ({lo} "
+                           f"cells) or {(lo + 1) * resolution:.6g} m ({lo + 1} cells)")
+    if map_shape is not None and side > max(map_shape):
+        raise CompareError(f"{name} m is {side} cells per side, wider than the map "
+                           f"({map_shape[0]} x {map_shape[1]} cells at {resolution:g} m); use "
+                           f"at most {max(map_shape) * resolution:.6g} m")
+    return int(side)
 
 
 def default_tile_size(resolution: float, metres: float = DEFAULT_TILE_SIZE) -> float:
@@ -213,29 +255,57 @@ def _plot(path: Path, dense: DenseOutput, tiled: TiledOutput, title: str) -> Non
     plt.close(fig)
 
 
+# The local maps of the default run: a 5 m range, one every 2 m of travel.
+DEFAULT_RUN_PARAMS = LocalMapParams(max_range=5.0, travel=2.0)
+
+
 def _default_run() -> Run:
     from gslam_jax.datasets.sim import simulate_run
-    from gslam_jax.vo.localmap import LocalMapParams
 
-    run, _ = simulate_run("mars-yard-a", seed=0, params=LocalMapParams(max_range=5.0, travel=2.0),
-                          max_frames=600)
+    run, _ = simulate_run("mars-yard-a", seed=0, params=DEFAULT_RUN_PARAMS, max_frames=600)
     return run
 
 
 def compare(run: Run | None = None, config: Config | None = None, *, particles: int = 200,
             unknown_cells: str | None = None, tile_size: float | None = None, seed: int = 0,
             out_dir: str | Path | None = None, verbose: bool = True, store: str | None = None,
-            pool_tiles: int | None = None) -> dict:
+            pool_tiles: int | None = None, overwrite: bool = False) -> dict:
     """Run the dense and the tiled filter on ``run`` (default: a simulated course) with the same
     random numbers; check agreement; print time and memory side by side.
 
     Returns a dict with ``agreement``, timings, memory figures, per-frame memory and ESS; writes
-    ``compare.json`` and ``compare_fig4.png`` to ``out_dir`` when given.
+    ``compare.json`` and ``compare_fig4.png`` into the results folder ``out_dir`` when given
+    (``results.results_folder``: staged, renamed into place when complete; an existing,
+    non-empty folder is refused unless ``overwrite``). The options and ``out_dir`` are checked
+    before any work (CompareError, ResultsError).
     """
+    say = print if verbose else (lambda *a, **k: None)
+    resolution = run.resolution if run is not None else DEFAULT_RUN_PARAMS.resolution
+    if tile_size is not None:
+        check_tile_size(tile_size, resolution)
+    if pool_tiles is not None and pool_tiles < 0:
+        raise CompareError(f"--pool-tiles {pool_tiles}: must be >= 0 (0: automatic)")
+    options = dict(particles=particles, unknown_cells=unknown_cells, tile_size=tile_size,
+                   seed=seed, store=store, pool_tiles=pool_tiles)
+    if out_dir is None:
+        return _compare(run, config, say, **options)[0]
+    with results_folder(out_dir, "compare", overwrite=overwrite,
+                        command="gslam compare") as folder:
+        res, dense, tiled, cfg = _compare(run, config, say, **options)
+        (folder.staging / "compare.json").write_text(json.dumps(res, indent=1))
+        _plot(folder.staging / "compare_fig4.png", dense, tiled,
+              f"J={cfg.num_particles}, {cfg.unknown_cells}: ESS and memory over frames")
+    say(f"wrote {folder.target / 'compare.json'} and {folder.target / 'compare_fig4.png'}")
+    return res
+
+
+def _compare(run: Run | None, config: Config | None, say, *, particles: int,
+             unknown_cells: str | None, tile_size: float | None, seed: int, store: str | None,
+             pool_tiles: int | None) -> tuple[dict, DenseOutput, TiledOutput, rbpf.FilterConfig]:
+    """``compare`` without the output folder: the result dict, both runs and the config."""
     from gslam_jax.machine import environment
     from gslam_jax.slam import filter_config, filter_params, local_observations
 
-    say = print if verbose else (lambda *a, **k: None)
     config = config or Config()
     run = run if run is not None else _default_run()
     config = dataclasses.replace(
@@ -249,6 +319,8 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
     cfg = filter_config(config, run)
     params = filter_params(config)
     obs = local_observations(run, config.map.min_variance)
+    if tile_size is not None:
+        check_tile_size(tile_size, cfg.resolution, cfg.map_shape)
     tile = tile_size if tile_size is not None else default_tile_size(cfg.resolution)
     key = jax.random.key(seed)
     env = environment()
@@ -341,11 +413,4 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
         say(f"  frame {t:5d}: {tiled.memory_bytes[t] / MB:8.2f} MB {tiled.tiles[t]:7d} "
             f"{tiled.shared_mean[t]:7.1f}   ESS {float(dense.ess[t]):7.1f}")
     say(f"agreement: {json.dumps(agree)}")
-    if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "compare.json").write_text(json.dumps(res, indent=1))
-        _plot(out / "compare_fig4.png", dense, tiled,
-              f"J={cfg.num_particles}, {cfg.unknown_cells}: ESS and memory over frames")
-        say(f"wrote {out / 'compare.json'} and {out / 'compare_fig4.png'}")
-    return res
+    return res, dense, tiled, cfg

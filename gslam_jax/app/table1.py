@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax import metrics, slam
-from gslam_jax.config import Config, config_to_toml, load_table_config
+from gslam_jax.app.outfile import check_output_file, write_text_atomic
+from gslam_jax.config import Config, ConfigError, config_to_toml, load_table_config
 
 __all__ = ["PAPER_TABLE1", "run_course", "main"]
 
@@ -50,7 +51,10 @@ def main(courses: list[str], seeds: list[int], particles: int | None = None,
          config_path: Path | None = None, json_path: Path | None = None,
          quick: bool = False) -> int:
     """Run and print Table I; ``particles`` None takes each course's filter.particles from the
-    config (200 where it does not set it); ``quick``: Mars Yard A, one seed, J <= 100."""
+    config (200 where it does not set it); ``quick``: Mars Yard A, one seed, J <= 100.
+    Every course's config gets the checks of ``gslam run`` and ``json_path`` is checked
+    before any course runs; the JSON is written atomically."""
+    from gslam_jax.app.pipeline import Source, check_inputs
     from gslam_jax.machine import environment
 
     shared, per_course = load_table_config(config_path)
@@ -63,6 +67,14 @@ def main(courses: list[str], seeds: list[int], particles: int | None = None,
         j = min(j, 100) if quick else j
         return dataclasses.replace(c, filter=dataclasses.replace(c.filter, particles=j))
 
+    if json_path:
+        check_output_file(json_path, "--json")
+    for course in courses:
+        try:
+            check_inputs(Source(course=course, seed=seeds[0]), course_config(course))
+        except ConfigError as err:
+            where = f"{config_path}: " if config_path else ""
+            raise ConfigError(f"{where}course {course}: {err}") from err
     used = sorted({course_config(c).filter.particles for c in courses})
     particles_text = ", ".join(map(str, used))
     env = environment()
@@ -89,7 +101,7 @@ def main(courses: list[str], seeds: list[int], particles: int | None = None,
               f"{sl.mean():10.3f} {sl.max():11.3f} {np.max(sl / vo):6.2f} | "
               f"{paper[0]:>12} {paper[1]:5.2f} {paper[2]:5.2f}")
     if json_path:
-        Path(json_path).write_text(json.dumps({"environment": env,
-                                               "particles": used[0] if len(used) == 1 else used,
-                                               "rows": rows}, indent=2))
+        write_text_atomic(json_path, json.dumps({"environment": env,
+                                                 "particles": used[0] if len(used) == 1
+                                                 else used, "rows": rows}, indent=2), "--json")
     return 0
