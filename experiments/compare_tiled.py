@@ -23,6 +23,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tile-size", type=float, default=None, help="metres (default: nearest 10 m)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="directory for compare.json and the figure")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     ap.add_argument("--exact", action="store_true",
                     help="compile the dense filter without fused multiply-adds (XLA_FLAGS); "
                          "its timings are then labelled 'AVX only'")
@@ -36,7 +37,8 @@ def main(argv: list[str] | None = None) -> int:
 
     run = load_run(args.run) if args.run else None
     res = compare(run, particles=args.particles, unknown_cells=args.unknown_cells,
-                  tile_size=args.tile_size, seed=args.seed, out_dir=args.out, store=args.store)
+                  tile_size=args.tile_size, seed=args.seed, out_dir=args.out, store=args.store,
+                  overwrite=args.overwrite)
     return 0 if res["agreement"]["ok"] else 1
 
 
