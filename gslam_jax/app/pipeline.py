@@ -11,11 +11,10 @@ target only once every file is written.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Callable
 
+from gslam_jax.app.outfile import atomic_file, check_output_file
 from gslam_jax.app.outputs import print_summary, write_outputs
 from gslam_jax.app.results import ResultsError, results_folder
 from gslam_jax.config import Config, ConfigError
@@ -73,39 +72,18 @@ def prepare_source(src: Source, config: Config, progress: Progress | None = None
 
 
 def check_save_run(path: Path) -> None:
-    """ConfigError, before any work, when ``--save-run`` cannot be written there."""
-    path = Path(path)
-    if path.is_dir():
-        raise ConfigError(f"--save-run {path}: is a directory; give a file name (.npz)")
-    parent = path.absolute().parent
-    if not parent.is_dir():
-        raise ConfigError(f"--save-run {path}: folder {parent} does not exist")
-    try:  # the real test (os.access says yes to root on a read-only mount)
-        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", dir=parent)
-    except OSError as err:
-        raise ConfigError(f"--save-run {path}: cannot write in {parent} "
-                          f"({err.strerror or err})") from err
-    os.close(fd)
-    os.unlink(probe)
+    """OutputFileError, before any work, when ``--save-run`` cannot be written there."""
+    check_output_file(path, "--save-run")
 
 
 def save_run_file(path: Path, run) -> None:
     """Write ``run`` to ``path`` through a temporary file beside it, renamed when complete
-    (a full disk leaves no truncated Run file); ResultsError naming ``--save-run``."""
+    (a full disk leaves no truncated Run file); OutputFileError naming ``--save-run``."""
     from gslam_jax.run import save_run
 
-    path = Path(path)
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial",
-                                   dir=path.absolute().parent)
-        with os.fdopen(fd, "wb") as f:
+    with atomic_file(path, "--save-run") as tmp:
+        with open(tmp, "wb") as f:
             save_run(f, run)
-        os.replace(tmp, path)
-    except OSError as err:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
-        raise ResultsError(f"--save-run {path}: cannot write the Run ({err})") from err
 
 
 def check_gps(gps: str | Path | None, run, seed: int | None, log=None):
