@@ -315,3 +315,35 @@ def test_settings_table_names_config_fields_and_device_fields():
     assert set(SP.FILTER_PARAM_NAMES) == (set(params.motion._fields)
                                           | set(params._fields) - {"motion"})
     assert tuple(SP.base_values(CONFIG)) == SP.PARAM_NAMES
+
+
+@pytest.mark.parametrize("command", ["search", "tune"])
+def test_a_full_disk_is_a_named_error_and_publishes_nothing(small_run, tmp_path, monkeypatch,
+                                                            capsys, command):
+    """A write that fails (ENOSPC) while search or tune write their files: exit 2 naming
+    --out, no traceback, nothing at --out."""
+    import errno
+    from pathlib import Path
+
+    from gslam_jax.app.cli import main
+    from gslam_jax.run import save_run
+
+    save_run(tmp_path / "r.npz", small_run)
+    space = tmp_path / "space.toml"
+    space.write_text("[space]\nalpha_d = [0.01, 0.1]\n")
+
+    def full(self, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full)
+    out = tmp_path / "out"
+    sets = ["--set", "filter.particles=8", "--set", "localmap.max_range=2.5",
+            "--set", "localmap.travel=1.0", "--set", "map.margin=1.0"]
+    args = ([command, str(tmp_path / "r.npz"), "--space", str(space), "--n", "2", "--out",
+             str(out)] if command == "search" else
+            [command, str(tmp_path / "r.npz"), "--steps", "1", "--runs-per-step", "1", "--out",
+             str(out)]) + sets
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out}: cannot write the results (No space left on device)" in err
+    assert not out.exists()
