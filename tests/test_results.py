@@ -261,3 +261,40 @@ def test_an_existing_read_only_out_is_refused_before_the_run(tmp_path, run_file,
                         mode == os.W_OK else real(p, mode, **kw))
     assert main(["run", str(path), "--out", str(out)]) == 2
     assert f"--out {out}: is read-only" in capsys.readouterr().err and not fake_slam
+
+
+def test_overwrite_never_trusts_a_complete_file_gslam_did_not_write(tmp_path, run_file,
+                                                                    fake_slam, capsys):
+    _, path = run_file
+    thesis = tmp_path / "thesis"
+    thesis.mkdir()
+    (thesis / "thesis.tex").write_text("\\chapter{}")
+    (thesis / MARKER).write_text("done\n")
+    before = {p.name: p.read_bytes() for p in thesis.iterdir()}
+    assert main(["run", str(path), "--out", str(thesis), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {thesis}: holds files gslam does not write" in err and "thesis.tex" in err
+    assert {p.name: p.read_bytes() for p in thesis.iterdir()} == before and not fake_slam
+    # without --overwrite it is not called a finished results folder either
+    assert main(["run", str(path), "--out", str(thesis)]) == 2
+    assert "not empty (2 entries)" in capsys.readouterr().err
+
+
+def test_overwrite_keeps_files_the_marker_does_not_list(tmp_path, run_file, fake_slam, capsys):
+    from gslam_jax.app.results import MARKER_FORMAT, is_complete
+
+    _, path = run_file
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out)]) == 0
+    marker = json.loads((out / MARKER).read_text())
+    assert next(iter(marker)) == "format" and marker["format"] == MARKER_FORMAT
+    assert is_complete(out)
+    (out / "notes.txt").write_text("mine")  # the user's file added to a results folder
+    assert main(["run", str(path), "--out", str(out), "--overwrite"]) == 2
+    assert "holds files gslam does not write (notes.txt)" in capsys.readouterr().err
+    (out / "notes.txt").unlink()
+    (out / "map.png").unlink()  # a marker whose files are gone does not count
+    assert not is_complete(out)
+    assert main(["run", str(path), "--out", str(out), "--overwrite"]) == 2
+    assert "holds files gslam does not write (COMPLETE)" in capsys.readouterr().err
+    assert len(fake_slam) == 1

@@ -9,7 +9,9 @@ hidden beside the target, never a half-written target.
 
 An existing, non-empty target is refused unless ``overwrite``; then it is replaced as a whole
 (the old run's files are never mixed with the new run's), and only when it holds gslam
-results (the marker, or only file names gslam writes), never an unrelated folder.
+results, never an unrelated folder: only the files listed by a marker gslam wrote (its
+``format`` header, the files present), or, unmarked, only names gslam writes. A file named
+COMPLETE that gslam did not write makes the folder the user's.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from typing import Iterator, NamedTuple
 
 from gslam_jax.errors import InputError
 
-__all__ = ["MARKER", "RESULT_FILES", "ResultsError", "Staged", "results_folder", "is_complete"]
+__all__ = ["MARKER", "MARKER_FORMAT", "RESULT_FILES", "ResultsError", "Staged", "results_folder", "is_complete"]
 
 MARKER = "COMPLETE"
 
@@ -59,9 +61,34 @@ class _Taken(ResultsError):
     """``out`` was taken by another command while this one ran; the results stay staged."""
 
 
+# The first key of every marker gslam writes; a COMPLETE file without it is not gslam's.
+MARKER_FORMAT = "gslam results"
+
+
+def _marker_files(folder: Path) -> set[str] | None:
+    """The files listed by ``folder``'s marker when gslam wrote it (JSON with the ``format``
+    header, or from earlier versions a ``gslam ...`` command; the finishing time; the files,
+    each present), else None: a user's file named COMPLETE does not count."""
+    try:
+        marker = json.loads((folder / MARKER).read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if not isinstance(marker, dict):
+        return None
+    command, files = marker.get("command"), marker.get("files")
+    ours = marker.get("format") == MARKER_FORMAT or \
+        (isinstance(command, str) and command.startswith("gslam "))
+    if not (ours and isinstance(marker.get("finished"), str) and isinstance(files, dict)):
+        return None
+    names = set(files)
+    if not all(isinstance(n, str) and "/" not in n and (folder / n).is_file() for n in names):
+        return None
+    return names
+
+
 def is_complete(folder: str | Path) -> bool:
-    """True when ``folder`` holds the completeness marker of a finished command."""
-    return (Path(folder) / MARKER).is_file()
+    """True when ``folder`` holds the completeness marker of a finished gslam command."""
+    return _marker_files(Path(folder)) is not None
 
 
 def _check_target(target: Path, name: str, overwrite: bool) -> None:
@@ -80,8 +107,12 @@ def _check_target(target: Path, name: str, overwrite: bool) -> None:
             f"not empty ({len(entries)} entries)"
         raise ResultsError(f"{name}: is {what}; choose another --out, or add --overwrite to "
                            "replace it as a whole")
-    foreign = [e for e in entries if e not in RESULT_FILES]
-    if foreign and not is_complete(target):
+    # only the files gslam's marker lists (or, unmarked, names gslam writes) may be replaced;
+    # a COMPLETE that gslam did not write is the user's file like any other
+    listed = _marker_files(target)
+    ours = listed | {MARKER} if listed is not None else RESULT_FILES - {MARKER}
+    foreign = [e for e in entries if e not in ours]
+    if foreign:
         shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
         raise ResultsError(f"{name}: holds files gslam does not write ({shown}); --overwrite "
                            "only replaces a gslam results folder: choose another --out")
@@ -89,7 +120,7 @@ def _check_target(target: Path, name: str, overwrite: bool) -> None:
 
 def _write_marker(staging: Path, command: str) -> None:
     files = {p.name: p.stat().st_size for p in sorted(staging.iterdir()) if p.is_file()}
-    text = json.dumps({"command": command,
+    text = json.dumps({"format": MARKER_FORMAT, "command": command,
                        "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(
                            timespec="seconds"),
                        "files": files}, indent=2)
