@@ -298,3 +298,29 @@ def test_overwrite_keeps_files_the_marker_does_not_list(tmp_path, run_file, fake
     assert main(["run", str(path), "--out", str(out), "--overwrite"]) == 2
     assert "holds files gslam does not write (COMPLETE)" in capsys.readouterr().err
     assert len(fake_slam) == 1
+
+
+@pytest.mark.parametrize("kind", ["empty", "dangling", "loop"])
+def test_out_as_a_symlink_writes_into_its_target(tmp_path, run_file, fake_slam, capsys, kind):
+    _, path = run_file
+    real = tmp_path / "disk" / "real"
+    link = tmp_path / "link"
+    if kind == "empty":
+        real.mkdir(parents=True)
+    if kind == "loop":
+        link.symlink_to(tmp_path / "link2")
+        (tmp_path / "link2").symlink_to(link)
+        assert main(["run", str(path), "--out", str(link)]) == 2
+        assert f"--out {link}: is a symbolic link that resolves to no folder" in \
+            capsys.readouterr().err and not fake_slam
+        return
+    link.symlink_to(real, target_is_directory=True)
+    assert main(["run", str(path), "--out", str(link)]) == 0
+    assert link.is_symlink() and link.resolve() == real.resolve()
+    assert json.loads((real / MARKER).read_text())["files"].keys() >= {"summary.json"}
+    assert _leftovers(real.parent) == [] and _leftovers(tmp_path) == []
+    # a second run into the link is refused as a finished folder, and --overwrite replaces it
+    assert main(["run", str(path), "--out", str(link)]) == 2
+    assert "is a finished results folder" in capsys.readouterr().err
+    assert main(["run", str(path), "--out", str(link), "--overwrite"]) == 0
+    assert link.is_symlink() and (link / MARKER).is_file() and _leftovers(real.parent) == []

@@ -4,7 +4,9 @@ A command writes into a staging folder beside the target (``.<name>.partial-<ran
 created before any work, so that a place where nothing can be written is reported before the
 run, not after it. When every output is written, a marker ``COMPLETE`` (JSON: the command,
 the finishing time, every file with its size) is added and the folder is renamed into place in
-one step. A failed or interrupted command removes its staging folder; a killed one leaves it
+one step. A ``--out`` that is a symbolic link is followed: the results go to the folder it
+points to (present or not), beside which they are staged. A failed or interrupted command
+removes its staging folder; a killed one leaves it
 hidden beside the target, never a half-written target.
 
 An existing, non-empty target is refused unless ``overwrite``; then it is replaced as a whole
@@ -91,6 +93,19 @@ def is_complete(folder: str | Path) -> bool:
     return _marker_files(Path(folder)) is not None
 
 
+def _follow_link(target: Path, name: str) -> tuple[Path, str]:
+    """``target`` with a symbolic link resolved: the results are written into (and renamed onto)
+    the folder it points to, present or not, never onto the link itself. ResultsError for a
+    link that resolves to no place (a loop)."""
+    if not target.is_symlink():
+        return target, name
+    resolved = Path(os.path.realpath(target))
+    if resolved.is_symlink():  # realpath stops at a loop
+        raise ResultsError(f"{name}: is a symbolic link that resolves to no folder (a loop); "
+                           "nothing was run")
+    return resolved, f"{name} (a link to {resolved})"
+
+
 def _check_target(target: Path, name: str, overwrite: bool) -> None:
     """ResultsError when ``target`` may not receive the results (before any work)."""
     if not target.exists():
@@ -158,7 +173,7 @@ def results_folder(out: str | Path | None, kind: str, overwrite: bool = False,
     staging folder and the folders created here are removed: nothing is left under ``out``.
     """
     if out is not None:
-        target, name = Path(out), f"--out {out}"
+        target, name = _follow_link(Path(out), f"--out {out}")
     else:
         stamp = time.strftime(f"{kind}-%Y%m%d-%H%M%S")
         target = Path("results") / stamp
