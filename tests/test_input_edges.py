@@ -329,3 +329,20 @@ def test_an_empty_config_file_is_an_error(tmp_path, run_file, capsys, no_work):
     empty.write_text("\n")
     assert main(["run", str(run_file), "--config", str(empty), "--out", str(tmp_path / "o")]) == 2
     assert f"gslam: error: {empty}: the config file is empty" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("used, expected", [(0, "no frame uses any of the Run's"),
+                                            (1, "only 1 of the Run's")])
+def test_local_maps_no_frame_uses_are_counted_and_warned(tmp_path, run, capsys, used, expected):
+    import json
+
+    index = np.asarray(run.obs_index).copy()
+    keep = index == index[index >= 0][0] if used else np.zeros_like(index, bool)
+    path = tmp_path / "r.npz"
+    save_run(path, run._replace(obs_index=np.where(keep, index, -1)))
+    out = tmp_path / "o"
+    assert main(["run", str(path), "--out", str(out), "--set", "filter.particles=4"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["local_maps"] == run.num_local_maps and summary["local_maps_used"] == used
+    stdout = capsys.readouterr().out
+    assert f"WARNING: {expected} {run.num_local_maps} local maps" in stdout

@@ -55,7 +55,7 @@ def test_check_inputs_comes_before_any_loading(tmp_path, config, monkeypatch):
         pipeline.check_inputs(Source(), big)
 
 
-def test_run_pipeline_writes_what_the_driver_computed(tmp_path, run, config):
+def test_run_pipeline_writes_what_the_driver_computed(tmp_path, run, config, capsys):
     save_run(tmp_path / "r.npz", run)
     folder, summary = pipeline.run_pipeline(Source(run_file=tmp_path / "r.npz"), config,
                                             tmp_path / "out")
@@ -71,4 +71,6 @@ def test_run_pipeline_writes_what_the_driver_computed(tmp_path, run, config):
     on_disk = json.loads((folder / "summary.json").read_text())
     assert on_disk["frames"] == run.num_frames == summary["frames"]
     assert on_disk["resampling_events"] == int(np.sum(direct.resampled))
+    assert on_disk["local_maps_used"] == on_disk["local_maps"] == run.num_local_maps
     assert (folder / "COMPLETE").is_file()
+    assert "WARNING" not in capsys.readouterr().out

@@ -15,8 +15,8 @@ import numpy as np
 from gslam_jax.config import Config
 from gslam_jax.datasets.registry import LoadedSource
 
-__all__ = ["json_ready", "write_figures", "summarise", "write_outputs", "print_summary",
-           "MOTION_NOISE_TOLERANCE"]
+__all__ = ["json_ready", "write_figures", "local_maps_used", "summarise", "write_outputs",
+           "print_summary", "MOTION_NOISE_TOLERANCE"]
 
 
 def json_ready(value):
@@ -64,6 +64,13 @@ def write_figures(out: Path, run, result, num_particles: int,
     return slam_std
 
 
+def local_maps_used(run) -> int:
+    """How many of the Run's local maps the filter used: those some frame's ``obs_index``
+    names (a local map no frame names never updates a particle)."""
+    index = np.asarray(run.obs_index)
+    return int(np.unique(index[index >= 0]).size)
+
+
 def summarise(run, result, config: Config, description: str) -> dict:
     """The figures of ``summary.json`` (without the GPS figures)."""
     from gslam_jax import metrics
@@ -72,6 +79,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "source": description,
         "frames": run.num_frames,
         "local_maps": run.num_local_maps,
+        "local_maps_used": local_maps_used(run),
         "distance_m": run.distance(),
         "particles": config.filter.particles,
         "estimate": config.filter.estimate,
@@ -180,6 +188,13 @@ def print_summary(summary: dict, run, result) -> None:
           f"{result.seconds:.1f} s (+{result.compile_seconds:.1f} s first chunk incl. compile)")
     if result.extent_violations:
         print(f"WARNING: {result.extent_violations} particle updates reached the map edge")
+    used, total = summary["local_maps_used"], summary["local_maps"]
+    if total and not used:
+        print(f"WARNING: no frame uses any of the Run's {total} local maps (obs_index is -1 "
+              "everywhere): the filter made no map update; the path is dead reckoning")
+    elif used < total:
+        print(f"WARNING: only {used} of the Run's {total} local maps are used by a frame "
+              "(obs_index); the others were ignored")
     if result.empty_observations:
         print(f"note: {result.empty_observations} local maps had no informative cell "
               "(weights unchanged)")
