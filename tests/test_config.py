@@ -111,3 +111,29 @@ def test_paper_table1_figures_match_the_papers_text():
         m = re.search(re.escape(label) + r"\s+(\d+)\s+(\d+\.\d+)\s+(\d+\.\d+)", text)
         assert m, label
         assert PAPER_TABLE1[course] == (int(m[1]), float(m[2]), float(m[3])), course
+
+
+@pytest.mark.parametrize("sets, match", [
+    (["map.resolution=1e6"], r"\[map\] resolution 1e\+06 m against \[localmap\] max_range 10 m "
+                             r"spans 2e-05 cells per side, fewer than 8.*at most 2\.5 m"),
+    (["map.resolution=50"], r"\[map\] resolution 50 m against \[localmap\] max_range 10 m spans "
+                            r"0\.4 cells"),
+    (["localmap.max_range=0.2"], r"\[localmap\] max_range 0\.2 m spans 2\.5 cells"),
+    (["localmap.cells=4"], r"\[localmap\] cells = 4 gives local maps of fewer than 8 cells"),
+])
+def test_local_maps_of_a_few_cells_are_refused(sets, match):
+    from gslam_jax.app.pipeline import check_local_map_size
+
+    with pytest.raises(ConfigError, match=match):
+        check_local_map_size(apply_overrides(Config(), sets))
+    check_local_map_size(apply_overrides(Config(), ["map.resolution=2.5"]))  # 8 cells: enough
+
+
+def test_a_coarse_resolution_is_refused_before_the_run(tmp_path, capsys, monkeypatch):
+    from gslam_jax.app.cli import main
+
+    monkeypatch.setattr("gslam_jax.datasets.sim.simulate_run", lambda *a, **k: 1 / 0)
+    assert main(["run", "--set", "map.resolution=50", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "gslam: error: [map] resolution 50 m against [localmap] max_range 10 m" in err
+    assert not (tmp_path / "o").exists()

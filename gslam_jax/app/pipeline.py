@@ -23,7 +23,7 @@ from gslam_jax.vo.localmap import localmap_params
 
 __all__ = ["Source", "LoadedSource", "check_inputs", "prepare_source", "load_source",
            "check_save_run", "save_run_file", "check_local_map_size", "check_gps",
-           "run_pipeline", "MAX_LOCAL_CELLS"]
+           "run_pipeline", "MAX_LOCAL_CELLS", "MIN_LOCAL_CELLS"]
 
 ProgressFactory = Callable[[str], Progress]
 
@@ -31,17 +31,32 @@ ProgressFactory = Callable[[str], Progress]
 # paper's 10 m range at 0.16 m needs 128; at 1024 one local map alone is 25 MB of statistics
 # and every update scatters up to a million cells per particle.
 MAX_LOCAL_CELLS = 1024
+# ... and local maps whose sensor range spans fewer cells than this per side: at [map] resolution
+# 50 m a 10 m range falls in one cell, and the map is a few cells of kilometres, silently wrong.
+MIN_LOCAL_CELLS = 8
 
 
 def check_local_map_size(config: Config) -> None:
     """ConfigError, before any source runs, when a local map would exceed MAX_LOCAL_CELLS
-    cells per side ([localmap] max_range or cells against [map] resolution)."""
+    cells per side, or the sensor's range would span fewer than MIN_LOCAL_CELLS ([localmap]
+    max_range or cells against [map] resolution)."""
+    lm, res = config.localmap, config.map.resolution
+    if 0 < lm.cells < MIN_LOCAL_CELLS:
+        raise ConfigError(f"[localmap] cells = {lm.cells} gives local maps of fewer than "
+                          f"{MIN_LOCAL_CELLS} cells per side; use at least {MIN_LOCAL_CELLS}, "
+                          "or 0 to size them from [localmap] max_range")
+    span = 2.0 * lm.max_range / res  # cells across the sensor's range
+    if not span >= MIN_LOCAL_CELLS:
+        raise ConfigError(f"[map] resolution {res:g} m against [localmap] max_range "
+                          f"{lm.max_range:g} m spans {span:.3g} cells per side, fewer than "
+                          f"{MIN_LOCAL_CELLS}: local maps this coarse say nothing about the "
+                          f"terrain; use a [map] resolution of at most "
+                          f"{2.0 * lm.max_range / MIN_LOCAL_CELLS:g} m (the paper's is 0.16 m) "
+                          "or a longer [localmap] max_range")
     L = localmap_params(config).size
     if L > MAX_LOCAL_CELLS:
-        lm = config.localmap
         how = (f"[localmap] cells = {lm.cells}" if lm.cells else
-               f"[localmap] max_range {lm.max_range:g} m at [map] resolution "
-               f"{config.map.resolution:g} m")
+               f"[localmap] max_range {lm.max_range:g} m at [map] resolution {res:g} m")
         raise ConfigError(f"{how} gives local maps of {L} x {L} cells ({L * L * 24 / 2**20:.0f} "
                           f"MB of statistics each), more than {MAX_LOCAL_CELLS} per side; use a "
                           "coarser [map] resolution or a shorter [localmap] max_range")
