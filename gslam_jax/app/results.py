@@ -31,7 +31,8 @@ from typing import Iterator, NamedTuple
 
 from gslam_jax.errors import InputError
 
-__all__ = ["MARKER", "MARKER_FORMAT", "RESULT_FILES", "ResultsError", "Staged", "results_folder", "is_complete"]
+__all__ = ["MARKER", "MARKER_FORMAT", "RESULT_FILES", "ResultsError", "Staged", "results_folder",
+           "is_complete"]
 
 MARKER = "COMPLETE"
 
@@ -166,11 +167,12 @@ def _publish(staging: Path, target: Path, name: str, overwrite: bool) -> None:
 @contextlib.contextmanager
 def results_folder(out: str | Path | None, kind: str, overwrite: bool = False,
                    command: str | None = None) -> Iterator[Staged]:
-    """Yield a staging folder (``Staged``) for a command's outputs; on success mark it complete and rename
-    it to ``out`` (default ``results/<kind>-<time>``). ResultsError, before the command does
-    any work, when ``out`` exists and is not an empty directory (without ``overwrite``) or
-    when nothing can be written beside it. When the command fails or is interrupted, the
-    staging folder and the folders created here are removed: nothing is left under ``out``.
+    """Yield a staging folder (``Staged``) for a command's outputs; on success mark it complete
+    and rename it to ``out`` (default ``results/<kind>-<time>``). ResultsError, before the
+    command does any work, when ``out`` exists and is not an empty directory (without
+    ``overwrite``) or when nothing can be written beside it. When the command fails or is
+    interrupted, the staging folder and the folders created here are removed: nothing is left
+    under ``out``.
     """
     if out is not None:
         target, name = _follow_link(Path(out), f"--out {out}")
