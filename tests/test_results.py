@@ -324,3 +324,16 @@ def test_out_as_a_symlink_writes_into_its_target(tmp_path, run_file, fake_slam, 
     assert "is a finished results folder" in capsys.readouterr().err
     assert main(["run", str(path), "--out", str(link), "--overwrite"]) == 0
     assert link.is_symlink() and (link / MARKER).is_file() and _leftovers(real.parent) == []
+
+
+def test_out_as_the_current_folder_is_refused_before_the_run(tmp_path, monkeypatch, capsys):
+    """Renaming onto the working folder fails (EBUSY) after the whole run: refused first."""
+    from gslam_jax.app.results import ResultsError, results_folder
+
+    work = tmp_path / "empty"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    with pytest.raises(ResultsError, match=r"--out \.: is the current folder"):
+        with results_folder(".", "run"):
+            pytest.fail("work started before --out was checked")
+    assert list(work.iterdir()) == []

@@ -113,6 +113,13 @@ def _check_target(target: Path, name: str, overwrite: bool) -> None:
         return
     if not target.is_dir():
         raise ResultsError(f"{name}: exists and is not a directory")
+    if target.resolve() == Path.cwd().resolve() or os.path.ismount(target):
+        # the results are published by renaming the staging folder onto the target, which
+        # the system refuses for the working folder (EBUSY) and for a mount point
+        what = "the current folder" if target.resolve() == Path.cwd().resolve() else \
+            "a mount point"
+        raise ResultsError(f"{name}: is {what}, which a finished run cannot be renamed onto; "
+                           "give the name of a new folder (e.g. --out ./results-1)")
     if not os.access(target, os.W_OK):  # an existing folder the user may not write to
         raise ResultsError(f"{name}: is read-only (no write permission); nothing was run")
     entries = sorted(p.name for p in target.iterdir())
