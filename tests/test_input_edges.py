@@ -346,3 +346,29 @@ def test_local_maps_no_frame_uses_are_counted_and_warned(tmp_path, run, capsys, 
     assert summary["local_maps"] == run.num_local_maps and summary["local_maps_used"] == used
     stdout = capsys.readouterr().out
     assert f"WARNING: {expected} {run.num_local_maps} local maps" in stdout
+
+
+def test_course_beside_a_run_file_is_refused(run_file, capsys, no_work):
+    assert main(["run", str(run_file), "--course", "maze"]) == 2
+    assert "a Run file is used as it is; --course" in capsys.readouterr().err
+
+
+def test_a_parameter_named_twice_is_refused(run):
+    from gslam_jax.tuning.gradient import TuneError, tune
+
+    with pytest.raises(TuneError, match="parameters named twice: alpha_d"):
+        tune(run, Config(), names=["alpha_d", "alpha_d"], steps=1)
+
+
+def test_a_grid_smaller_than_n_says_so():
+    from gslam_jax.tuning.designs import DesignNotice, design_points
+    from gslam_jax.tuning.space import parse_space
+
+    space = parse_space({"alpha_d": [0.01, 0.1], "alpha_theta": [0.01, 0.1]})
+    with pytest.warns(DesignNotice, match="gives 1 set, not the 3 asked for"):
+        assert design_points(space, "grid", 3).shape == (1, 2)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert design_points(space, "grid", 4).shape == (4, 2)  # 2 per axis: no notice

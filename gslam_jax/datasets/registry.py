@@ -155,6 +155,7 @@ def check_source(src: Source, config: Config | None = None, gps: str | None = No
         extra = [opt for opt, given in (("--source", src.source != Source.source),
                                         ("--path", src.path is not None),
                                         ("--sequence", src.sequence is not None),
+                                        ("--course", src.course != Source.course),
                                         ("--max-frames", src.max_frames is not None)) if given]
         if extra:
             raise ConfigError(f"{src.run_file}: a Run file is used as it is; {', '.join(extra)} "

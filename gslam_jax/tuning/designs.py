@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 from scipy.stats import qmc
@@ -10,7 +11,7 @@ from scipy.stats import qmc
 from gslam_jax import choices
 from gslam_jax.tuning.space import SearchError, SearchSpace
 
-__all__ = ["DESIGNS", "unit_points", "design_points"]
+__all__ = ["DESIGNS", "DesignNotice", "unit_points", "design_points"]
 
 DESIGNS = choices.SEARCH_DESIGNS
 
@@ -30,6 +31,10 @@ def unit_points(design: str, n: int, dim: int, seed: int = 0) -> np.ndarray:
     raise SearchError(f"design '{design}' has no unit points; choose sobol, halton or random")
 
 
+class DesignNotice(UserWarning):
+    """A grid design evaluates fewer sets than asked for (n is not a d-th power)."""
+
+
 def design_points(space: SearchSpace, design: str, n: int, seed: int = 0) -> np.ndarray:
     """Parameter values [P, d] of a design: ``grid`` (m points per axis with m^d <= n,
     axis end points included), ``random`` (uniform, or log-uniform on log axes), ``halton`` or
@@ -41,6 +46,12 @@ def design_points(space: SearchSpace, design: str, n: int, seed: int = 0) -> np.
     d = space.dim
     if design == "grid":
         m = max(1, int(math.floor(n ** (1.0 / d) + 1e-9)))
+        if m ** d != n:
+            warnings.warn(f"design 'grid': {m} point{'s' if m > 1 else ''} per axis over {d} "
+                          f"parameters gives {m ** d} set{'s' if m ** d > 1 else ''}, not the "
+                          f"{n} asked for (a grid needs n = m^{d}; use n = {(m + 1) ** d} "
+                          f"for {m + 1} per axis, or another design)", DesignNotice,
+                          stacklevel=2)
         axis = np.linspace(0.0, 1.0, m) if m > 1 else np.array([0.5])
         unit = np.stack(np.meshgrid(*([axis] * d), indexing="ij"), -1).reshape(-1, d)
     else:

@@ -242,6 +242,9 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
         raise TuneError(f"[filter] proposal = \"{config.filter.proposal}\": gradient tuning "
                         "differentiates the motion proposal only; tune with proposal = \"motion\"")
     names = tuple(names) if names is not None else default_names(objective)
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise TuneError(f"parameters named twice: {', '.join(repeated)}; name each once")
     for n in names:
         if n not in SETTINGS:
             raise TuneError(f"unknown parameter '{n}'; tunable: {', '.join(TUNABLE_NAMES)}")
