@@ -6,8 +6,9 @@ from synthetic import make_run
 
 from gslam_jax.app.cli import main
 from gslam_jax.config import load_config
-from gslam_jax.tuning.motion_fit import (ALPHA_THETA_MAX, MIN_TURN, MOVING_FRACTION, MotionFitError,
-                                  _windows, fit_motion, fit_run, update_interval)
+from gslam_jax.tuning.motion_fit import (ALPHA_THETA_MAX, MIN_STEP, MIN_TURN, MOVING_FRACTION,
+                                         MotionFitError, _windows, fit_motion, fit_run,
+                                         update_interval)
 from gslam_jax.run import integrate_controls, load_run, save_run
 
 KITTI_LIKE = (0.005, 0.0007, 0.01)
@@ -31,13 +32,13 @@ def simulate(alphas, n=10_000, seed=0, turn_std=0.2):
 
 
 def moving_frames(ref, usable=None):
-    """Frames t >= 1 whose true step is at least MOVING_FRACTION of the median step or whose
-    true turn is at least MIN_TURN."""
+    """Frames t >= 1 whose true step is at least MOVING_FRACTION of the median step and
+    MIN_STEP, or whose true turn is at least MIN_TURN."""
     diff = np.diff(ref, axis=0)
     step, turn = np.hypot(diff[:, 0], diff[:, 1]), np.abs(np.angle(np.exp(1j * diff[:, 2])))
     ok = np.isfinite(step) if usable is None else np.isfinite(step) & usable[1:]
-    return int(np.sum(ok & ((step >= MOVING_FRACTION * np.median(step[ok]))
-                            | (turn >= MIN_TURN))))
+    least = max(MOVING_FRACTION * np.median(step[ok]), MIN_STEP)
+    return int(np.sum(ok & ((step >= least) | (turn >= MIN_TURN))))
 
 
 @pytest.mark.parametrize("alphas", [(0.05, 0.01, 0.05), KITTI_LIKE])
@@ -213,3 +214,13 @@ def test_run_reports_the_fit_and_notes_motion_noise_far_off_it(tmp_path, capsys)
         assert summary["alpha_d"] == pytest.approx(fit.alpha_d)
         assert summary["configured_over_fitted_heading"] == pytest.approx(scale, rel=1e-6)
         assert ("note: the [motion] noise" in capsys.readouterr().out) == noted
+
+
+def test_a_vehicle_standing_still_is_refused_naming_how_many_frames_moved():
+    """Ground truth that jitters by a fraction of a millimetre (a parked vehicle) fits no
+    motion noise: every frame is under MIN_STEP, whatever the median step."""
+    rng = np.random.default_rng(5)
+    ref = np.cumsum(rng.normal(0.0, [1.5e-4, 1.5e-4, 1e-4], (200, 3)), axis=0)
+    u = np.diff(ref, axis=0, prepend=ref[:1]) + rng.normal(0.0, 1e-4, (200, 3))
+    with pytest.raises(MotionFitError, match=r"0 of 199 frames moved at least 0\.005 m"):
+        fit_motion(u, ref)

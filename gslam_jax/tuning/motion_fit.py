@@ -11,8 +11,10 @@ increments against the ground-truth increments are samples of (q_d, q_theta), so
   errors, both >= 0 and alpha_theta <= ``ALPHA_THETA_MAX`` (it is not identifiable when every
   |dtheta| is tiny, and must not run off then).
 
-Only frames that moved at least ``MOVING_FRACTION`` of the median step fit alpha_d: eq. 2 gives
-a turn in place (|d| ~ 0) no along-track error, and its e_a / |d| would be arbitrarily large.
+Only frames that moved at least ``MOVING_FRACTION`` of the median step, and at least
+``MIN_STEP`` (a vehicle standing still moves only by its ground truth's jitter), fit alpha_d:
+eq. 2 gives a turn in place (|d| ~ 0) no along-track error, and its e_a / |d| would be
+arbitrarily large.
 The heading fit also uses the frames that turned at least ``MIN_TURN`` (eq. 3's turn term is
 what covers a turn in place); a robot standing still fits nothing.
 
@@ -39,10 +41,11 @@ from gslam_jax.vo.geometry import increments_2d
 
 __all__ = ["MotionFitError", "MotionFit", "IncrementErrors", "increment_errors", "fit_motion",
            "fit_run", "update_interval", "noise_ratios", "MIN_FRAMES", "MOVING_FRACTION",
-           "MIN_TURN", "ALPHA_THETA_MAX"]
+           "MIN_STEP", "MIN_TURN", "ALPHA_THETA_MAX"]
 
 MIN_FRAMES = 5
 MOVING_FRACTION = 0.25  # frames fitting alpha_d moved at least this times the median step
+MIN_STEP = 0.005  # m: ... and at least this far (a standing vehicle's jitter is not a step)
 MIN_TURN = 0.01  # rad: a frame that moved less but turned this much still fits eq. 3
 ALPHA_THETA_MAX = 1.0  # rad of heading noise std per rad turned: a bound, never a fit
 _STD_FLOOR = 1e-12  # rad, keeps the heading std positive at alpha_theta_d = alpha_theta = 0
@@ -202,11 +205,14 @@ def fit_motion(controls: np.ndarray, reference: np.ndarray | None,
     if window < 1:
         raise MotionFitError(f"window must be at least 1 frame, got {window}")
     e = increment_errors(controls, reference, usable)
-    moving = e.dist >= MOVING_FRACTION * np.median(e.dist)
+    step = max(MOVING_FRACTION * float(np.median(e.dist)), MIN_STEP)
+    moving = e.dist >= step
     if moving.sum() < MIN_FRAMES:
-        raise MotionFitError(f"{int(moving.sum())} frames moved at least {MOVING_FRACTION} of "
-                             f"the median step ({np.median(e.dist):.3g} m): fitting the motion "
-                             f"model needs at least {MIN_FRAMES}")
+        raise MotionFitError(f"{int(moving.sum())} of {len(e.dist)} frames moved at least "
+                             f"{step:.3g} m (the larger of {MOVING_FRACTION} of the median step, "
+                             f"{float(np.median(e.dist)):.3g} m, and {MIN_STEP} m): fitting the "
+                             f"motion model needs at least {MIN_FRAMES} moving frames (a log "
+                             "where the vehicle stands still fits nothing)")
     heading = moving | (e.turn >= MIN_TURN)  # a turn in place informs eq. 3's turn term
     along_w = _windows(e.frame[moving], window)
     head_w = _windows(e.frame[heading], window)
