@@ -29,37 +29,31 @@ if TYPE_CHECKING:
 __all__ = ["main", "console"]
 
 
-def _positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (else a usage error)."""
+def _integer(text: str, low: int, high: int | None, what: str, bounds: str) -> int:
+    """An integer in [low, high) from ``text``, else a usage error saying ``what`` was expected
+    (a non-number) or ``bounds`` (one out of range)."""
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if value < low or (high is not None and value >= high):
+        raise argparse.ArgumentTypeError(f"{bounds}, got {value}")
     return value
+
+
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (else a usage error)."""
+    return _integer(text, 1, None, "a positive integer", "expected a positive integer")
 
 
 def _nonnegative_int(text: str) -> int:
     """argparse type: an integer >= 0 (else a usage error); 0 means automatic."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0 (0: automatic), got {value}")
-    return value
+    return _integer(text, 0, None, "an integer >= 0", "expected an integer >= 0 (0: automatic)")
 
 
 def _seed(text: str) -> int:
     """argparse type: a seed 0 <= seed < 2^32 (else a usage error)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
-    if not 0 <= value < 2 ** 32:
-        raise argparse.ArgumentTypeError(f"a seed must be in [0, 2^32), got {value}")
-    return value
+    return _integer(text, 0, 2 ** 32, "an integer seed", "a seed must be in [0, 2^32)")
 
 
 def _positive_float(text: str) -> float:

@@ -31,7 +31,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from gslam_jax.sim.environments import _GROUND, _KIND_IDS, WORLD_KINDS, paint_grass
+from gslam_jax.sim.environments import (_GROUND, _KIND_IDS, WORLD_KINDS, paint_grass,
+                                        paint_scrub)
 from gslam_jax.sim.world import (Material, World, stamp_box, stamp_canopy, stamp_clump,
                                  stamp_disk, stamp_dome)
 
@@ -353,13 +354,7 @@ def _maze_fields(tile: World, ctx: _Context, rng: np.random.Generator) -> None:
     for bite in _near(ctx, tile, ctx.bites):  # irregular corridor edges
         corridor |= ((x0 + g - bite.x)[:, None] ** 2 + (y0 + g - bite.y)[None, :] ** 2
                      <= bite.reach ** 2)
-    top = 0.9 + 1.1 * ctx.field(5, x0, y0, 5.0)
-    per_px = top * rng.uniform(0.65, 1.0, tile.shape).astype(np.float32)
-    present = (~corridor) & (rng.random(tile.shape) < 0.92)
-    tile.height[present] = np.maximum(tile.height[present],
-                                      tile.ground[present] + per_px[present])
-    tile.rough[present] = 0.15
-    tile.material[present] = int(Material.SCRUB)
+    paint_scrub(tile, ctx.field(5, x0, y0, 5.0), corridor, rng)
 
 
 def _maze_objects(ctx: _Context, rng: np.random.Generator, uniform) -> list[_Stamp]:

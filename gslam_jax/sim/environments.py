@@ -99,6 +99,19 @@ def _grass(world: World, rng: np.random.Generator, res: float, mean: float, spre
     paint_grass(world, field, sandy, rng, mean, spread)
 
 
+def paint_scrub(world: World, field: np.ndarray, corridor: np.ndarray,
+                rng: np.random.Generator) -> None:
+    """Dense scrub 0.9-2 m tall (by the smooth ``field`` in [0, 1]) everywhere off the
+    ``corridor`` mask, with a few gaps."""
+    top = 0.9 + 1.1 * field
+    per_px = top * rng.uniform(0.65, 1.0, world.shape).astype(np.float32)
+    present = (~corridor) & (rng.random(world.shape) < 0.92)
+    world.height[present] = np.maximum(world.height[present],
+                                       world.ground[present] + per_px[present])
+    world.rough[present] = 0.15
+    world.material[present] = int(Material.SCRUB)
+
+
 def paint_grass(world: World, field: np.ndarray, sandy: np.ndarray, rng: np.random.Generator,
                 mean: float, spread: float) -> None:
     """Grass blades over the ground outside the ``sandy`` patches, their height set by the
@@ -170,14 +183,7 @@ def _maze(world: World, course: Course, rng: np.random.Generator, clearance: flo
         c = path[i] + rng.choice([-1.0, 1.0]) * rng.uniform(1.3, 2.0) * nrm
         corridor |= path_clearance_mask(world, np.stack([c, c + 0.01 * nrm]),
                                         rng.uniform(0.4, 1.1))
-    field = smooth_noise(world.shape, 5.0 / res, rng)
-    top = 0.9 + 1.1 * field
-    per_px = top * rng.uniform(0.65, 1.0, world.shape).astype(np.float32)
-    present = (~corridor) & (rng.random(world.shape) < 0.92)
-    world.height[present] = np.maximum(world.height[present],
-                                       world.ground[present] + per_px[present])
-    world.rough[present] = 0.15
-    world.material[present] = int(Material.SCRUB)
+    paint_scrub(world, smooth_noise(world.shape, 5.0 / res, rng), corridor, rng)
     # a few isolated clumps and rocks inside the corridors, off the driven line
     keep_clear = path_clearance_mask(world, path, clearance)
     n = int(course.length / 5.0)
