@@ -18,7 +18,7 @@ LAYERS = {
     "errors": 0, "choices": 0, "machine": 0, "io": 0, "sim.courses": 0,
     "config": 1,
     "rbpf": 2, "run": 2,
-    "vo": 3, "tiled": 3, "metrics": 3,
+    "vo": 3, "tiled": 3, "metrics": 3, "gridmap": 3,
     "sim": 4,
     "datasets": 5,
     "slam": 6,
