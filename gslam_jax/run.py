@@ -7,6 +7,7 @@ the filter is compiled. The native file format is exactly the fields below (docs
 
 from __future__ import annotations
 
+import math
 import zipfile
 from pathlib import Path
 from typing import BinaryIO, NamedTuple
@@ -15,8 +16,9 @@ import numpy as np
 
 from gslam_jax.errors import InputError
 
-__all__ = ["Run", "RunError", "load_run", "save_run", "validate_run", "integrate_controls",
-           "describe_cells", "known_positions"]
+__all__ = ["COORDINATE_FRACTION", "HEADING_LIMIT", "HEADING_STEP", "MAX_SPEED", "MAX_TURN", "Run",
+           "RunError", "coordinate_limit", "describe_cells", "float32_limit", "integrate_controls",
+           "known_positions", "load_run", "save_run", "validate_run"]
 
 
 class RunError(InputError):
@@ -108,6 +110,82 @@ VARIANCE_TOLERANCE = 1e-6
 VARIANCE_ROUNDING = 8.0
 
 
+# The filter holds poses and the map origin in float32. A coordinate is resolved when float32's
+# spacing there is at most COORDINATE_FRACTION of a map cell: poses then round by at most 1/512
+# of a cell per frame, and a slow vehicle's millimetre steps at 0.1 m cells still register.
+# At 0.16 m cells that holds within 8192 m of the origin; at 1e15 m the spacing is 125 km and
+# every step of a path rounds away (the whole trajectory one position).
+COORDINATE_FRACTION = 1.0 / 256.0
+# Headings likewise: float32 spacing at most HEADING_STEP rad (1 mm at 10 m, a local map's edge),
+# which holds below HEADING_LIMIT = 1024 rad (163 turns).
+HEADING_STEP = 1e-4
+# A control's heading change of more than pi in one frame cannot be told from the opposite turn
+# (the heading is only known modulo 2 pi between frames; VO reports its rotation in (-pi, pi]), so
+# no frame of real data holds one: it is a corrupt, mis-scaled (degrees) or unwrapped value.
+MAX_TURN = float(np.pi)
+# A control faster than this between its frame's timestamps (three times the land speed record
+# of 341 m/s) is no vehicle's motion but a mis-scaled or corrupt step; metres per second.
+MAX_SPEED = 1000.0
+
+
+def float32_limit(step: float) -> float:
+    """The largest magnitude below which float32 numbers are spaced at most ``step`` apart: a
+    power of two, 2^(k + 24) with 2^k the largest power of two <= ``step`` (float32 numbers in
+    [2^e, 2^(e+1)) are 2^(e-23) apart)."""
+    return math.ldexp(1.0, math.floor(math.log2(step)) + 24)
+
+
+def coordinate_limit(resolution: float) -> float:
+    """Metres from the origin within which float32 resolves COORDINATE_FRACTION of a map cell
+    of ``resolution`` metres (the limit on the start pose and the map extent)."""
+    return float32_limit(COORDINATE_FRACTION * resolution)
+
+
+HEADING_LIMIT = float32_limit(HEADING_STEP)
+
+
+def check_start_pose(pose: np.ndarray, resolution: float, fail) -> None:
+    """``fail("initial_pose", msg)`` when a start pose's position lies beyond
+    ``coordinate_limit(resolution)`` or its heading beyond HEADING_LIMIT: float32, in which the
+    filter holds poses, would not resolve the map's cells (or the heading) there."""
+    limit = coordinate_limit(resolution)
+    far = float(np.max(np.abs(pose[:2])))
+    if far >= limit:
+        fail("initial_pose", f"position ({pose[0]:.6g}, {pose[1]:.6g}) m is {far:.4g} m from "
+             f"the origin; the filter's float32 poses there are "
+             f"{float(np.spacing(np.float32(far))):.3g} m apart, coarser than 1/"
+             f"{1 / COORDINATE_FRACTION:.0f} of the {resolution:g} m cells (at most {limit:g} m "
+             "from the origin at this resolution); give the start pose in a local frame (e.g. "
+             "subtract the first position from every position)")
+    if abs(float(pose[2])) >= HEADING_LIMIT:
+        fail("initial_pose", f"heading {float(pose[2]):.6g} rad is beyond {HEADING_LIMIT:g} rad, "
+             f"where float32 headings are more than {HEADING_STEP:g} rad apart; give it modulo "
+             "2 pi")
+
+
+def check_controls(controls: np.ndarray, timestamps: np.ndarray, fail) -> None:
+    """``fail("controls", msg)`` naming the first frame whose control turns by more than
+    MAX_TURN or moves faster than MAX_SPEED between its timestamps (frame 0, which moves from the
+    initial pose, against the median frame interval): neither is a vehicle's motion."""
+    turn = np.abs(controls[:, 2])
+    if (turn > MAX_TURN).any():
+        t = int(np.argmax(turn > MAX_TURN))
+        fail("controls", f"frame {t} turns {controls[t, 2]:.6g} rad in one frame (more than pi: "
+             f"no heading change a frame can express; {int(np.sum(turn > MAX_TURN))} frames in "
+             "all); store the heading increment in radians within [-pi, pi]")
+    if controls.shape[0] < 2:
+        return
+    dt = np.diff(timestamps)
+    dt = np.concatenate([[np.median(dt)], dt])
+    step = np.hypot(controls[:, 0], controls[:, 1])
+    fast = step > MAX_SPEED * dt
+    if fast.any():
+        t = int(np.argmax(fast))
+        fail("controls", f"frame {t} moves {step[t]:.6g} m in {dt[t]:.4g} s ({step[t] / dt[t]:.4g} "
+             f"m/s, more than {MAX_SPEED:g} m/s; {int(np.sum(fast))} frames in all): a "
+             "mis-scaled or corrupt control (controls are metres, timestamps seconds)")
+
+
 def variance_tolerance(maps: np.ndarray, stored: np.dtype) -> np.ndarray:
     """[M, L, L] relative tolerance of n sum z^2 - (sum z)^2 < 0 for the statistics ``maps``
     [M, L, L, 3] stored as ``stored``: max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING n eps).
@@ -183,7 +261,8 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
     n >= 0 with n sum z^2 >= (sum z)^2 (a variance >= 0, up to the rounding of the dtype the
     statistics were accumulated in: ``stats_dtype``, default ``local_maps``' own); a finite
     initial pose. ``ground_truth`` may hold NaN rows: frames without ground truth (the metrics
-    skip them).
+    skip them). The start pose within reach of float32 (``check_start_pose``); no control
+    turning more than pi or moving faster than MAX_SPEED in one frame (``check_controls``).
     """
 
     def fail(field: str, msg: str) -> None:
@@ -255,6 +334,8 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
             fail("initial_pose", f"expected shape [3], got {pose.shape}")
         if not np.isfinite(pose).all():
             fail("initial_pose", f"non-finite value (NaN or inf): {pose.tolist()}")
+        check_start_pose(pose.astype(np.float64), resolution, fail)
+    check_controls(controls.astype(np.float64), ts.astype(np.float64), fail)
     return run
 
 

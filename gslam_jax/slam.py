@@ -21,9 +21,9 @@ from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.rbpf.motion import MotionParams
-from gslam_jax.run import Run, RunError, describe_cells, known_positions
+from gslam_jax.run import Run, RunError, coordinate_limit, describe_cells, known_positions
 
-__all__ = ["MapExtent", "map_extent", "observed_cells", "filter_config",
+__all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "filter_config",
            "filter_params", "local_observations", "raw_observations", "ObsSettings",
            "obs_settings", "refine_observations", "map_observations", "map_memory", "RunArrays",
            "run_arrays", "ground_truth_mask",
@@ -62,6 +62,30 @@ def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin:
     # Python ints: a huge extent stays huge (and fails the memory check) instead of wrapping.
     shape = tuple(max(window, 8 * math.ceil(math.ceil(float(n)) / 8)) for n in cells_needed)
     return MapExtent((float(lo[0]), float(lo[1])), shape)  # type: ignore[arg-type]
+
+
+def check_float32_reach(vo_poses: np.ndarray, extent: MapExtent, resolution: float,
+                        margin: float) -> None:
+    """RunError naming the frame where the VO path, or ConfigError naming [map] margin where the
+    map ``extent`` around it, reaches ``run.coordinate_limit(resolution)`` metres from the
+    origin: there the filter's float32 poses no longer resolve the map's cells."""
+    limit = coordinate_limit(resolution)
+    xy = np.asarray(vo_poses, np.float64)[:, :2]
+    far = np.abs(xy).max(axis=1)
+    if far.max() >= limit:
+        t = int(np.argmax(far >= limit))
+        raise RunError(f"field 'controls': the VO path reaches ({xy[t, 0]:.6g}, {xy[t, 1]:.6g}) m "
+                       f"at frame {t}, {far[t]:.4g} m from the origin; float32 poses there are "
+                       f"{float(np.spacing(np.float32(far[t]))):.3g} m apart, too coarse for "
+                       f"[map] resolution {resolution:g} m (at most {limit:g} m from the origin)")
+    lo = np.asarray(extent.origin, np.float64)
+    hi = lo + np.asarray(extent.shape, np.float64) * resolution
+    reach = float(max(np.abs(lo).max(), np.abs(hi).max()))
+    if reach >= limit:
+        raise ConfigError(f"[map] margin {margin:g} m around the VO path takes the map to "
+                          f"{reach:.4g} m from the origin, where float32 no longer resolves "
+                          f"[map] resolution {resolution:g} m (at most {limit:g} m from the "
+                          "origin); use a smaller [map] margin")
 
 
 def observed_cells(run: Run, multiple: int = 128) -> int:
@@ -119,6 +143,7 @@ def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
     except ConfigError as err:
         _check_steps(run, str(err))
         raise
+    check_float32_reach(run.vo_poses(), extent, config.map.resolution, config.map.margin)
     return cfg
 
 

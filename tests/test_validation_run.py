@@ -5,7 +5,10 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax.run import Run, RunError, load_run, save_run, validate_run
+from gslam_jax.config import ConfigError
+from gslam_jax.run import (MAX_SPEED, Run, RunError, coordinate_limit, float32_limit,
+                           integrate_controls, load_run, save_run, validate_run)
+from gslam_jax.slam import check_float32_reach, map_extent
 
 
 @pytest.fixture(scope="module")
@@ -188,3 +191,73 @@ def test_nan_ground_truth_rows_mean_frames_without_ground_truth(tmp_path, run):
     back = load_run(tmp_path / "gt.npz")
     np.testing.assert_array_equal(back.ground_truth, gt)
     assert isinstance(back, Run)
+
+
+@pytest.mark.parametrize("step", [0.16 / 256, 0.1 / 256, 1e-4, 0.05, 3.0])
+def test_float32_limit_against_numpy_spacing(step):
+    """Below the limit float32 numbers are at most ``step`` apart, at it they are not."""
+    limit = float32_limit(step)
+    below = np.nextafter(np.float32(limit), np.float32(0))
+    assert np.spacing(below) <= step < np.spacing(np.float32(limit))
+
+
+def test_far_initial_pose_is_refused(tmp_path, run):
+    """Before: a start at (1e15, 1e15) ran, and float32 held one position for every frame."""
+    far = np.array([1e15, 1e15, 0.0])
+    in32 = integrate_controls(run.controls, far).astype(np.float32)
+    assert len(np.unique(in32[:, :2], axis=0)) == 1  # the path the filter would have seen
+    with pytest.raises(RunError, match=r"bad\.npz: field 'initial_pose': position \(1e\+15, "
+                                       r"1e\+15\) m .* \(at most 8192 m from the origin"):
+        load_run(_save(tmp_path, run, initial_pose=far))
+    with pytest.raises(RunError, match=r"field 'initial_pose': heading 1e\+06 rad"):
+        load_run(_save(tmp_path, run, initial_pose=np.array([0.0, 0.0, 1e6])))
+
+
+def test_initial_pose_within_the_limit_loads_and_float32_follows_the_path(tmp_path, run):
+    """Just inside the limit float32 still follows the float64 path to a small part of a cell."""
+    limit = coordinate_limit(run.resolution)
+    near = np.array([0.99 * limit, -0.99 * limit, 2.0])
+    back = load_run(_save(tmp_path, run, initial_pose=near))
+    np.testing.assert_array_equal(back.initial_pose, near)
+    pose = near.astype(np.float32)
+    for dx, dy, dth in run.controls.astype(np.float32):  # eq. 1 composed in float32
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        pose = pose + np.array([c * dx - s * dy, s * dx + c * dy, dth], np.float32)
+    exact = integrate_controls(run.controls, near)[-1]
+    assert np.abs(pose[:2] - exact[:2]).max() < 0.1 * run.resolution
+
+
+def test_control_turning_more_than_pi_names_frame_and_value(tmp_path, run):
+    """Before: a turn of 1e6 rad in one frame was accepted (2.7 m RMS against VO's 0.32 m)."""
+    u = run.controls.copy()
+    u[7, 2] = 1e6
+    with pytest.raises(RunError, match=r"bad\.npz: field 'controls': frame 7 turns 1e\+06 rad"):
+        load_run(_save(tmp_path, run, controls=u))
+    u[7, 2] = -np.pi  # the largest turn a frame can express: still accepted
+    load_run(_save(tmp_path, run, controls=u))
+
+
+@pytest.mark.parametrize("frame", [0, 4])
+def test_control_moving_absurdly_far_names_frame(tmp_path, run, frame):
+    u = run.controls.copy()
+    u[frame, 0] = 1e6  # a million metres in 0.2 s
+    with pytest.raises(RunError, match=rf"field 'controls': frame {frame} moves 1e\+06 m in "
+                                       r"0\.2 s \(5e\+06 m/s"):
+        load_run(_save(tmp_path, run, controls=u))
+    u[frame, 0] = 0.99 * MAX_SPEED * 0.2  # fast, but within the bound
+    load_run(_save(tmp_path, run, controls=u))
+
+
+def test_map_extent_beyond_float32_reach():
+    """The VO path itself too far names the frame; a margin that takes the map there names
+    [map] margin."""
+    xy = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [9000.0, 5.0, 0.0]])
+    def check(path, margin):
+        check_float32_reach(path, map_extent(path, 128, 0.16, margin, 128), 0.16, margin)
+
+    with pytest.raises(RunError, match=r"field 'controls': the VO path reaches \(9000, 5\) m "
+                                       r"at frame 2"):
+        check(xy, 5.0)
+    with pytest.raises(ConfigError, match=r"\[map\] margin 10000 m"):
+        check(xy[:2], 1e4)
+    check(xy[:2], 5.0)
