@@ -70,7 +70,8 @@ class SimInfo:
             "world_fingerprint": self.world.fingerprint(),
             "course_length_m": round(self.course.length, 3),
             "frames": int(self.trajectory.num_frames),
-            "rate_hz": float(1.0 / np.median(np.diff(self.trajectory.timestamps))),
+            "rate_hz": (float(1.0 / np.median(np.diff(self.trajectory.timestamps)))
+                        if self.trajectory.num_frames > 1 else None),  # one frame has no rate
             "vo_noise": asdict(self.vo_noise),
             "vo_failed_frames": int(self.vo_draw.vo_failed.sum()),
             "sensor": asdict(self.sensor),

@@ -139,7 +139,8 @@ def estimate_motion(cam: Camera, ja: np.ndarray, jb: np.ndarray, gate_px: float 
     sigma2 = float(res.ravel() @ res.ravel()) / dof
     jtj = jac.T @ jac
     eig = np.linalg.eigvalsh(jtj)
-    cond = float(eig[-1] / max(eig[0], 1e-300))
+    with np.errstate(over="ignore"):  # absurd geometry (a km-scale baseline): cond = inf
+        cond = float(eig[-1] / max(eig[0], 1e-300))
     # Each measurement enters two residuals (directly, and through its triangulated point in the
     # other frame), so J^T J counts the information twice: hence the factor 2.
     cov = 2.0 * np.linalg.pinv(jtj) * sigma2
