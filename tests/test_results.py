@@ -6,6 +6,7 @@ about the files around it, and run in a second or two.
 
 import errno
 import json
+import time
 
 import numpy as np
 import pytest
@@ -337,3 +338,28 @@ def test_out_as_the_current_folder_is_refused_before_the_run(tmp_path, monkeypat
         with results_folder(".", "run"):
             pytest.fail("work started before --out was checked")
     assert list(work.iterdir()) == []
+
+
+def test_sigterm_removes_the_staging_folder_like_ctrl_c(tmp_path):
+    """Before: SIGTERM ended ``gslam run`` at once (exit -15) and left .o.partial-* behind."""
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "gslam_jax.app.cli", "run", "--max-frames",
+                             "400", "--out", str(out)], cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob(".o.partial-*")):
+            assert proc.poll() is None and time.monotonic() < deadline, "no staging folder"
+            time.sleep(0.05)
+        time.sleep(0.5)  # well inside the work (the simulator runs for seconds)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, err
+    assert "terminated (SIGTERM); no results were written" in err
+    assert list(tmp_path.iterdir()) == []
