@@ -71,7 +71,8 @@ def _source(args: argparse.Namespace) -> Source:
     """The source request from the source arguments."""
     return Source(run_file=args.run_file, source=args.source, course=args.course,
                   path=args.path, sequence=args.sequence, seed=args.seed,
-                  max_frames=args.max_frames, on_bad_frame=args.on_bad_frame)
+                  max_frames=args.max_frames, on_bad_frame=args.on_bad_frame,
+                  noise_seed=args.noise_seed)
 
 
 def _load_config(args: argparse.Namespace):
@@ -338,6 +339,9 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
                    + "), e.g. 00; needed when the dataset holds several")
     p.add_argument("--seed", type=_seed, help="simulation seed, 0 <= seed < 2^32 (default 0); "
                    "only for simulated sources and --gps sim (the filter's seed is filter.seed)")
+    p.add_argument("--noise-seed", type=_seed, help="draw the VO and sensor noise from this seed "
+                   "while the world and path stay those of --seed: the same terrain driven "
+                   "again (--source sim; default: --seed)")
     p.add_argument("--max-frames", type=_positive_int, metavar="N",
                    help="use only the first N frames of the source (not with a Run file)")
     p.add_argument("--on-bad-frame", choices=choices.BAD_FRAME_POLICIES, default="error",

@@ -37,7 +37,8 @@ class Source:
     """A request for frames: which source and its options (the command line's source arguments).
 
     ``seed`` is the simulation seed (None: 0); it only applies to simulated sources and to
-    ``--gps sim``. ``max_frames`` cuts the sources that declare ``cuts_frames``. A Run file is
+    ``--gps sim``. ``noise_seed`` (sources that declare ``noise_seed``) draws the VO and sensor
+    noise from another seed than the world and path: the same terrain driven again. ``max_frames`` cuts the sources that declare ``cuts_frames``. A Run file is
     ``Source(run_file=path)`` (its source is ``RUN_FILE``).
     """
 
@@ -49,6 +50,7 @@ class Source:
     seed: int | None = None
     max_frames: int | None = None
     on_bad_frame: str = "error"
+    noise_seed: int | None = None
 
     @property
     def name(self) -> str:
@@ -72,6 +74,11 @@ class Source:
     def sim_seed(self) -> int:
         return 0 if self.seed is None else self.seed
 
+    @property
+    def sim_noise_seed(self) -> int:
+        """The seed of the VO and sensor noise: ``noise_seed``, else the simulation seed."""
+        return self.sim_seed if self.noise_seed is None else self.noise_seed
+
 
 class LoadedSource(NamedTuple):
     """What a source's ``load`` returns."""
@@ -87,7 +94,8 @@ class DataSource:
 
     ``path``: what ``--path`` names for this source (e.g. "KITTI odometry folder"), None when
     it takes no path; ``path_required``: it cannot load without one. ``sequence``: it takes
-    ``--sequence``. ``cuts_frames``: ``--max-frames`` applies. ``load(request, config,
+    ``--sequence``. ``cuts_frames``: ``--max-frames`` applies. ``noise_seed``: it takes
+    ``--noise-seed``. ``load(request, config,
     progress)`` returns the Run (after the front-end for image sources).
     """
 
@@ -100,6 +108,7 @@ class DataSource:
     path_required: bool = True
     sequence: bool = False
     cuts_frames: bool = True
+    noise_seed: bool = False
 
 
 def discover(package: ModuleType) -> dict[str, DataSource]:
@@ -156,7 +165,8 @@ def check_source(src: Source, config: Config | None = None, gps: str | None = No
                                         ("--path", src.path is not None),
                                         ("--sequence", src.sequence is not None),
                                         ("--course", src.course != Source.course),
-                                        ("--max-frames", src.max_frames is not None)) if given]
+                                        ("--max-frames", src.max_frames is not None),
+                                        ("--noise-seed", src.noise_seed is not None)) if given]
         if extra:
             raise ConfigError(f"{src.run_file}: a Run file is used as it is; {', '.join(extra)} "
                               "only apply without one (drop them, or re-create the Run with "
@@ -168,6 +178,9 @@ def check_source(src: Source, config: Config | None = None, gps: str | None = No
         if src.sequence is not None and not spec.sequence:
             raise ConfigError(f"--sequence is for --source {_names(lambda s: s.sequence)}, not "
                               f"--source {src.source}")
+        if src.noise_seed is not None and not spec.noise_seed:
+            raise ConfigError(f"--noise-seed is for --source {_names(lambda s: s.noise_seed)}, "
+                              f"not --source {src.source}")
         if src.max_frames is not None and not spec.cuts_frames:
             raise ConfigError(f"--max-frames does not apply to --source {src.source}")
         if src.path is None and spec.path is not None and spec.path_required:

@@ -125,23 +125,26 @@ def drive_course(crs: Course, seed: int, noise: VONoiseParams, *,
 
 
 def simulate_odometry(course: str, seed: int = 0, *, drive_params: DriveParams | None = None,
-                      vo_noise: VONoiseParams | None = None,
-                      max_frames: int | None = None) -> Odometry:
-    """Course, ground truth and VO increments exactly as ``simulate_run`` draws them (same seed,
+                      vo_noise: VONoiseParams | None = None, max_frames: int | None = None,
+                      noise_seed: int | None = None) -> Odometry:
+    """Course, ground truth and VO increments exactly as ``simulate_run`` draws them (same seeds,
     same numbers), without the world and the sensor: for VO-only statistics in milliseconds."""
     if course not in COURSES:
         raise ValueError(f"unknown course {course!r}; valid courses: {', '.join(COURSES)}")
     noise = vo_noise or VO_PROFILES[course]
-    return drive_course(make_course(course, seed), seed, noise, drive_params=drive_params,
-                        max_frames=max_frames)
+    return drive_course(make_course(course, seed), seed if noise_seed is None else noise_seed,
+                        noise, drive_params=drive_params, max_frames=max_frames)
 
 
 def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = None, *,
                  sensor: SensorParams | None = None, drive_params: DriveParams | None = None,
                  vo_noise: VONoiseParams | None = None, max_frames: int | None = None,
-                 progress: ProgressFn | None = None) -> tuple[Run, SimInfo]:
+                 progress: ProgressFn | None = None,
+                 noise_seed: int | None = None) -> tuple[Run, SimInfo]:
     """Simulate ``course`` (one of ``course_names()``) with ``seed``.
 
+    noise_seed: draw the VO and sensor noise from this seed instead (the path and the world
+        stay those of ``seed``): the same terrain driven again, e.g. for map merging.
     params: local-map settings (its resolution is the Run's); defaults to ``LocalMapParams()``.
     vo_noise: defaults to the course's profile in ``VO_PROFILES``.
     max_frames: truncate the course (for quick tests); None drives all of it.
@@ -150,10 +153,10 @@ def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = Non
     params = params or LocalMapParams()
     t0 = time.perf_counter()
     odo = simulate_odometry(course, seed, drive_params=drive_params, vo_noise=vo_noise,
-                            max_frames=max_frames)
+                            max_frames=max_frames, noise_seed=noise_seed)
     world = world_for_course(odo.course, seed)
     timings = {"world_s": time.perf_counter() - t0}
-    return sense_run(odo, world, seed, params, sensor, progress=progress, timings=timings,
+    return sense_run(odo, world, seed if noise_seed is None else noise_seed, params, sensor, progress=progress, timings=timings,
                      t0=t0)
 
 
@@ -205,9 +208,11 @@ def sense_run(odo: Odometry, world: World, seed: int, params: LocalMapParams,
 
 def _load(src: Source, config: Config, progress: ProgressFn | None = None) -> LoadedSource:
     run, info = simulate_run(src.course, seed=src.sim_seed, params=localmap_params(config),
-                             max_frames=src.max_frames, progress=progress)
-    return LoadedSource(run, f"simulated course {src.course} (seed {src.sim_seed})", info)
+                             max_frames=src.max_frames, progress=progress,
+                             noise_seed=src.noise_seed)
+    noise = "" if src.noise_seed is None else f", noise seed {src.noise_seed}"
+    return LoadedSource(run, f"simulated course {src.course} (seed {src.sim_seed}{noise})", info)
 
 
 SOURCE = DataSource(name="sim", help="simulated course (point sensor, VO noise drawn by the "
-                    "course's profile)", load=_load, simulated=True)
+                    "course's profile)", load=_load, simulated=True, noise_seed=True)
