@@ -19,7 +19,7 @@ LAYERS = {
     "config": 1,
     "rbpf": 2, "run": 2,
     "vo": 3, "tiled": 3, "metrics": 3, "gridmap": 3,
-    "sim": 4,
+    "sim": 4, "loops": 4,
     "datasets": 5,
     "slam": 6,
     "gps": 7, "tuning": 7,

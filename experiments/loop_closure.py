@@ -1,0 +1,277 @@
+"""How long a loop the filter closes: closure probability against loop length, per proposal and
+number of particles J (the paper's section 9 question).
+
+    python -m experiments.loop_closure --circles 50 100 200 400 \
+        --kitti ../shared/data/kitti-poses/00.txt --kitti-lengths 300 600 \
+        --particles 20 200 --seeds 0 1 2 3 4 --json loops.json --plot loops.png
+    # a big machine: --particles 2000 20000 --store shared
+
+Loops: circles of the given perimeters, and cuts of KITTI pose files: the first return of a
+pose j to within --radius of an earlier pose i, with the travel between them nearest each
+--kitti-lengths value. Each loop is driven once and then --overlap metres on, through a
+corridor world of --course (``datasets.sim_path``); seed s is both the simulation seed (world
+and VO noise) and the filter seed. The revisit scored is the frame at 10 m of travel and its
+return one loop later; the verdict is ``gslam_jax.loops.closure`` (revisit error and map
+offset <= 1 m) of the final best particle's path, and the same for the VO-only path.
+
+Prints one line per run, then per (proposal, J) the closure rate at each length and the
+longest loop closed in >= 80 % of the seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from gslam_jax import loops, metrics, slam
+from gslam_jax.config import apply_overrides, layered_config
+from gslam_jax.datasets.sim_path import simulate_path
+from gslam_jax.machine import environment
+from gslam_jax.vo.localmap import localmap_params
+
+START_M = 10.0  # the revisit's first frame: this far along the loop
+
+
+class Loop(NamedTuple):
+    """A loop to drive: its name, kind ("circle" or "kitti"), nominal length and the
+    trajectory file (TUM or KITTI) that drives it plus the overlap."""
+
+    name: str
+    kind: str
+    length_m: float
+    file: Path
+
+
+def circle_file(folder: Path, length: float, overlap: float, step: float = 0.5) -> Path:
+    """A TUM file of a circle of perimeter ``length`` driven once plus ``overlap`` metres."""
+    r = length / (2 * np.pi)
+    phi = np.arange(0.0, (length + overlap) / r + 1e-9, step / r)
+    rows = [f"{0.1 * k:.3f} {r * np.sin(p):.6f} {r * (1 - np.cos(p)):.6f} 0 0 0 "
+            f"{np.sin(p / 2):.9f} {np.cos(p / 2):.9f}" for k, p in enumerate(phi)]
+    path = folder / f"circle-{length:g}.tum"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def _kitti_xy(file: Path) -> np.ndarray:
+    """Positions in the ground plane (camera x, z) of a KITTI pose file with times."""
+    data = np.loadtxt(file, ndmin=2)
+    m = data[:, -12:].reshape(-1, 3, 4)
+    return np.stack([m[:, 0, 3], m[:, 2, 3]], axis=1)
+
+
+def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5
+               ) -> list[tuple[int, int, float]]:
+    """(a, b, loop length) per requested length: the first return b of a pose a to within
+    ``radius`` after leaving it by more than twice that, the pair whose loop is nearest the
+    length; a runs over every ``every``-th pose."""
+    xy = _kitti_xy(file)
+    arc = loops.arc_length(xy)
+    found = []
+    for a in range(0, len(xy), every):
+        d = np.hypot(*(xy[a:] - xy[a]).T)
+        away = np.flatnonzero(d > 2 * radius)
+        if away.size == 0:
+            continue
+        back = np.flatnonzero((d <= radius) & (np.arange(len(d)) > away[0]))
+        if back.size:
+            b = a + int(back[0])
+            found.append((a, b, float(arc[b] - arc[a])))
+    out = []
+    for want in lengths:
+        if not found:
+            break
+        out.append(min(found, key=lambda f: abs(f[2] - want)))
+    return out
+
+
+def kitti_file(folder: Path, file: Path, a: int, b: int, overlap: float) -> Path:
+    """The lines of a KITTI pose file from START_M metres before pose a (so that the revisit
+    scored is a, b) to ``overlap`` metres after b."""
+    lines = [ln for ln in file.read_text().splitlines() if ln.strip()]
+    arc = loops.arc_length(_kitti_xy(file))
+    first = int(np.searchsorted(arc, arc[a] - START_M))
+    end = int(np.searchsorted(arc, arc[b] + overlap))
+    path = folder / f"{file.stem}-{a}-{b}.txt"
+    path.write_text("\n".join(lines[first:end + 1]) + "\n")
+    return path
+
+
+def score(run, res, revisit: loops.Revisit) -> dict:
+    """The closure figures of one filter run: its best particle's path and the VO path."""
+    slam_c = loops.closure(run, res.best_path, revisit)
+    vo_c = loops.closure(run, res.vo_path, revisit)
+    return {"closed": slam_c.closed, "error_m": slam_c.error_m,
+            "map_offset_m": slam_c.map_offset_m, "map_corr": slam_c.map_corr,
+            "smoothed_error_m": loops.revisit_error(run.ground_truth, res.smoothed_path,
+                                                    revisit.i, revisit.j),
+            "vo_closed": vo_c.closed, "vo_error_m": vo_c.error_m,
+            "vo_map_offset_m": vo_c.map_offset_m,
+            "slam_rms_m": metrics.rms_after_fit(res.best_path, run.ground_truth),
+            "vo_rms_m": metrics.rms_after_fit(res.vo_path, run.ground_truth)}
+
+
+def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: list[str],
+             informed_max: float, informed_particles: list[int] | None = None,
+             max_frames: int | None = None, course: str = "mars-yard-a",
+             margin_per_m: float = 0.1, vo_noise=None, on_row=None) -> list[dict]:
+    """Every (proposal, J) run of one loop at one seed, as result rows. The map's margin
+    around the VO path is at least ``margin_per_m`` times the loop length, so that a path the
+    filter corrects by the VO's drift stays on the map. vo_noise: that of ``course`` if None."""
+    margin = max(config.map.margin, margin_per_m * loop.length_m)
+    config = apply_overrides(config, [f"map.margin={margin:g}"])
+    run, _ = simulate_path(loop.file, seed=seed, course=course, params=localmap_params(config),
+                           max_frames=max_frames, vo_noise=vo_noise)
+    revisit = loops.find_revisit(run.ground_truth, START_M, 0.5 * loop.length_m)
+    rows = []
+    for proposal in proposals:
+        if proposal == "informed" and loop.length_m > informed_max:
+            continue
+        for J in (informed_particles or particles) if proposal == "informed" else particles:
+            cfg = apply_overrides(config, [f"filter.particles={J}", f"filter.proposal={proposal}",
+                                           f"filter.seed={seed}"])
+            row = {"loop": loop.name, "kind": loop.kind, "length_m": loop.length_m,
+                   "seed": seed, "proposal": proposal, "particles": J,
+                   "frames": run.num_frames, "local_maps": run.num_local_maps}
+            if revisit is None:
+                row.update(closed=None, note="no revisit within the radius in the driven run")
+            else:
+                t0 = time.perf_counter()
+                res = slam.run_slam(run, cfg)
+                row.update(revisit=list(revisit), store=res.store, map_margin_m=margin,
+                           extent_violations=res.extent_violations,
+                           filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
+                           **score(run, res, revisit))
+            rows.append(row)
+            if on_row:
+                on_row(row)
+    return rows
+
+
+def summary(rows: list[dict], share: float = 0.8) -> dict:
+    """Per "proposal J=..": the closure rate at each length and the longest length closed in
+    at least ``share`` of its runs (None when none is)."""
+    out = {}
+    for key in sorted({(r["proposal"], r["particles"]) for r in rows}):
+        mine = [r for r in rows if (r["proposal"], r["particles"]) == key
+                and r["closed"] is not None]
+        rates = {}
+        for length in sorted({r["length_m"] for r in mine}):
+            got = [r["closed"] for r in mine if r["length_m"] == length]
+            rates[length] = (sum(got) / len(got), len(got))
+        ok = [length for length, (rate, _) in rates.items() if rate >= share]
+        out[f"{key[0]} J={key[1]}"] = {"rates": rates, "longest": max(ok) if ok else None}
+    return out
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Closure probability against loop length, one line per (proposal, J); VO dashed."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for name, s in summary(rows).items():
+        lengths = sorted(s["rates"])
+        ax.plot(lengths, [s["rates"][x][0] for x in lengths], "o-", label=name)
+    vo = {}
+    for r in rows:
+        if r["closed"] is not None:
+            vo.setdefault(r["length_m"], {})[(r["loop"], r["seed"])] = r["vo_closed"]
+    xs = sorted(vo)
+    ax.plot(xs, [np.mean(list(vo[x].values())) for x in xs], "k--", label="VO only")
+    ax.set_xscale("log")
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_xlabel("loop length (m)")
+    ax.set_ylabel("closure probability (share of seeds)")
+    ax.set_title("revisit error and map offset <= 1 m")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--circles", type=float, nargs="*", default=[50, 100, 200, 400],
+                    help="circle perimeters, m")
+    ap.add_argument("--kitti", type=Path, nargs="*", default=[], help="KITTI pose files")
+    ap.add_argument("--kitti-lengths", type=float, nargs="*", default=[300, 600],
+                    help="loop lengths to cut from each KITTI file, m (the nearest found)")
+    ap.add_argument("--particles", type=int, nargs="+", default=[20, 200])
+    ap.add_argument("--proposals", nargs="+", default=["motion", "informed"])
+    ap.add_argument("--informed-max-length", type=float, default=float("inf"),
+                    help="run the informed proposal only on loops up to this length, m")
+    ap.add_argument("--informed-particles", type=int, nargs="+",
+                    help="J for the informed proposal (default: --particles)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--store", default="auto", choices=["dense", "shared", "auto"])
+    ap.add_argument("--course", default="mars-yard-a", help="world kind and VO noise")
+    ap.add_argument("--overlap", type=float, default=20.0, help="metres driven past the loop")
+    ap.add_argument("--margin-per-m", type=float, default=0.1,
+                    help="map margin (m) per metre of loop, at least [map] margin")
+    ap.add_argument("--radius", type=float, default=2.0, help="revisit radius of KITTI cuts, m")
+    ap.add_argument("--config", type=Path)
+    ap.add_argument("--set", action="append", default=[])
+    ap.add_argument("--json", type=Path, help="write settings and every run here")
+    ap.add_argument("--plot", type=Path, help="write the closure plot here (PNG)")
+    args = ap.parse_args(argv)
+    env = environment()
+    config = layered_config(args.config, None, args.set + [f"map.store={args.store}"])
+    print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
+    rows: list[dict] = []
+    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    settings["kitti"] = [str(p) for p in args.kitti]
+
+    def write() -> None:
+        if args.json:
+            args.json.write_text(json.dumps({"settings": settings, "environment": env,
+                                             "rows": rows}, indent=1, default=float))
+
+    def on_row(r: dict) -> None:
+        rows.append(r)
+        if r["closed"] is None:
+            print(f"{r['loop']:>16} seed {r['seed']}: {r['note']}", flush=True)
+        else:
+            print(f"{r['loop']:>16} seed {r['seed']} {r['proposal']:>8} J={r['particles']:<5} "
+                  f"error {r['error_m']:6.2f} m offset {r['map_offset_m']:5.2f} m "
+                  f"{'CLOSED' if r['closed'] else 'open  '} | VO {r['vo_error_m']:6.2f} m "
+                  f"{'closed' if r['vo_closed'] else 'open'} | {r['wall_seconds']:.0f} s",
+                  flush=True)
+        write()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        todo = [Loop(f"circle-{x:g}", "circle", x, circle_file(folder, x, args.overlap))
+                for x in args.circles]
+        for file in args.kitti:
+            for a, b, length in kitti_cuts(file, args.kitti_lengths, args.radius):
+                todo.append(Loop(f"kitti{file.stem}-{a}-{b}", "kitti", round(length, 1),
+                                 kitti_file(folder, file, a, b, args.overlap)))
+        for loop in todo:
+            for seed in args.seeds:
+                run_loop(loop, seed, config, args.particles, args.proposals,
+                         args.informed_max_length, args.informed_particles, course=args.course,
+                         margin_per_m=args.margin_per_m, on_row=on_row)
+    print("\nclosure rate per loop length (share of seeds closed, runs):")
+    summ = summary(rows)
+    for name, s in summ.items():
+        rates = ", ".join(f"{x:g} m {r:.0%} ({n})" for x, (r, n) in s["rates"].items())
+        longest = "none" if s["longest"] is None else f"{s['longest']:g} m"
+        print(f"  {name}: {rates}; longest closed in >= 80 %: {longest}")
+    settings["summary"] = {k: {"rates": {str(x): v for x, v in s["rates"].items()},
+                               "longest": s["longest"]} for k, s in summ.items()}
+    write()
+    if args.plot:
+        plot(rows, args.plot)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,148 @@
+"""Loop closure: the revisit, the revisit error, the map offset and the verdict (gslam_jax.loops),
+and a CI-sized run of experiments/loop_closure.py."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gslam_jax import loops
+from gslam_jax.config import Config
+from gslam_jax.datasets.sim_path import simulate_path
+from gslam_jax.metrics import GridMap
+from gslam_jax.sim.vonoise import VO_PROFILES
+
+
+def _circle(length: float, extra: float, step: float = 0.25) -> np.ndarray:
+    """Poses (x, y, yaw) around a circle of perimeter ``length``, then ``extra`` metres on."""
+    r = length / (2 * np.pi)
+    phi = np.arange(0.0, (length + extra) / r, step / r)
+    return np.stack([r * np.sin(phi), r * (1 - np.cos(phi)), phi], axis=1)
+
+
+def _rel(poses: np.ndarray, i: int, j: int) -> complex:
+    """Independently: position of j in the frame of i, as a complex number."""
+    z = poses[:, 0] + 1j * poses[:, 1]
+    return (z[j] - z[i]) * np.exp(-1j * poses[i, 2])
+
+
+def _dead_reckon(true: np.ndarray, heading_drift: float) -> np.ndarray:
+    """The true steps integrated with a heading error growing by ``heading_drift`` rad per
+    metre: an open, drifted estimate (no map correction)."""
+    z = true[:, 0] + 1j * true[:, 1]
+    steps = np.diff(z)
+    arc = np.concatenate([[0.0], np.cumsum(np.abs(steps))])
+    turned = steps * np.exp(1j * heading_drift * arc[1:])
+    est_z = np.concatenate([[z[0]], z[0] + np.cumsum(turned)])
+    return np.stack([est_z.real, est_z.imag, true[:, 2] + heading_drift * arc], axis=1)
+
+
+def test_revisit_is_the_nearest_return_after_the_loop() -> None:
+    true = _circle(60.0, 20.0)
+    rv = loops.find_revisit(true, start_m=10.0, min_loop_m=30.0)
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(true[:, :2], axis=0).T))])
+    i = int(np.argmax(arc >= 10.0))
+    dist = [math.hypot(*(true[k, :2] - true[i, :2])) if arc[k] >= arc[i] + 30 else np.inf
+            for k in range(len(true))]
+    assert (rv.i, rv.j) == (i, int(np.argmin(dist)))
+    assert rv.gap_m < 0.2 and abs(rv.loop_m - 60.0) < 0.3
+    # a path that never comes back has no revisit
+    straight = np.stack([np.arange(200) * 0.5, np.zeros(200), np.zeros(200)], axis=1)
+    assert loops.find_revisit(straight, 10.0, 30.0) is None
+
+
+def test_revisit_error_closed_and_open_paths() -> None:
+    true = _circle(100.0, 20.0)
+    rv = loops.find_revisit(true, 10.0, 50.0)
+    rng = np.random.default_rng(0)
+    # closed: the truth moved rigidly (any frame) with 5 cm jitter
+    a, t = 0.7, np.array([3.0, -8.0])
+    c, s = math.cos(a), math.sin(a)
+    closed = true.copy()
+    closed[:, :2] = true[:, :2] @ np.array([[c, -s], [s, c]]).T + t
+    closed[:, 2] += a
+    closed[:, :2] += rng.normal(0.0, 0.05, closed[:, :2].shape)
+    want = abs(_rel(closed, rv.i, rv.j) - _rel(true, rv.i, rv.j))
+    got = loops.revisit_error(true, closed, rv.i, rv.j)
+    assert got == pytest.approx(want, abs=1e-9) and got < 0.2
+    # open: dead reckoning with a heading drift of 1 mrad per metre
+    drifted = _dead_reckon(true, 0.001)
+    want = abs(_rel(drifted, rv.i, rv.j) - _rel(true, rv.i, rv.j))
+    got = loops.revisit_error(true, drifted, rv.i, rv.j)
+    assert got == pytest.approx(want, abs=1e-9) and got > loops.TOLERANCE
+    # and the estimate's own rigid motion does not change it
+    moved = drifted.copy()
+    moved[:, :2] = drifted[:, :2] @ np.array([[c, -s], [s, c]]).T + t
+    moved[:, 2] += a
+    assert loops.revisit_error(true, moved, rv.i, rv.j) == pytest.approx(got, abs=1e-9)
+
+
+def test_map_offset_finds_a_shifted_copy() -> None:
+    """Random texture in a known patch; the second map is the first shifted by whole cells."""
+    rng = np.random.default_rng(3)
+    res = 0.2
+    k = np.zeros((120, 120))
+    k[30:90, 30:90] = 5.0
+    S = k * rng.gamma(2.0, 1.0, k.shape)
+    first = GridMap(k, S, (0.0, 0.0), res)
+    for di, dj in [(0, 0), (3, 0), (-4, 6), (10, 0)]:
+        second = GridMap(np.roll(k, (di, dj), (0, 1)), np.roll(S, (di, dj), (0, 1)),
+                         (0.0, 0.0), res)
+        offset, corr = loops.map_offset(first, second, max_shift=3.0)
+        assert offset == pytest.approx(math.hypot(di, dj) * res) and corr == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="one grid"):
+        loops.map_offset(first, GridMap(k, S, (0.2, 0.0), res))
+
+
+@pytest.fixture(scope="module")
+def noisy_loop(tmp_path_factory):
+    """A 30 m circle driven with 4x the Mars Yard VO noise: VO misses the start by > 1 m."""
+    from experiments.loop_closure import circle_file
+
+    file = circle_file(tmp_path_factory.mktemp("loop"), 30.0, 15.0)
+    vo = VO_PROFILES["mars-yard-a"].scaled(4.0)
+    run, _ = simulate_path(file, seed=1, course="mars-yard-a", vo_noise=vo)
+    return file, vo, run
+
+
+def test_closure_verdict_on_a_simulated_loop(noisy_loop) -> None:
+    _, _, run = noisy_loop
+    gt = run.ground_truth
+    rv = loops.find_revisit(gt, 10.0, 15.0)
+    assert rv is not None and abs(rv.loop_m - 30.0) < 1.0
+    truth = loops.closure(run, gt, rv)
+    # at the true poses the copies coincide to within a cell (the local cells' rounding)
+    assert truth.closed and truth.error_m == 0.0
+    assert truth.map_offset_m <= math.sqrt(2) * run.resolution + 1e-9
+    # the second visit laid 2 m off: both figures see it
+    arc = loops.arc_length(gt)
+    off = gt.copy()
+    off[np.abs(arc - arc[rv.j]) <= 5.0, 1] += 2.0
+    doubled = loops.closure(run, off, rv)
+    assert not doubled.closed and abs(doubled.map_offset_m - 2.0) < 0.4
+    # VO only: no map correction, so its revisit error is the VO's drift (> 1 m): open
+    vo = run.vo_poses()
+    vo_err = abs(_rel(vo, rv.i, rv.j) - _rel(gt, rv.i, rv.j))
+    assert vo_err > loops.TOLERANCE  # the premise, computed independently
+    verdict = loops.closure(run, vo, rv)
+    assert verdict.error_m == pytest.approx(vo_err) and not verdict.closed
+
+
+def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
+    """experiments/loop_closure.py end to end at CI size: one seed, J = 8, the motion proposal."""
+    from experiments.loop_closure import Loop, run_loop, summary
+
+    file, vo, run = noisy_loop
+    rows = run_loop(Loop("circle-30", "circle", 30.0, file), 1, Config(), [8], ["motion"],
+                    math.inf, course="mars-yard-a", vo_noise=vo)
+    (row,) = rows
+    assert isinstance(row["closed"], bool) and math.isfinite(row["error_m"])
+    assert row["closed"] == (row["error_m"] <= 1.0 and row["map_offset_m"] <= 1.0)
+    rv = loops.Revisit(*row["revisit"])
+    vo_err = abs(_rel(run.vo_poses(), rv.i, rv.j) - _rel(run.ground_truth, rv.i, rv.j))
+    assert row["vo_error_m"] == pytest.approx(vo_err) and row["vo_closed"] is False
+    s = summary(rows)["motion J=8"]
+    assert s["rates"][30.0] == (float(row["closed"]), 1)
+    assert s["longest"] == (30.0 if row["closed"] else None)
