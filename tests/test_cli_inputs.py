@@ -276,3 +276,37 @@ def test_counts_and_seeds_are_usage_errors(argv, message, capsys):
         main(argv)
     assert exit_.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_course_path_is_the_sim_path_source(tmp_path, capsys, monkeypatch):
+    """--course-path FILE reads FILE through --source sim-path; beside a Run file, another
+    --source or a --path it is refused before anything loads."""
+    from gslam_jax.datasets import sim_path
+    from gslam_jax.errors import DatasetError
+
+    seen = []
+
+    def fake(path, **kwargs):
+        seen.append((path, kwargs["course"]))
+        raise DatasetError(f"{path}: stop here")
+    monkeypatch.setattr(sim_path, "simulate_path", fake)
+    poses = tmp_path / "loop.txt"
+    poses.write_text("0 0 0 0 0 0 0 1\n")
+    out = str(tmp_path / "out")
+    for extra in ([], ["--source", "sim-path"]):
+        assert main(["run", "--course-path", str(poses), "--course", "arroyo-a", *extra,
+                     "--out", out]) == 2
+        assert f"{poses}: stop here" in capsys.readouterr().err
+    assert seen == [(poses, "arroyo-a")] * 2
+    _, run_file = _run_file(tmp_path, steps=10)
+    for extra, message in [
+            ([str(run_file)], f"{run_file}: a Run file is used as it is; --course-path {poses}"),
+            (["--source", "sim"], f"--course-path {poses} is --source sim-path --path FILE; it "
+             "cannot be used with --source sim"),
+            (["--source", "kitti"], "cannot be used with --source kitti"),
+            (["--path", str(tmp_path / "other.txt")], f"--course-path {poses} and --path "
+             f"{tmp_path / 'other.txt'}: --course-path {poses} is --source sim-path --path "
+             "FILE; name the trajectory once")]:
+        assert main(["run", "--course-path", str(poses), *extra, "--out", out]) == 2
+        assert message in capsys.readouterr().err
+    assert len(seen) == 2

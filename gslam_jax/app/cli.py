@@ -67,6 +67,30 @@ def _positive_float(text: str) -> float:
     return value
 
 
+class _Given(argparse.Action):
+    """Store the value and note that the option was given (``<dest>_given``), not defaulted."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        setattr(namespace, self.dest, values)
+        setattr(namespace, f"{self.dest}_given", True)
+
+
+def _use_course_path(args: argparse.Namespace) -> None:
+    """``--course-path FILE`` is ``--source sim-path --path FILE``: set those, or a ConfigError
+    for a Run file, another --source or a --path beside it."""
+    what = f"--course-path {args.course_path}"
+    if args.run_file is not None:
+        raise ConfigError(f"{args.run_file}: a Run file is used as it is; {what} drives a "
+                          "simulated world along a trajectory instead: give one of them")
+    if getattr(args, "source_given", False) and args.source != "sim-path":
+        raise ConfigError(f"{what} is --source sim-path --path FILE; it cannot be used with "
+                          f"--source {args.source}")
+    if args.path is not None:
+        raise ConfigError(f"{what} and --path {args.path}: {what} is --source sim-path "
+                          "--path FILE; name the trajectory once")
+    args.source, args.path = "sim-path", args.course_path
+
+
 def _source(args: argparse.Namespace) -> Source:
     """The source request from the source arguments."""
     return Source(run_file=args.run_file, source=args.source, course=args.course,
@@ -326,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_file", nargs="?", type=Path, help="native .npz Run file (docs/formats.md)")
     names = source_names()
-    p.add_argument("--source", choices=names, default=Source.source,
+    p.add_argument("--source", choices=names, default=Source.source, action=_Given,
                    help="where frames come from when no Run file is given: "
                    + "; ".join(f"{n}: {get_source(n).help}" for n in names)
                    + f" (default: {Source.source})")
@@ -334,6 +358,9 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"simulated course: {', '.join(COURSES)} (default mars-yard-a)")
     p.add_argument("--path", type=Path, help="the dataset of the source: " + "; ".join(
         f"--source {n}: {get_source(n).path}" for n in names if get_source(n).path))
+    p.add_argument("--course-path", type=Path, metavar="FILE", help="drive a simulated world "
+                   "along this trajectory (TUM or KITTI poses): the same as --source sim-path "
+                   "--path FILE (--course picks the world kind and VO noise)")
     p.add_argument("--sequence", metavar="NN", help="the sequence to read (--source "
                    + "/".join(n for n in names if get_source(n).sequence)
                    + "), e.g. 00; needed when the dataset holds several")
@@ -417,6 +444,8 @@ def _out_of_memory(err: BaseException) -> bool:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        if getattr(args, "course_path", None) is not None:
+            _use_course_path(args)
         return args.func(args)
     except (InputError, FileNotFoundError) as err:
         print(f"gslam: error: {err}", file=sys.stderr)
