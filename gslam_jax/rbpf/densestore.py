@@ -34,14 +34,23 @@ class DenseMaps(NamedTuple):
     rows: Array        # [2] int32 map rows [lo, hi) that any update may have written so far
 
 
-def init(num_particles: int, map_shape: tuple[int, int], bits: bool) -> DenseMaps:
-    """J empty maps (every cell unknown). ``bits``: keep known-cell bitmasks."""
+def init(num_particles: int, map_shape: tuple[int, int], bits: bool,
+         prior: tuple[Array, Array] | None = None) -> DenseMaps:
+    """J empty maps (every cell unknown), or J copies of the map ``prior`` = (k, S) [H, W].
+    ``bits``: keep known-cell bitmasks. The written rows start empty either way: rows no
+    update wrote hold the same values (zeros or the prior) in every particle's map."""
     H, W = map_shape
     shape = (num_particles, H, W)
     nb = (H // unknown.BLOCK, W // unknown.BLOCK) if bits else (0, 0)
-    return DenseMaps(k=jnp.zeros(shape, jnp.float32), S=jnp.zeros(shape, jnp.float32),
-                     known_bits=jnp.zeros((num_particles,) + nb + (2,), jnp.uint32),
-                     rows=jnp.array([H, 0], jnp.int32))
+    if prior is None:
+        k, S = jnp.zeros(shape, jnp.float32), jnp.zeros(shape, jnp.float32)
+        known = jnp.zeros((num_particles,) + nb + (2,), jnp.uint32)
+    else:
+        pk, pS = (jnp.asarray(x, jnp.float32) for x in prior)
+        k, S = jnp.broadcast_to(pk, shape), jnp.broadcast_to(pS, shape)
+        one = unknown.pack_known(pk > 0) if bits else jnp.zeros(nb + (2,), jnp.uint32)
+        known = jnp.broadcast_to(one, (num_particles,) + nb + (2,))
+    return DenseMaps(k=k, S=S, known_bits=known, rows=jnp.array([H, 0], jnp.int32))
 
 
 def nbytes(num_particles: int, map_shape: tuple[int, int], bits: bool) -> int:

@@ -48,16 +48,28 @@ Resampler = Callable[[FilterState, Array, FilterConfig], tuple[FilterState, Arra
 """(state, uniforms [J], cfg) -> (state, ancestors [J], resampled []): ESS-gated resampling."""
 
 
-def init(cfg: FilterConfig, start_pose: Array | None = None) -> FilterState:
-    """All particles at ``start_pose`` with equal weights and empty maps (``maps.init``)."""
+def init(cfg: FilterConfig, start_pose: Array | None = None,
+         prior_map: tuple[Array, Array] | None = None, key: Array | None = None,
+         start_sigma: Array | None = None) -> FilterState:
+    """All particles at ``start_pose`` with equal weights and empty maps (``maps.init``).
+
+    Map reuse: ``prior_map`` = (k, S) [H, W] on the filter's grid is every particle's map at
+    the start (the maps are extended from it by eq. 14), and with ``start_sigma`` [3] (x, y,
+    heading standard deviations) the particles start at ``start_pose`` + N(0, diag(sigma^2)),
+    drawn from ``key``; a sigma of None draws nothing (every particle at ``start_pose``)."""
     cfg.validate()
     J = cfg.num_particles
     start = (jnp.zeros(3, jnp.float32) if start_pose is None
              else jnp.asarray(start_pose, jnp.float32))
+    pose = jnp.broadcast_to(start, (J, 3))
+    if start_sigma is not None:
+        if key is None:
+            raise ValueError("init: a start_sigma needs a PRNG key to draw the start poses")
+        z = jax.random.normal(key, (J, 3), jnp.float32)
+        pose = pose + z * jnp.asarray(start_sigma, jnp.float32)
     cov = jnp.zeros((J, 3, 3), jnp.float32) if cfg.proposal == "informed" else None
-    return FilterState(pose=jnp.broadcast_to(start, (J, 3)),
-                       log_w=jnp.full((J,), -math.log(J), jnp.float32),
-                       maps=maps.init(cfg), best=jnp.int32(0), prior_cov=cov)
+    return FilterState(pose=pose, log_w=jnp.full((J,), -math.log(J), jnp.float32),
+                       maps=maps.init(cfg, prior_map), best=jnp.int32(0), prior_cov=cov)
 
 
 def motion_noise(key: Array, cfg: FilterConfig) -> Array:

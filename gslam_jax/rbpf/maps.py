@@ -5,10 +5,11 @@ map of k and S per particle) and "shared" (``tilestore``: copy-on-write tiles in
 behind per-particle page tables). ``FilterState.maps`` holds either (``Maps``); the kernel and
 the host driver reach it only through the functions here, which dispatch to the store:
 
-* in the filter: ``init`` (empty maps), ``read`` (the map cells under a footprint: eq. 26's
-  priors, eq. 31's borrowed known cells), ``write`` (eq. 14), ``known_bits`` ("sample"
-  mode's bitmasks), ``finish_update`` (after an update's writes), ``resample`` (each
-  particle takes its ancestor's maps), ``particle_map``, ``to_dense``, ``status``;
+* in the filter: ``init`` (empty maps, or a prior map in every particle), ``read`` (the map
+  cells under a footprint: eq. 26's priors, eq. 31's borrowed known cells), ``write``
+  (eq. 14), ``known_bits`` ("sample" mode's bitmasks), ``finish_update`` (after an update's
+  writes), ``resample`` (each particle takes its ancestor's maps), ``particle_map``,
+  ``to_dense``, ``status``;
 * on the host: ``choose_store`` (``store = "auto"``), ``pool_tiles``, ``map_bytes`` (what a
   store allocates), ``peak_bytes``, ``check_memory`` (before allocating) and ``check_status``
   (the shared store's error bits, after a run).
@@ -47,12 +48,19 @@ def _shared(maps: Maps) -> bool:
     return isinstance(maps, TileStore)
 
 
-def init(cfg: FilterConfig) -> Maps:
-    """The store ``cfg.store`` with J empty maps."""
+def init(cfg: FilterConfig, prior: tuple[Array, Array] | None = None) -> Maps:
+    """The store ``cfg.store`` with J empty maps, or with J times the map ``prior`` = (k, S)
+    [H, W] (map reuse: the dense store copies it into every particle's map, the shared store
+    holds its known tiles once for all, ``tilestore.with_prior``)."""
     bits = cfg.unknown_cells == "sample"
+    if prior is not None and tuple(prior[0].shape) != tuple(cfg.map_shape):
+        raise ValueError(f"prior map of shape {tuple(prior[0].shape)} does not match the "
+                         f"filter's map shape {cfg.map_shape}")
     if cfg.store == "shared":
-        return tilestore.init(cfg.num_particles, cfg.map_shape, cfg.tile, pool_tiles(cfg), bits)
-    return densestore.init(cfg.num_particles, cfg.map_shape, bits)
+        store = tilestore.init(cfg.num_particles, cfg.map_shape, cfg.tile, pool_tiles(cfg),
+                               bits)
+        return store if prior is None else tilestore.with_prior(store, *prior)
+    return densestore.init(cfg.num_particles, cfg.map_shape, bits, prior)
 
 
 def read(maps: Maps, particles: Array, cells_: Array, on_map: Array, cfg: FilterConfig

@@ -29,12 +29,14 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array, lax
 
 from gslam_jax.rbpf import unknown
 from gslam_jax.errors import InputError
 
 __all__ = ["TileStore", "POOL_EXHAUSTED", "WINDOW_EXCEEDED", "PoolExhaustedError", "init",
+           "with_prior", "prior_tiles",
            "pages_per_side", "window_tiles", "pool_index", "read", "known_bits", "prepare",
            "add", "write", "resample", "to_dense", "live_tiles", "tile_bytes", "nbytes",
            "peak_bytes", "check_status"]
@@ -99,6 +101,50 @@ def init(num_particles: int, map_shape: tuple[int, int], tile: int, pool_tiles: 
         peak=jnp.int32(0),
         status=jnp.int32(0),
     )
+
+
+def with_prior(store: TileStore, k: Array, S: Array) -> TileStore:
+    """Every particle's map set to the one map (k, S) [H, W] (an empty ``store`` from
+    ``init``): each tile of the map with a known cell (k > 0) is put in the pool once and every
+    page table points at it (reference count J), so J particles hold one copy; the first write
+    to such a page copies it (copy-on-write). Pages without a known cell stay unwritten. With
+    more such tiles than the pool holds, nothing is placed and ``status`` has POOL_EXHAUSTED."""
+    P, T = store.refcount.shape[0], _tile(store)
+    J, ty, tx = store.page.shape
+    H, W = k.shape
+
+    def tiles(x: Array) -> Array:
+        x = jnp.pad(jnp.asarray(x, jnp.float32), ((0, ty * T - H), (0, tx * T - W)))
+        return x.reshape(ty, T, tx, T).transpose(0, 2, 1, 3).reshape(ty * tx, T, T)
+
+    kt, st = tiles(k), tiles(S)
+    used = jnp.any(kt > 0, axis=(1, 2))
+    n = jnp.sum(used, dtype=jnp.int32)
+    ok = n <= P
+    slot = jnp.where(used & ok, jnp.cumsum(used, dtype=jnp.int32) - 1, P)
+    put = jnp.where(slot < P, slot, P + 1)  # out of range: dropped by the scatters
+    bpool = store.bpool
+    if bpool.shape[1]:
+        bpool = bpool.at[put].set(jax.vmap(lambda t: unknown.pack_known(t > 0))(kt),
+                                  mode="drop")
+    placed = jnp.where(ok, n, 0)
+    return store._replace(
+        kpool=store.kpool.at[put].set(kt, mode="drop"),
+        spool=store.spool.at[put].set(st, mode="drop"), bpool=bpool,
+        page=jnp.broadcast_to(slot.reshape(ty, tx), (J, ty, tx)),
+        refcount=jnp.zeros((P,), jnp.int32).at[slot].set(J, mode="drop"),
+        free=(jnp.arange(P, dtype=jnp.int32) + placed) % P,
+        n_free=P - placed, peak=placed,
+        status=store.status | jnp.where(ok, 0, POOL_EXHAUSTED))
+
+
+def prior_tiles(k, tile: int) -> int:
+    """Pool tiles ``with_prior`` needs for the map k [H, W] (host side): tiles with k > 0."""
+    known = np.asarray(k) > 0
+    H, W = known.shape
+    ty, tx = -(-H // tile), -(-W // tile)
+    known = np.pad(known, ((0, ty * tile - H), (0, tx * tile - W)))
+    return int(known.reshape(ty, tile, tx, tile).any(axis=(1, 3)).sum())
 
 
 def _tile(store: TileStore) -> int:
