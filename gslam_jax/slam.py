@@ -16,9 +16,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from gslam_jax import rbpf
-from gslam_jax.rbpf import cells, maps
+from gslam_jax.rbpf import cells, maps, tilestore
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
+from gslam_jax.gridmap import GridMap, place
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.run import Run, RunError, coordinate_limit, describe_cells, known_positions
@@ -27,7 +28,10 @@ __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "
            "filter_params", "local_observations", "raw_observations", "ObsSettings",
            "obs_settings", "refine_observations", "map_observations", "map_memory", "RunArrays",
            "run_arrays", "ground_truth_mask",
-           "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError"]
+           "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError",
+           "PriorMap", "check_prior", "rebase", "prior_summary", "START_STREAM"]
+
+START_STREAM = 0x57A7  # folded into the filter's key for the start poses drawn around a prior
 
 
 class ExtentWarning(UserWarning):
@@ -44,16 +48,37 @@ class MapExtent(NamedTuple):
     shape: tuple[int, int]
 
 
+class PriorMap(NamedTuple):
+    """Map reuse: a finished map (run A's) the particles start with, localise in and extend.
+
+    ``start`` is the run's start pose in the map's frame; the particles start there, spread by
+    N(0, diag(start_sigma^2)) (x, y in metres, heading in radians; zeros: every particle at
+    ``start``). ``source`` says where the map was read from (for the results)."""
+
+    grid: GridMap
+    start: np.ndarray        # [3] x, y, theta
+    start_sigma: np.ndarray  # [3] standard deviations, >= 0
+    source: str = ""
+
+
 def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin: float,
-               window: int) -> MapExtent:
+               window: int, lattice: tuple[float, float] | None = None,
+               cover: tuple[np.ndarray, np.ndarray] | None = None) -> MapExtent:
     """Dense map extent from the VO path: its bounding box, plus the reach of a rotated local
     map, plus ``margin`` metres for drift; sides are multiples of 8 and at least one window.
+    With ``lattice`` (a prior map's origin) the extent's origin is a whole number of cells
+    from it, and the box ``cover`` = (lo [2], hi [2]) (the prior's known cells) is covered too.
     A ConfigError names [map] margin when the extent is not even a finite number of metres."""
     xy = np.asarray(vo_poses, dtype=np.float64)[:, :2]
     reach = 0.5 * window * resolution + margin
-    with np.errstate(over="ignore"):  # an infinite extent is reported just below
+    with np.errstate(over="ignore", invalid="ignore"):  # an infinite extent: reported below
         lo = xy.min(axis=0) - reach
         hi = xy.max(axis=0) + reach
+        if cover is not None:
+            lo, hi = np.minimum(lo, cover[0]), np.maximum(hi, cover[1])
+        if lattice is not None:
+            base = np.asarray(lattice, np.float64)
+            lo = base + np.floor((lo - base) / resolution) * resolution
         cells_needed = (hi - lo) / resolution
     if not np.isfinite(cells_needed).all():
         raise ConfigError(f"the map extent is not finite: [map] margin {margin:g} m around a VO "
@@ -112,11 +137,49 @@ def map_memory() -> tuple[int, str]:
     return physical, "physical memory"
 
 
-def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
+def check_prior(prior: PriorMap, config: Config) -> None:
+    """ConfigError when the prior map cannot be the filter's map: another resolution than
+    [map] resolution (the filter's grid lies on the prior's lattice), or a start pose or
+    spread that is not finite (the spread must be >= 0)."""
+    res = prior.grid.resolution
+    if not math.isclose(res, config.map.resolution, rel_tol=1e-6):
+        raise ConfigError(f"the prior map {prior.source or ''} has resolution {res:g} m, "
+                          f"[map] resolution is {config.map.resolution:g} m: they must be "
+                          "equal (set [map] resolution to the prior map's)")
+    start, sigma = np.asarray(prior.start, float), np.asarray(prior.start_sigma, float)
+    if start.shape != (3,) or not np.isfinite(start).all():
+        raise ConfigError(f"the start pose in the prior map must be 3 finite numbers "
+                          f"(x, y, theta), got {start.tolist()}")
+    if sigma.shape != (3,) or not (np.isfinite(sigma).all() and (sigma >= 0).all()):
+        raise ConfigError(f"the start pose's standard deviations must be 3 finite numbers "
+                          f">= 0 (x, y, theta), got {sigma.tolist()}")
+
+
+def rebase(run: Run, start: np.ndarray) -> Run:
+    """``run`` starting at ``start`` (a pose in another frame, e.g. a prior map's): its VO path
+    (``Run.vo_poses``) and everything the filter does are then in that frame."""
+    return run._replace(initial_pose=np.asarray(start, np.float64).copy())
+
+
+def _prior_cover(grid: GridMap) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lo, hi) corners of the box around the prior's known cells; None when it has none."""
+    i, j = np.nonzero(grid.known)
+    if not i.size:
+        return None
+    r, o = grid.resolution, np.asarray(grid.origin, np.float64)
+    return (o + r * np.array([i.min(), j.min()]), o + r * np.array([i.max() + 1, j.max() + 1]))
+
+
+def filter_config(config: Config, run: Run, prior: PriorMap | None = None
+                  ) -> rbpf.FilterConfig:
     """Static filter settings for this Run: the map sized from its VO path, ``store = "auto"``
     resolved for this machine's memory (``maps.choose_store``) and ``particle_block = 0``
     for the default backend (``FilterConfig.update_block``); a ConfigError when the particle
-    maps would not fit in memory (``maps.check_memory``)."""
+    maps would not fit in memory (``maps.check_memory``).
+
+    With a ``prior`` map, ``run`` must start at ``prior.start`` (``rebase``): the map then lies
+    on the prior's lattice and covers its known cells as well as the VO path, whose reach grows
+    by three standard deviations of the start position."""
     if not math.isclose(run.resolution, config.map.resolution, rel_tol=1e-6):
         raise ConfigError(f"run resolution {run.resolution} m differs from [map] resolution "
                          f"{config.map.resolution} m; rebuild the local maps or change the config")
@@ -125,7 +188,13 @@ def filter_config(config: Config, run: Run) -> rbpf.FilterConfig:
     probe = rbpf.FilterConfig(num_particles=f.particles, map_shape=(8, 8), map_origin=(0.0, 0.0),
                               resolution=config.map.resolution, local_size=L,
                               unknown_cells=f.unknown_cells)
-    extent = map_extent(run.vo_poses(), L, config.map.resolution, config.map.margin, probe.window)
+    margin, lattice, cover = config.map.margin, None, None
+    if prior is not None:
+        check_prior(prior, config)
+        margin += 3.0 * float(np.hypot(*np.asarray(prior.start_sigma, float)[:2]))
+        lattice, cover = prior.grid.origin, _prior_cover(prior.grid)
+    extent = map_extent(run.vo_poses(), L, config.map.resolution, margin, probe.window,
+                        lattice, cover)
     cfg = rbpf.FilterConfig(
         num_particles=f.particles, map_shape=extent.shape, map_origin=extent.origin,
         resolution=config.map.resolution, local_size=L, resampler=f.resampler,
@@ -343,8 +412,40 @@ class SlamResult(NamedTuple):
                 "smoothed": self.smoothed_path}[self.estimate]
 
 
+def _prior_state(prior: PriorMap, cfg: rbpf.FilterConfig, key: jax.Array) -> rbpf.FilterState:
+    """The filter's start with a prior map: the prior placed on the filter's grid in every
+    particle's map, the particles at ``prior.start`` spread by ``prior.start_sigma`` (drawn
+    from ``key`` folded with START_STREAM; a zero spread draws nothing)."""
+    grid = place(prior.grid, cfg.map_origin, cfg.map_shape)
+    if cfg.store == "shared":
+        need, have = tilestore.prior_tiles(grid.k, cfg.tile), maps.pool_tiles(cfg)
+        if need > have:
+            raise ConfigError(f"the prior map needs {need} tiles of the shared map store, "
+                              f"more than its [map] pool_tiles = {have}; raise [map] "
+                              "pool_tiles (0: automatic)")
+    sigma = np.asarray(prior.start_sigma, np.float64)
+    return rbpf.init(cfg, jnp.asarray(prior.start, jnp.float32),
+                     (jnp.asarray(grid.k, jnp.float32), jnp.asarray(grid.S, jnp.float32)),
+                     jax.random.fold_in(key, START_STREAM),
+                     jnp.asarray(sigma, jnp.float32) if sigma.any() else None)
+
+
+def prior_summary(prior: PriorMap, result: SlamResult) -> dict:
+    """What ``summary.json`` records of a run on a prior map: where the map came from, the
+    start pose and its spread, the prior's known cells and the cells the run added to it."""
+    grid = place(prior.grid, result.map_origin, result.kmap.shape)
+    known = np.asarray(result.kmap) > 0
+    return {"path": prior.source, "start": np.asarray(prior.start, float).tolist(),
+            "start_sigma": np.asarray(prior.start_sigma, float).tolist(),
+            "origin": list(prior.grid.origin), "resolution": prior.grid.resolution,
+            "prior_known_cells": int(grid.known.sum()),
+            "cells_added": int(np.sum(known & ~grid.known)),
+            "known_cells": int(known.sum())}
+
+
 def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | None = None,
-             chunk: int = 512, key: jax.Array | None = None) -> SlamResult:
+             chunk: int = 512, key: jax.Array | None = None,
+             prior: PriorMap | None = None) -> SlamResult:
     """Run the filter over a whole Run in chunks of frames (same numbers as one scan).
 
     Chunking bounds the per-frame outputs held on device and lets ``progress(done, total)``
@@ -353,8 +454,14 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     them), RunError when a local map's observation is not finite in float32
     (``local_observations``) and WeightError, naming the first frame and its local map, when
     an update leaves non-finite weights.
+
+    Map reuse: with a ``prior`` map (``PriorMap``) every particle starts with it, at
+    ``prior.start`` (spread by ``prior.start_sigma``), and extends it; the results (paths,
+    ``vo_path``, map) are in the prior's frame, on its lattice (``filter_config``).
     """
-    cfg = filter_config(config, run)
+    if prior is not None:
+        run = rebase(run, prior.start)
+    cfg = filter_config(config, run, prior)
     params = filter_params(config)
     obs = map_observations(run, config)
     T = run.num_frames
@@ -368,7 +475,10 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     obs_index = np.concatenate([obs_index, -np.ones(pad, np.int32)])
     keys = jnp.concatenate([keys, jax.random.split(jax.random.key(0), pad)]) if pad else keys
 
-    state = rbpf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
+    if prior is None:
+        state = rbpf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
+    else:
+        state = _prior_state(prior, cfg, key)
     outputs = []
     t0 = time.perf_counter()
     compile_s = 0.0

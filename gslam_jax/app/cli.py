@@ -67,6 +67,31 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _triple(text: str, nonnegative: bool) -> tuple[float, float, float]:
+    """Three finite comma-separated numbers (>= 0 with ``nonnegative``), else a usage error."""
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    what = "three numbers >= 0" if nonnegative else "three numbers"
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {what} separated by commas, got {text!r}")
+    if nonnegative and min(values) < 0:
+        raise argparse.ArgumentTypeError(f"expected {what} separated by commas, got {text!r}")
+    return values  # type: ignore[return-value]
+
+
+def _pose(text: str) -> tuple[float, float, float]:
+    """argparse type: X,Y,THETA (metres, radians)."""
+    return _triple(text, nonnegative=False)
+
+
+def _pose_sigma(text: str) -> tuple[float, float, float]:
+    """argparse type: SX,SY,STHETA standard deviations >= 0 (metres, radians)."""
+    return _triple(text, nonnegative=True)
+
+
 class _Given(argparse.Action):
     """Store the value and note that the option was given (``<dest>_given``), not defaulted."""
 
@@ -109,11 +134,18 @@ def _load_config(args: argparse.Namespace):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from gslam_jax.app.pipeline import run_pipeline
+    from gslam_jax.app.pipeline import load_prior, run_pipeline
 
     config = _load_config(args)
+    prior = None
+    if args.prior_map is not None:
+        prior = load_prior(args.prior_map, args.start, args.start_sigma, config)
+    elif args.start is not None or args.start_sigma is not None:
+        raise ConfigError("--start and --start-sigma place the run in a prior map: give "
+                          "--prior-map RUN_A too")
     out, _ = run_pipeline(_source(args), config, args.out, overwrite=args.overwrite,
-                          gps=args.gps, save_run=args.save_run, progress=ProgressBar)
+                          gps=args.gps, save_run=args.save_run, progress=ProgressBar,
+                          prior=prior)
     print(f"results: {out}")
     return 0
 
@@ -295,6 +327,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "with a warning when fewer than half do. Or 'sim' for a simulated WAAS-like "
                    "receiver on a run with ground truth")
     p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as .npz")
+    p.add_argument("--prior-map", type=Path, metavar="RUN_A", help="map reuse: start every "
+                   "particle with this map (a gslam run results folder or its map.npz, same "
+                   "[map] resolution), localise in it and extend it; the results are in its frame")
+    p.add_argument("--start", type=_pose, metavar="X,Y,THETA", help="with --prior-map: the "
+                   "run's start pose in the prior map's frame (metres, radians)")
+    p.add_argument("--start-sigma", type=_pose_sigma, metavar="SX,SY,STHETA", help="with "
+                   "--prior-map: standard deviations of the start pose (metres, radians); the "
+                   "particles start spread by them (default 0,0,0: all at --start)")
     p.add_argument("--out", type=Path, help="results directory (default results/run-<time>); "
                    "the results appear there only when complete (marker file COMPLETE); an "
                    "existing, non-empty folder is refused unless --overwrite")

@@ -116,8 +116,9 @@ def _motion_check(run, config: Config) -> dict:
 
 
 def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
-                  gps_input=None) -> dict:
-    """Every output file of a run into ``out`` (a staging folder); returns the summary.
+                  gps_input=None, prior=None) -> dict:
+    """Every output file of a run into ``out`` (a staging folder); returns the summary. With a
+    ``prior`` map (``slam.PriorMap``) the summary records it (``slam.prior_summary``).
 
     The TUM files carry the dataset's own clock (``Run.time_origin_ns`` added, e.g. EuRoC's
     nanosecond timestamps); ``ground_truth_tum.txt`` holds the frames with a finite
@@ -148,6 +149,9 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     summary = summarise(run, result, config, loaded.description)
     slam_std = write_figures(out, run, result, config.filter.particles,
                              config.filter.resample_ratio)
+    if prior is not None:
+        from gslam_jax.slam import prior_summary
+        summary["prior_map"] = prior_summary(prior, result)
     if gps_input is not None:
         from gslam_jax.gps import georeference
         summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result, slam_std)

@@ -23,7 +23,7 @@ from gslam_jax.vo.localmap import localmap_params
 
 __all__ = ["Source", "LoadedSource", "check_inputs", "prepare_source", "load_source",
            "check_save_run", "save_run_file", "check_local_map_size", "check_gps",
-           "run_pipeline", "MAX_LOCAL_CELLS", "MIN_LOCAL_CELLS"]
+           "load_prior", "run_pipeline", "MAX_LOCAL_CELLS", "MIN_LOCAL_CELLS"]
 
 ProgressFactory = Callable[[str], Progress]
 
@@ -109,14 +109,36 @@ def check_gps(gps: str | Path | None, run, seed: int | None, log=None):
     return georeference.gps_input(gps, run, 0 if seed is None else seed, log=log)
 
 
+def load_prior(path: Path, start, start_sigma, config: Config):
+    """The ``slam.PriorMap`` of ``--prior-map PATH --start X,Y,THETA [--start-sigma ...]``,
+    read and checked before any work: a MapFileError names an unusable map, a ConfigError a
+    missing start or a resolution other than [map] resolution (``slam.check_prior``)."""
+    import numpy as np
+
+    from gslam_jax.gridmap import load_map
+    from gslam_jax.slam import PriorMap, check_prior
+
+    path = Path(path)
+    grid = load_map(path)
+    if start is None:
+        raise ConfigError(f"--prior-map {path}: give --start X,Y,THETA, the run's start pose in "
+                          "the prior map's frame (metres, radians)")
+    file = path / "map.npz" if path.is_dir() else path
+    sigma = np.zeros(3) if start_sigma is None else np.asarray(start_sigma, np.float64)
+    prior = PriorMap(grid, np.asarray(start, np.float64), sigma, str(file.resolve()))
+    check_prior(prior, config)
+    return prior
+
+
 def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
                  overwrite: bool = False, gps: str | None = None, save_run: Path | None = None,
-                 progress: ProgressFactory | None = None) -> tuple[Path, dict]:
+                 progress: ProgressFactory | None = None, prior=None) -> tuple[Path, dict]:
     """``gslam run``: check every input, load the source, run Gamma-SLAM, write the results.
 
     Everything that can be checked before the work is (source options, local-map size, the
     results folder and ``save_run`` being writable, the GPS log); the results appear under
-    ``out`` only when complete (``results.results_folder``). Returns (folder, summary).
+    ``out`` only when complete (``results.results_folder``). Returns (folder, summary). With a
+    ``prior`` map (``load_prior``) the run starts in it and the results are in its frame.
     """
     from gslam_jax import slam
 
@@ -134,11 +156,17 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
         if save_run is not None:
             save_run_file(save_run, run)
         gps_input = check_gps(gps, run, src.seed, log=gps_log)
-        result = slam.run_slam(run, config, progress=bar("gamma-slam"))
+        result = slam.run_slam(run, config, progress=bar("gamma-slam"), prior=prior)
+        if prior is not None:  # the VO-only map and the figures in the prior's frame too
+            loaded = loaded._replace(run=slam.rebase(run, prior.start))
         try:
-            summary = write_outputs(folder.staging, loaded, result, config, gps_input)
+            summary = write_outputs(folder.staging, loaded, result, config, gps_input, prior)
         except OSError as err:
             raise ResultsError(f"{folder.name}: cannot write the results ({err}); nothing "
                                f"was written to {folder.target}") from err
         print_summary(summary, run, result)
+        if prior is not None:
+            p = summary["prior_map"]
+            print(f"prior map: {p['prior_known_cells']} known cells, {p['cells_added']} added "
+                  f"by this run ({p['path']})")
     return folder.target, summary
