@@ -11,7 +11,7 @@ to within ``radius`` of where it was at i. The estimate closed that loop when bo
   ``window`` metres of travel around i and around j are fused (eq. 14) at the estimated poses
   into two maps; the offset is the shift of the second that best matches the first (peak
   correlation of the expected standard deviation over the cells both know, searched on the
-  cell grid within ``max_shift``). A closed loop lays the revisited terrain over itself (offset
+  cell grid within ``max_shift``, 3 m). A closed loop lays the revisited terrain over itself (offset
   near 0); an open one lays a second copy beside the first, as far off as its error. The
   fused map at the final best particle's path is that particle's map (its ancestry placed
   every local map it holds), so the check reads the filter's own map, split by visit.
@@ -25,12 +25,14 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from scipy.signal import correlate
+from scipy.special import gammaln
 
 from gslam_jax.metrics import GridMap, pose_map
 from gslam_jax.run import Run
 
-__all__ = ["TOLERANCE", "Closure", "Revisit", "arc_length", "closure", "find_revisit",
-           "map_offset", "revisit_error", "visit_maps"]
+__all__ = ["TOLERANCE", "Closure", "Revisit", "arc_length", "closure", "expected_std",
+           "find_revisit", "map_offset", "revisit_error", "visit_maps"]
 
 TOLERANCE = 1.0  # metres: revisit error and map offset at or under it close the loop
 
@@ -108,43 +110,57 @@ def visit_maps(run: Run, poses: np.ndarray, revisit: Revisit,
     return out[0], out[1]
 
 
+def expected_std(k: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """``cells.expected_std`` (E[h^-1/2]) in NumPy: no JAX compilation for each map's shape."""
+    k, S = np.asarray(k, np.float64), np.asarray(S, np.float64)
+    safe = np.where(k > 1, k, 2.0)
+    bayes = np.sqrt(0.5 * S) * np.exp(gammaln(0.5 * (safe - 1.0)) - gammaln(0.5 * safe))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        plain = np.sqrt(S / np.where(k > 0, k, 1.0))
+    return np.where(k > 1, bayes, np.where(k > 0, plain, np.nan))
+
+
 def map_offset(first: GridMap, second: GridMap, max_shift: float = 3.0,
                min_cells: int = 200) -> tuple[float, float]:
     """(offset in m, correlation there): the shift of ``second`` over ``first`` (same grid)
-    whose expected standard deviations correlate best over the cells both know; NaN, NaN when
-    no shift leaves ``min_cells`` cells known to both."""
+    whose expected standard deviations correlate best (Pearson) over the cells both know;
+    NaN, NaN when no shift leaves ``min_cells`` cells known to both.
+
+    Every shift d on the cell grid within ``max_shift`` compares first[x] with second[x + d]
+    (a second copy displaced by d matches at d); the sums behind the correlation at all
+    shifts are masked cross-correlations, computed by FFT.
+    """
     if first.k.shape != second.k.shape or first.origin != second.origin:
         raise ValueError("the two maps must share one grid")
-    a, b = first.expected_std(), second.expected_std()
-    ka, kb = first.k > 0, second.k > 0
-    s = round(max_shift / first.resolution)
-    # crop around the first map's known cells, with room for the shifts
+    ka = first.k > 0
     rows, cols = np.flatnonzero(ka.any(1)), np.flatnonzero(ka.any(0))
     if rows.size == 0:
         return math.nan, math.nan
-    r0, r1 = max(rows[0] - s, 0), min(rows[-1] + s + 1, a.shape[0])
-    c0, c1 = max(cols[0] - s, 0), min(cols[-1] + s + 1, a.shape[1])
-    best = (-math.inf, math.nan)
-    for di in range(-s, s + 1):
-        for dj in range(-s, s + 1):
-            # first[x] against second[x + d]: a second copy displaced by d matches at d
-            i0, i1 = max(r0, r0 - di), min(r1, r1 - di)
-            j0, j1 = max(c0, c0 - dj), min(c1, c1 - dj)
-            if i1 - i0 <= 0 or j1 - j0 <= 0:
-                continue
-            pa, pb = a[i0:i1, j0:j1], b[i0 + di:i1 + di, j0 + dj:j1 + dj]
-            both = ka[i0:i1, j0:j1] & kb[i0 + di:i1 + di, j0 + dj:j1 + dj]
-            if both.sum() < min_cells:
-                continue
-            x, y = pa[both], pb[both]
-            x, y = x - x.mean(), y - y.mean()
-            den = math.sqrt(float(x @ x) * float(y @ y))
-            corr = float(x @ y) / den if den > 0 else -math.inf
-            if corr > best[0]:
-                best = (corr, math.hypot(di, dj) * first.resolution)
-    if not math.isfinite(best[0]):
+    s = round(max_shift / first.resolution)
+    r, c = slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
+    ma = ka[r, c].astype(np.float64)
+    a = np.where(ma > 0, expected_std(first.k[r, c], first.S[r, c]), 0.0)
+    # the second map over the same cells and s more on each side (zero off the grid)
+    pad = ((s, s), (s, s))
+    r2, c2 = slice(rows[0], rows[-1] + 2 * s + 1), slice(cols[0], cols[-1] + 2 * s + 1)
+    kb2, sb2 = np.pad(second.k, pad)[r2, c2], np.pad(second.S, pad)[r2, c2]
+    mb = (kb2 > 0).astype(np.float64)
+    b = np.where(mb > 0, expected_std(kb2, sb2), 0.0)
+
+    def xcorr(u: np.ndarray, v: np.ndarray) -> np.ndarray:  # [2s+1, 2s+1]: sum_x u(x) v(x+d)
+        return correlate(v, u, mode="valid", method="fft")
+
+    n = np.rint(xcorr(ma, mb))
+    sa, sb = xcorr(a, mb), xcorr(ma, b)
+    saa, sbb, sab = xcorr(a * a, mb), xcorr(ma, b * b), xcorr(a, b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cov = sab - sa * sb / n
+        var = (saa - sa * sa / n) * (sbb - sb * sb / n)
+        corr = np.where((n >= min_cells) & (var > 0), cov / np.sqrt(var), -np.inf)
+    if not np.isfinite(corr).any():
         return math.nan, math.nan
-    return best[1], best[0]
+    di, dj = np.unravel_index(int(np.argmax(corr)), corr.shape)
+    return math.hypot(di - s, dj - s) * first.resolution, float(corr[di, dj])
 
 
 def closure(run: Run, est: np.ndarray, revisit: Revisit, tolerance: float = TOLERANCE,

@@ -79,12 +79,36 @@ def test_revisit_error_closed_and_open_paths() -> None:
     assert loops.revisit_error(true, moved, rv.i, rv.j) == pytest.approx(got, abs=1e-9)
 
 
+def _offset_brute_force(first: GridMap, second: GridMap, max_shift: float,
+                        min_cells: int = 200) -> tuple[float, float]:
+    """map_offset by a loop over the shifts, np.corrcoef at each."""
+    a, b = first.expected_std(), second.expected_std()
+    ka, kb = first.k > 0, second.k > 0
+    s = round(max_shift / first.resolution)
+    H, W = a.shape
+    best = (-np.inf, np.nan)
+    for di in range(-s, s + 1):
+        for dj in range(-s, s + 1):
+            both = np.zeros_like(ka)
+            i0, i1, j0, j1 = max(0, -di), min(H, H - di), max(0, -dj), min(W, W - dj)
+            both[i0:i1, j0:j1] = ka[i0:i1, j0:j1] & kb[i0 + di:i1 + di, j0 + dj:j1 + dj]
+            if both.sum() < min_cells:
+                continue
+            x = a[both]
+            y = np.roll(b, (-di, -dj), (0, 1))[both]
+            corr = np.corrcoef(x, y)[0, 1]
+            if corr > best[0]:
+                best = (corr, math.hypot(di, dj) * first.resolution)
+    return best[1], best[0]
+
+
 def test_map_offset_finds_a_shifted_copy() -> None:
-    """Random texture in a known patch; the second map is the first shifted by whole cells."""
+    """Random texture in a known patch; the second map is the first shifted by whole cells,
+    or another texture partly overlapping (against a loop over the shifts)."""
     rng = np.random.default_rng(3)
     res = 0.2
-    k = np.zeros((120, 120))
-    k[30:90, 30:90] = 5.0
+    k = np.zeros((80, 90))
+    k[20:60, 25:70] = 5.0
     S = k * rng.gamma(2.0, 1.0, k.shape)
     first = GridMap(k, S, (0.0, 0.0), res)
     for di, dj in [(0, 0), (3, 0), (-4, 6), (10, 0)]:
@@ -92,6 +116,19 @@ def test_map_offset_finds_a_shifted_copy() -> None:
                          (0.0, 0.0), res)
         offset, corr = loops.map_offset(first, second, max_shift=3.0)
         assert offset == pytest.approx(math.hypot(di, dj) * res) and corr == pytest.approx(1.0)
+    k2 = np.zeros_like(k)
+    k2[30:75, 10:60] = rng.integers(1, 4, (45, 50))
+    other = GridMap(k2, k2 * rng.gamma(2.0, 1.0, k.shape) + 0.5 * S * (k2 > 0), (0.0, 0.0), res)
+    got = loops.map_offset(first, other, max_shift=1.6)
+    want = _offset_brute_force(first, other, max_shift=1.6)
+    assert got[0] == pytest.approx(want[0]) and got[1] == pytest.approx(want[1], abs=1e-5)
+    assert 0.0 < got[1] < 0.9
+    # the NumPy expected std is that of the filter's cells (JAX)
+    from gslam_jax.rbpf import cells
+    k3 = np.array([0.0, 0.5, 1.0, 2.0, 3.0, 40.0])
+    S3 = np.array([0.0, 0.2, 0.3, 0.4, 0.5, 6.0])
+    np.testing.assert_allclose(loops.expected_std(k3, S3), np.asarray(cells.expected_std(k3, S3)),
+                               rtol=1e-5, equal_nan=True)
     with pytest.raises(ValueError, match="one grid"):
         loops.map_offset(first, GridMap(k, S, (0.2, 0.0), res))
 
