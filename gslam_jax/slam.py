@@ -207,6 +207,8 @@ def filter_config(config: Config, run: Run, prior: PriorMap | None = None
     available, what = map_memory()
     cfg = maps.choose_store(cfg, available, what).validate()
     cfg = cfg._replace(particle_block=cfg.update_block)
+    if prior is not None and cfg.store == "shared" and not cfg.pool_tiles:
+        cfg = _prior_pool(cfg, prior)
     try:
         maps.check_memory(cfg, available, what, extent=_extent_cause(run, config))
     except ConfigError as err:
@@ -214,6 +216,16 @@ def filter_config(config: Config, run: Run, prior: PriorMap | None = None
         raise
     check_float32_reach(run.vo_poses(), extent, config.map.resolution, config.map.margin)
     return cfg
+
+
+def _prior_pool(cfg: rbpf.FilterConfig, prior: PriorMap) -> rbpf.FilterConfig:
+    """``cfg`` with the automatic pool of the shared store (``maps.pool_tiles``) enlarged by
+    the prior's tiles, which stay in the pool besides the run's own history; never more than
+    every particle's whole map."""
+    grid = place(prior.grid, cfg.map_origin, cfg.map_shape)
+    ty, tx = tilestore.pages_per_side(cfg.map_shape, cfg.tile)
+    pool = maps.pool_tiles(cfg) + tilestore.prior_tiles(grid.k, cfg.tile)
+    return cfg._replace(pool_tiles=min(pool, cfg.num_particles * ty * tx))
 
 
 def _extent_cause(run: Run, config: Config) -> str:
