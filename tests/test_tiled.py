@@ -87,14 +87,46 @@ def _equivalence() -> dict:
                             jnp.asarray(run.obs_index), jnp.asarray(obs), cfg)
         i = jax.device_get(d.infos)
         dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.maps.k),
-                            np.asarray(d.final_state.maps.S), 0, 0.0, 0.0)
+                            np.asarray(d.final_state.maps.S), 0, 0.0, 0.0,
+                            ancestors=np.asarray(i.ancestors))
         tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile_size=16 * 0.16)
         name = f"{mode}-{temper}"
         out[name] = check_agreement(dense, tiled, cfg)
+        if temper == "adaptive":  # following the dense decisions: real differences still show
+            out["follow"] = _follow_cases(dense, run, obs, cfg, key, params)
         out[name]["off_map_updates"] = int(np.sum(i.extent_violations))
         out[name]["max_shared"] = float(tiled.shared_mean.max())
         out[name]["mem_drops"] = int(np.sum(np.diff(tiled.memory_bytes) < 0))
         out[name]["tempered_updates"] = int(np.sum(np.asarray(i.exponent) < 1.0))
+    return out
+
+
+def _follow_cases(dense, run, obs, cfg, key, params) -> dict:
+    """The reference given the dense decisions as they are, and perturbed for real at the
+    second resampling: one ancestor moved half the particles along, or the decision flipped
+    at an update whose ESS is nowhere near the threshold."""
+    from gslam_jax.app.compare import check_agreement
+    from gslam_jax.tiled.reference import Decisions, run_tiled
+
+    res, anc = np.asarray(dense.resampled), np.asarray(dense.ancestors)
+    J = anc.shape[1]
+    t = int(np.flatnonzero(res)[1])
+    moved = anc.copy()
+    moved[t, 0] = (moved[t, 0] + J // 2) % J
+    far = np.abs(np.asarray(dense.ess) / (cfg.resample_ratio * J) - 1) > 0.05
+    flip_at = int(np.flatnonzero(far & (np.asarray(run.obs_index) >= 0))[0])
+    flipped = res.copy()
+    flipped[flip_at] = not flipped[flip_at]
+    flipped_anc = anc.copy()
+    flipped_anc[flip_at] = np.arange(J)
+    out = {}
+    for case, decisions in (("as_is", Decisions(res, anc)), ("ancestor", Decisions(res, moved)),
+                            ("decision", Decisions(flipped, flipped_anc))):
+        tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, 16 * 0.16,
+                          follow=decisions)
+        perturbed = dense._replace(resampled=decisions.resampled, ancestors=decisions.ancestors)
+        out[case] = check_agreement(dense if case == "as_is" else perturbed, tiled, cfg)
+        out[case]["perturbed_at"] = {"as_is": None, "ancestor": t, "decision": flip_at}[case]
     return out
 
 
@@ -107,6 +139,14 @@ def test_tiled_reference_reproduces_dense_filter():
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     res = json.loads(proc.stdout.strip().splitlines()[-1])
+    follow = res.pop("follow")
+    assert follow["as_is"]["ok"] and follow["as_is"]["rounding_events"] == 0, follow["as_is"]
+    for case in ("ancestor", "decision"):  # a real difference is not taken for rounding
+        r = follow[case]
+        assert not r["ok"] and r["rounding_events"] == 0, (case, r)
+        assert r["diverged_at"] == r["perturbed_at"], (case, r)
+    assert follow["ancestor"]["ancestor_mismatches"] >= 1
+    assert follow["decision"]["resampling_mismatches"] >= 1
     for mode, r in res.items():
         assert r["resampling_events"] >= 3, (mode, r)
         assert r["resampling_mismatches"] == 0, (mode, r)

@@ -19,7 +19,9 @@ from typing import Callable
 import numpy as np
 
 __all__ = ["cos32", "sin32", "hypot32", "apply_motion", "lgamma_half", "log_predictive",
-           "combine", "ess", "RESAMPLERS", "resample", "survivors_keep_slots"]
+           "combine", "ess", "RESAMPLERS", "resample", "survivors_keep_slots", "LOG_W_ROUNDING",
+           "ESS_ROUNDING", "THRESHOLD_TIE", "resample_threshold", "decision_within_rounding",
+           "cdf_rounding", "follow_ancestors"]
 
 F32 = np.float32
 
@@ -156,6 +158,81 @@ def tempering_exponent(log_w: np.ndarray, log_lam: np.ndarray, target: float,
 def ess(log_w: np.ndarray) -> float:
     """Effective sample size 1 / sum w^2 of normalised log weights (eq. 23)."""
     return float(1.0 / np.sum(np.exp(2.0 * np.asarray(log_w, np.float64))))
+
+
+# An ESS within this fraction above ratio * J counts as at the threshold (resampled): adaptive
+# tempering puts the ESS there exactly, and float rounding must not decide.
+THRESHOLD_TIE = 1e-3
+# How far another filter's float32 normalised log weights may lie from these float64 ones by
+# rounding alone (``gslam compare``'s tolerance on them). Weights off by at most d in the log
+# put the ESS off by a factor within e^(+-4d) (sum w^2 over (sum w)^2), and a cumulative weight
+# off by at most d/2 (A e^d / (A e^d + (1 - A) e^-d) - A <= d/2 for A in [0, 1]).
+LOG_W_ROUNDING = 1e-4
+ESS_ROUNDING = 4.0 * LOG_W_ROUNDING
+
+
+def resample_threshold(ratio: float, J: int) -> float:
+    """The ESS below which the filter resamples (eq. 23), the tie band included."""
+    return ratio * J * (1.0 + THRESHOLD_TIE)
+
+
+def decision_within_rounding(ess_value: float, threshold: float) -> bool:
+    """Whether an ESS lies so near ``threshold`` that a float32 filter's ESS may fall on the
+    other side of it by rounding alone (within a relative ESS_ROUNDING)."""
+    return abs(ess_value - threshold) <= ESS_ROUNDING * threshold
+
+
+def cdf_rounding(J: int) -> float:
+    """How far a float32 filter's normalised cumulative weight may lie from the float64 one:
+    LOG_W_ROUNDING / 2 from its weights, plus its float32 sum of J terms (J eps32)."""
+    return 0.5 * LOG_W_ROUNDING + J * float(np.finfo(F32).eps)
+
+
+def _positions(scheme: str, u: np.ndarray) -> np.ndarray | None:
+    """The points in [0, 1) at which an inverse-CDF scheme reads the cumulative weights, in
+    the order of its draws; None for a scheme that is not one (residual)."""
+    J = u.size
+    if scheme == "multinomial":
+        return u
+    if scheme == "systematic":
+        return (np.arange(J) + u[0]) / J
+    if scheme == "stratified":
+        return (np.arange(J) + u) / J
+    return None
+
+
+def follow_ancestors(scheme: str, w: np.ndarray, u: np.ndarray, target: np.ndarray
+                     ) -> tuple[np.ndarray, int, float] | None:
+    """Another filter's ancestors ``target`` [J] (arranged by ``survivors_keep_slots``) when
+    they differ from this one's draws only by rounding of the cumulative weights.
+
+    An inverse CDF assigns the sorted draw positions to particles in increasing order, so
+    ``target``'s offspring counts fix which particle each sorted position went to (the
+    arrangement depends on the counts alone). They are rounding when every position lies
+    within ``cdf_rounding`` of the interval of the particle it went to.
+
+    Returns (ancestors, draws that went elsewhere than here, largest distance of one from its
+    particle's interval), or None when ``target`` needs a draw further than rounding explains
+    (a real difference) or the scheme is not an inverse CDF (residual)."""
+    w = np.asarray(w, np.float64)
+    u = np.asarray(u, np.float64)
+    target = np.asarray(target, np.int64)
+    pos = _positions(scheme, u)
+    if pos is None:
+        return None
+    J = w.size
+    cdf = np.cumsum(w)
+    cdf = cdf / cdf[-1]
+    lower = np.concatenate([[0.0], cdf[:-1]])  # particle j covers [lower[j], cdf[j])
+    p = np.sort(pos)
+    went = np.repeat(np.arange(J), np.bincount(target, minlength=J))
+    here = np.clip(np.searchsorted(cdf, p, side="right"), 0, J - 1)
+    outside = np.maximum(np.maximum(lower[went] - p, p - cdf[went]), 0.0)
+    anc = survivors_keep_slots(went)
+    if outside.max() > cdf_rounding(J) or not np.array_equal(anc, target):
+        return None  # too far, or not the arrangement of its own counts
+    moved = went != here
+    return anc, int(moved.sum()), float(outside[moved].max()) if moved.any() else 0.0
 
 
 def _inverse_cdf(w: np.ndarray, positions: np.ndarray) -> np.ndarray:

@@ -18,6 +18,12 @@ Shared semantics with the dense filter (they define "the same numbers"):
   draws; nothing else of the dense implementation is used. ``draw_noise`` makes every frame's
   draws up front, as NumPy arrays, so that no JAX compilation, dispatch or copy lands in the
   run's loop (or in its timings).
+* Where the two differ only by rounding (float32 weights against these float64 ones), the
+  reference can follow the other filter: given its per-frame resampling decisions and ancestors
+  as data (``Decisions``), a decision whose ESS lies within rounding of the threshold, or
+  ancestors that need only draws within rounding of a cumulative-weight boundary moved
+  (``numerics.follow_ancestors``), are taken from it and reported as a ``RoundingEvent``; any
+  larger difference is kept, so the runs part and the comparison says where.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from gslam_jax.tiled import numerics as nm
 from gslam_jax.tiled.tiles import Ledger, TileMap, tile_cells
 
 __all__ = ["DEFAULT_TILE_SIZE", "TiledState", "UpdateInfo", "TiledOutput", "Draws",
+           "Decisions", "RoundingEvent",
            "cells_per_metre", "footprint", "init", "predict", "update", "draw_noise", "run_tiled",
            "memory_snapshot"]
 
@@ -77,12 +84,33 @@ class TiledState:
     ledger: Ledger = field(default_factory=Ledger)
 
 
+class Decisions(NamedTuple):
+    """Another filter's resampling, per frame, for the reference to follow where its own
+    differs only by rounding: ``resampled`` [T] bool and ``ancestors`` [T, J] (slot i's parent,
+    arranged as ``numerics.survivors_keep_slots`` arranges them)."""
+
+    resampled: np.ndarray
+    ancestors: np.ndarray
+
+
+class RoundingEvent(NamedTuple):
+    """A frame where the reference took the other filter's choice: ``kind`` "decision" (the
+    ESS ``value`` within ``numerics.ESS_ROUNDING`` of the threshold) or "ancestors" (``moved``
+    draws, each at most ``value`` from a cumulative-weight boundary)."""
+
+    frame: int
+    kind: str
+    value: float
+    moved: int = 0
+
+
 class UpdateInfo(NamedTuple):
     log_lam: np.ndarray      # [J] tempered log importance factors
     ess: float               # before resampling
     resampled: bool
     ancestors: np.ndarray    # [J]
     extent_violations: int
+    rounding: tuple = ()     # RoundingEvents (frame -1: the caller knows the frame)
 
 
 def init(cfg: FilterConfig, tile_size: float = DEFAULT_TILE_SIZE,
@@ -149,9 +177,11 @@ def _particle(tmap: TileMap, pose: np.ndarray, cs: tuple, obs: np.ndarray, u: np
 
 
 def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: FilterParams,
-           cfg: FilterConfig) -> UpdateInfo:
+           cfg: FilterConfig, follow: tuple[bool, np.ndarray] | None = None) -> UpdateInfo:
     """One local map: per-particle update, weights (eq. 27), normalisation, ESS-gated
-    resampling; state is updated in place. obs: [L, L, 2] float32 (k, S)."""
+    resampling; state is updated in place. obs: [L, L, 2] float32 (k, S). ``follow``: another
+    filter's (resampled, ancestors) at this frame, taken where this one's differ only by
+    rounding (reported in ``UpdateInfo.rounding``)."""
     J = cfg.num_particles
     obs = np.asarray(obs, F32)
     unknown_u = np.asarray(noise.unknown_u, F32)
@@ -170,10 +200,21 @@ def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: Filte
     e = nm.ess(log_w)
     anc = np.arange(J)
     # at the threshold (within 0.1%, where adaptive tempering lands) counts as below it
-    resampled = e < cfg.resample_ratio * J * 1.001
+    threshold = nm.resample_threshold(cfg.resample_ratio, J)
+    resampled = bool(e < threshold)
+    rounding = []
+    if follow is not None and bool(follow[0]) != resampled and \
+            nm.decision_within_rounding(e, threshold):
+        resampled = bool(follow[0])
+        rounding.append(RoundingEvent(-1, "decision", e))
     if resampled:
-        anc = nm.survivors_keep_slots(
-            nm.resample(cfg.resampler, np.exp(log_w), np.asarray(noise.resample_u)))
+        w, u = np.exp(log_w), np.asarray(noise.resample_u)
+        anc = nm.survivors_keep_slots(nm.resample(cfg.resampler, w, u))
+        if follow is not None and bool(follow[0]) and not np.array_equal(anc, follow[1]):
+            taken = nm.follow_ancestors(cfg.resampler, w, u, follow[1])
+            if taken is not None:
+                anc = taken[0]
+                rounding.append(RoundingEvent(-1, "ancestors", taken[2], taken[1]))
         old = state.maps
         state.maps = [old[a].share() for a in anc]
         for m in old:
@@ -181,7 +222,7 @@ def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: Filte
         state.pose = state.pose[anc]
         log_w = np.full(J, -math.log(J))
     state.log_w = log_w
-    return UpdateInfo(log_lam, e, bool(resampled), anc, violations)
+    return UpdateInfo(log_lam, e, bool(resampled), anc, violations, tuple(rounding))
 
 
 def memory_snapshot(state: TiledState) -> dict:
@@ -210,6 +251,7 @@ class TiledOutput(NamedTuple):
     peak_bytes: int            # most bytes held by tiles at any time (cells + known caches)
     extent_violations: int
     final: TiledState
+    rounding: tuple = ()       # RoundingEvents: where the reference followed ``Decisions``
 
 
 def _draw_fns(cfg: FilterConfig) -> tuple[Callable, Callable]:
@@ -256,10 +298,12 @@ def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_in
               local_obs: np.ndarray, cfg: FilterConfig, tile_size: float = DEFAULT_TILE_SIZE,
               start_pose: np.ndarray | None = None,
               progress: Callable[[int, int], None] | None = None,
-              draws: Draws | None = None) -> TiledOutput:
+              draws: Draws | None = None, follow: Decisions | None = None) -> TiledOutput:
     """The whole run, frame by frame, with the dense filter's per-frame random numbers:
     ``draws`` (``draw_noise(key, obs_index, cfg)``, made here first when not given; pass them
-    to time the run alone). With ``draws`` given, the loop is NumPy only: ``key`` is unused."""
+    to time the run alone). With ``draws`` given, the loop is NumPy only: ``key`` is unused.
+    ``follow``: another filter's resampling decisions, taken where they differ from the
+    reference's only by rounding (``TiledOutput.rounding`` lists those frames)."""
     state = init(cfg, tile_size, start_pose)
     obs_index = np.asarray(obs_index)
     if draws is None:
@@ -270,8 +314,12 @@ def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_in
     T, J = controls.shape[0], cfg.num_particles
     if len(draws.motion) != T:
         raise ValueError(f"draws for {len(draws.motion)} frames, the run has {T}")
+    if follow is not None and (np.shape(follow.resampled) != (T,) or
+                               np.shape(follow.ancestors) != (T, J)):
+        raise ValueError(f"decisions to follow of shapes {np.shape(follow.resampled)} and "
+                         f"{np.shape(follow.ancestors)}, the run needs [{T}] and [{T}, {J}]")
     out = {n: [] for n in ("pose", "log_w", "ess", "resampled", "ancestors", "mem", "tiles", "shared")}
-    upd_s, violations = [], 0
+    upd_s, violations, rounding = [], 0, []
     snap = memory_snapshot(state)
     for t in range(T):
         predict(state, controls[t], draws.motion[t], params)
@@ -279,9 +327,11 @@ def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_in
         if obs_index[t] >= 0:
             noise = draws.update[t]
             t0 = time.perf_counter()
-            info = update(state, local_obs[obs_index[t]], noise, params, cfg)
+            info = update(state, local_obs[obs_index[t]], noise, params, cfg,
+                          None if follow is None else (follow.resampled[t], follow.ancestors[t]))
             upd_s.append(time.perf_counter() - t0)
             ess, resampled, anc = info.ess, info.resampled, info.ancestors
+            rounding.extend(r._replace(frame=t) for r in info.rounding)
             violations += info.extent_violations
             snap = memory_snapshot(state)
         for name, v in (("pose", state.pose.copy()), ("log_w", state.log_w.copy()), ("ess", ess),
@@ -295,4 +345,5 @@ def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_in
         resampled=np.array(out["resampled"]), ancestors=np.stack(out["ancestors"]),
         memory_bytes=np.array(out["mem"], np.int64), tiles=np.array(out["tiles"]),
         shared_mean=np.array(out["shared"]), update_seconds=np.array(upd_s),
-        peak_bytes=state.ledger.peak_bytes, extent_violations=violations, final=state)
+        peak_bytes=state.ledger.peak_bytes, extent_violations=violations, final=state,
+        rounding=tuple(rounding))
