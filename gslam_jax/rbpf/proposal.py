@@ -49,7 +49,8 @@ from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
-           "score_candidates", "fit_proposal", "draw", "JITTER"]
+           "score_candidates", "fit_proposal", "draw", "quadratic_design", "quadratic_hessian",
+           "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
 # moves the position along-track only, so the covariance is singular until the heading noise
@@ -124,7 +125,7 @@ Exponent = Callable[[Array, Array], Array]
 tempering exponent phi []."""
 
 
-def _quadratic_design(t: Array) -> Array:
+def quadratic_design(t: Array) -> Array:
     """Least-squares operator [10, K] that takes values at the grid points ``t`` [K, 3] to the
     coefficients of c + b.t + sum_a q_aa t_a^2 + sum_{a<b} q_ab t_a t_b."""
     x, y, z = t[:, 0], t[:, 1], t[:, 2]
@@ -132,17 +133,24 @@ def _quadratic_design(t: Array) -> Array:
     return jnp.linalg.pinv(X)
 
 
-def _gaussian_of_quadratic(coef: Array, span: float, spacing: float) -> tuple[Array, Array]:
-    """Mean [J, 3] and covariance [J, 3, 3] of exp(quadratic) (the coefficients [J, 10] of
-    ``_quadratic_design``), in grid coordinates: precision P = -Hessian with its eigenvalues
-    at least 1 / span^2 (a flat or convex direction gets the grid's width), the mode P^-1 b
-    clipped to the grid, and a covariance never sharper than the grid resolves (precision at
-    most 64 / spacing^2: a later stage, on a finer grid, sharpens it)."""
+def quadratic_hessian(coef: Array) -> tuple[Array, Array]:
+    """Gradient at 0 [J, 3] and Hessian [J, 3, 3] of the quadratics with coefficients [J, 10]
+    (``quadratic_design``'s order)."""
     b = coef[:, 1:4]
     d, xy, xz, yz = coef[:, 4:7], coef[:, 7], coef[:, 8], coef[:, 9]
     H = jnp.stack([jnp.stack([2 * d[:, 0], xy, xz], -1),
                    jnp.stack([xy, 2 * d[:, 1], yz], -1),
                    jnp.stack([xz, yz, 2 * d[:, 2]], -1)], -2)
+    return b, H
+
+
+def _gaussian_of_quadratic(coef: Array, span: float, spacing: float) -> tuple[Array, Array]:
+    """Mean [J, 3] and covariance [J, 3, 3] of exp(quadratic) (the coefficients [J, 10] of
+    ``quadratic_design``), in grid coordinates: precision P = -Hessian with its eigenvalues
+    at least 1 / span^2 (a flat or convex direction gets the grid's width), the mode P^-1 b
+    clipped to the grid, and a covariance never sharper than the grid resolves (precision at
+    most 64 / spacing^2: a later stage, on a finer grid, sharpens it)."""
+    b, H = quadratic_hessian(coef)
     vals, vecs = jnp.linalg.eigh(-H)
     vals = jnp.maximum(vals, 1.0 / span ** 2)
     mode = jnp.einsum("jab,jb,jcb,jc->ja", vecs, 1.0 / vals, vecs, b)
@@ -164,7 +172,7 @@ def fit_proposal(score: Score, num: int, points: int, span: float, stages: int,
     scaled by its factor), so the last fit is made where the target's mass is. An exactly
     quadratic target is fitted exactly at the first stage."""
     t, spacing = candidate_grid(points, span)
-    design = _quadratic_design(t)
+    design = quadratic_design(t)
     a = jnp.zeros((num, 3), jnp.float32)
     B = jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (num, 3, 3))
     phi = None

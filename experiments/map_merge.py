@@ -1,0 +1,155 @@
+"""Map merging on the simulator, whose truth is known: align run B's finished map to run A's
+(``gridmap.align_maps``, the gamma likelihood) from an unknown start, against the paper's
+GPS-only alignment, and refuse pairs of different courses.
+
+    python -m experiments.map_merge --courses mars-yard-a arroyo-a maze --trials 10 \
+        --json map_merge.json
+
+Per course: run A is the course with sim seed 0; trial i drives the same world and path again
+with other VO and sensor noise (``--noise-seed 100 + i``) and starts B's frame at a random pose
+Q (offset uniform up to the course's size, any heading), so B's map lives in an unknown frame;
+the true pose of B's frame in A's is then T = g0 (+) Q^-1 (g0: the true start, A's start pose).
+Each trial reports the alignment's error against T, its standard deviation, z and runner-up,
+whether ``align_maps`` would refuse it, and the error of the GPS-only alignment (each run's path
+aligned to its own simulated WAAS-like receiver, paper appendix, then composed). Then A of each
+course is aligned to B of the next course (no overlap): each should be refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gslam_jax import slam
+from gslam_jax.config import Config
+from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.gps import align_to_gps
+from gslam_jax.gps.georeference import gps_input
+from gslam_jax.gridmap import GridMap, compose, invert_pose
+from gslam_jax.gridmap.align import AlignmentRefused, align_maps, check_alignment
+from gslam_jax.machine import environment
+from gslam_jax.vo.localmap import localmap_params
+
+
+def _slam_map(run, config: Config) -> tuple[GridMap, slam.SlamResult]:
+    result = slam.run_slam(run, config)
+    return GridMap(np.asarray(result.kmap, np.float64), np.asarray(result.smap, np.float64),
+                   result.map_origin, result.resolution), result
+
+
+def _gps_frame(run, result, seed: int) -> np.ndarray:
+    """The pose of the run's map frame in the GPS site frame (Procrustes fit of its path)."""
+    readings = gps_input("sim", run, seed)
+    al, _ = align_to_gps(run.timestamps, result.path[:, :2], readings.log.time,
+                         readings.log.xy, readings.log.epe)
+    R, shift = np.asarray(al.R, np.float64), np.asarray(al.l, np.float64)
+    return np.array([shift[0], shift[1], math.atan2(R[1, 0], R[0, 0])])
+
+
+def _error(est: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    return (float(math.hypot(est[0] - truth[0], est[1] - truth[1])),
+            float(abs(math.degrees(math.remainder(est[2] - truth[2], 2 * math.pi)))))
+
+
+def _cached(cache: Path | None, name: str, make) -> dict:
+    """``make()`` (a dict of arrays), kept as ``cache/name.npz`` when a cache folder is given."""
+    if cache is None:
+        return make()
+    file = cache / f"{name}.npz"
+    if not file.exists():
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez(file, **make())
+    with np.load(file) as data:
+        return {k: data[k] for k in data.files}
+
+
+def _run_maps(course: str, noise_seed: int | None, start: np.ndarray | None, config: Config,
+              gps_seed: int) -> dict:
+    """Run the course (sim seed 0; B: another noise seed and start pose ``start``): its map,
+    true start, extent and the pose of its map frame in the GPS site frame."""
+    run, _ = simulate_run(course, seed=0, params=localmap_params(config), noise_seed=noise_seed)
+    if start is not None:
+        run = run._replace(initial_pose=start)
+    grid, result = _slam_map(run, config)
+    g0 = np.asarray(run.ground_truth[0], np.float64)
+    return {"k": grid.k, "S": grid.S, "origin": np.asarray(grid.origin),
+            "resolution": grid.resolution, "g0": g0,
+            "size": np.max(np.abs(run.ground_truth[:, :2] - g0[:2])),
+            "gps_frame": _gps_frame(run, result, gps_seed)}
+
+
+def _grid(d: dict) -> GridMap:
+    return GridMap(d["k"], d["S"], tuple(d["origin"]), float(d["resolution"]))
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--courses", nargs="+", default=["mars-yard-a", "arroyo-a", "maze"])
+    ap.add_argument("--trials", type=int, default=10)
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--cache", default=None, help="keep each run's map here (re-runs skip SLAM)")
+    args = ap.parse_args(argv)
+    config = Config()
+    report = {"environment": environment(), "trials": [], "cross": []}
+    maps = {}
+    cache = Path(args.cache) if args.cache else None
+    for course in args.courses:
+        a = _cached(cache, f"{course}-a", lambda: _run_maps(course, None, None, config, 1000))
+        g0, size = a["g0"], float(a["size"])
+        maps[course] = {"a": _grid(a), "b": []}
+        for i in range(args.trials):
+            rng = np.random.default_rng([7, i])
+            Q = np.array([rng.uniform(-size, size), rng.uniform(-size, size),
+                          rng.uniform(-math.pi, math.pi)])
+            b = _cached(cache, f"{course}-b{i}",
+                        lambda: _run_maps(course, 100 + i, Q, config, 2000 + i))
+            truth = compose(g0, invert_pose(Q))
+            grid_b = _grid(b)
+            maps[course]["b"].append(grid_b)
+            t0 = time.perf_counter()
+            al = align_maps(maps[course]["a"], grid_b, refuse=False)
+            seconds = time.perf_counter() - t0
+            try:
+                check_alignment(al)
+                refused = None
+            except AlignmentRefused as err:
+                refused = str(err)
+            gps = compose(invert_pose(a["gps_frame"]), b["gps_frame"])
+            dist, head = _error(al.pose, truth)
+            gdist, ghead = _error(gps, truth)
+            std = np.sqrt(np.diag(al.covariance))
+            row = {"course": course, "trial": i, "error_m": dist, "error_deg": head,
+                   "std_m": float(math.hypot(std[0], std[1])),
+                   "std_deg": math.degrees(float(std[2])), "z": al.z,
+                   "runner_up_z": al.runner_up_z, "overlap": al.overlap, "refused": refused,
+                   "gps_error_m": gdist, "gps_error_deg": ghead, "seconds": seconds}
+            report["trials"].append(row)
+            print(json.dumps(row), flush=True)
+    courses = list(maps)
+    for n, course in enumerate(courses):
+        other = courses[(n + 1) % len(courses)]
+        if other == course:
+            break
+        for i, grid_b in enumerate(maps[other]["b"]):
+            al = align_maps(maps[course]["a"], grid_b, refuse=False)
+            try:
+                check_alignment(al)
+                refused = None
+            except AlignmentRefused as err:
+                refused = str(err)
+            row = {"a": course, "b": other, "trial": i, "z": al.z,
+                   "runner_up_z": al.runner_up_z, "overlap": al.overlap, "refused": refused}
+            report["cross"].append(row)
+            print(json.dumps(row), flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2))
+    return report
+
+
+if __name__ == "__main__":
+    main()

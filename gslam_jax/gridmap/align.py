@@ -1,0 +1,537 @@
+"""Global alignment of two variance grid maps by the gamma likelihood the filter weighs with.
+
+The pose T = (x, y, theta) of map B's frame in map A's frame is found by scoring B's cells,
+carried by T onto A's lattice, against A's cells with the log posterior predictive of eq. 26.
+Each cell's term is a log-likelihood ratio against chance:
+
+    g(b, a) = lambda(b | a) - E_a'[lambda(b | a')],
+
+the expectation over A's known cells a' (what the unknown-cell model of eq. 31 would borrow),
+so a placement on unrelated terrain scores 0 on average and a cell of B over unknown A scores 0.
+The score of T is the sum of g over B's cells. Both maps' statistics are tempered to at most
+``max_dof`` degrees of freedom per cell (k and S scaled together, the variance kept): finished
+maps hold cells of thousands of points whose exact variances differ between runs by more than
+their nominal precision (different VO noise, different blur), and the untempered likelihood
+would trust them beyond that.
+
+The search is global and coarse to fine. At level f the lattice has cells f x f times A's (the
+statistics of eq. 14 summed per block, so a coarse cell holds the pooled within-cell variance of
+its fine cells). The coarsest level scores every heading (steps that move B's farthest cell by
+half a coarse cell) and every whole-cell shift, with B binned once per heading; its best
+distinct peaks are refined level by level on local grids, and at A's own lattice a quadratic
+fitted to the score around the best pose (the Laplace approximation, as the observation-informed
+proposal fits its Gaussian: ``rbpf.proposal``) gives the pose and its covariance. The
+covariance is that of the tempered score: large where the score is flat (a straight road's
+along-track direction).
+
+Decisions use a standardised score: z = score / sqrt(sum of the terms' variances under chance).
+An alignment is refused (``AlignmentRefused``, carrying the best and the runner-up) when B
+overlaps A too little, when z is too small to be told from chance, when a distinct runner-up
+scores nearly as well (ambiguous) or when the score is flat in some direction.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array, lax
+
+from gslam_jax.errors import InputError
+from gslam_jax.gridmap.grid import GridMap, known_cells
+from gslam_jax.rbpf import cells
+from gslam_jax.rbpf.proposal import candidate_grid, quadratic_design, quadratic_hessian
+
+__all__ = ["AlignParams", "PosePrior", "Alignment", "AlignmentRefused", "align_maps",
+           "check_alignment", "score_poses", "pool", "temper", "FLAT_VARIANCE"]
+
+
+# variance, in squared grid steps, of a direction along which the score does not curve down
+FLAT_VARIANCE = 1e12
+
+
+class AlignParams(NamedTuple):
+    """Settings of ``align_maps``.
+
+    max_dof: degrees of freedom a cell counts for at most (tempering, see the module).
+    coarse: cell factor of the coarsest level (a power of two); 0 chooses the smallest whose
+        exhaustive search stays within ``budget`` cell evaluations.
+    candidates: distinct coarse peaks refined to the fine lattice.
+    min_overlap: fewest fine cells of B that must land on A's known cells.
+    min_z: smallest standardised score accepted (chance gives about 0, with spread 1 per
+        placement before the search's maximum over many placements).
+    min_gap_z: how much better in z the best must be than the best distinct runner-up.
+    distinct_m, distinct_rad: a runner-up is distinct when at least this far from the best in
+        position or heading.
+    max_std_m, max_std_rad: the largest standard deviation of the fitted pose accepted (a flat
+        score along some direction is refused).
+    """
+
+    max_dof: int = 8
+    coarse: int = 0
+    candidates: int = 8
+    min_overlap: int = 200
+    min_z: float = 12.0
+    min_gap_z: float = 4.0
+    distinct_m: float = 1.0
+    distinct_rad: float = math.radians(10.0)
+    max_std_m: float = 0.5
+    max_std_rad: float = math.radians(2.0)
+    budget: float = 4e8
+
+
+class PosePrior(NamedTuple):
+    """A Gaussian prior on B's pose in A's frame (e.g. from both runs' GPS alignments): mean
+    [3], covariance [3, 3]. It restricts the global search to 4 standard deviations and adds
+    its log density to the score."""
+
+    mean: np.ndarray
+    cov: np.ndarray
+
+
+class Alignment(NamedTuple):
+    """B's frame in A's frame: pose [3] (x, y, theta) and its covariance [3, 3]; the score
+    (sum of log-likelihood ratios, see the module) and its z; the fine cells of B that landed
+    on A's known cells; the best distinct runner-up (pose, score, z; NaN when none); the
+    coarse level used."""
+
+    pose: np.ndarray
+    covariance: np.ndarray
+    score: float
+    z: float
+    overlap: int
+    runner_up_pose: np.ndarray
+    runner_up_score: float
+    runner_up_z: float
+    coarse: int
+
+    def summary(self) -> dict:
+        std = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+        return {"pose": [float(v) for v in self.pose],
+                "heading_deg": math.degrees(float(self.pose[2])),
+                "covariance": np.asarray(self.covariance).tolist(),
+                "std_m": [float(std[0]), float(std[1])],
+                "std_heading_deg": math.degrees(float(std[2])),
+                "score": self.score, "z": self.z, "overlap_cells": self.overlap,
+                "runner_up_pose": [float(v) for v in self.runner_up_pose],
+                "runner_up_score": self.runner_up_score, "runner_up_z": self.runner_up_z,
+                "coarse_level": self.coarse}
+
+
+class AlignmentRefused(InputError):
+    """The maps do not overlap, or their match is too weak or ambiguous to trust; ``alignment``
+    holds the best and runner-up found."""
+
+    def __init__(self, message: str, alignment: Alignment):
+        super().__init__(message)
+        self.alignment = alignment
+
+
+def temper(k: np.ndarray, S: np.ndarray, max_dof: int) -> tuple[np.ndarray, np.ndarray]:
+    """(k, S) with k at most ``max_dof`` and whole (the fast eq. 26 needs integer k), S scaled
+    by the same factor: the variance S / k is kept. Unknown cells (k = 0) stay (0, 0)."""
+    k = np.asarray(k, np.float64)
+    S = np.asarray(S, np.float64)
+    kt = np.where(k > 0, np.clip(np.round(np.minimum(k, max_dof)), 1, max_dof), 0.0)
+    return kt, np.where(k > 0, S * kt / np.where(k > 0, k, 1.0), 0.0)
+
+
+def pool(grid: GridMap, factor: int) -> GridMap:
+    """``grid`` on the lattice of factor x factor blocks (same origin): eq. 14 summed per
+    block, so a block holds the pooled within-cell variance of its cells."""
+    if factor == 1:
+        return grid
+    H, W = grid.shape
+    Hp, Wp = -(-H // factor) * factor, -(-W // factor) * factor
+    k = np.zeros((Hp, Wp))
+    S = np.zeros((Hp, Wp))
+    k[:H, :W], S[:H, :W] = grid.k, grid.S
+    shape = (Hp // factor, factor, Wp // factor, factor)
+    return GridMap(k.reshape(shape).sum(axis=(1, 3)), S.reshape(shape).sum(axis=(1, 3)),
+                   grid.origin, grid.resolution * factor)
+
+
+class _Level(NamedTuple):
+    """A's tempered, pooled map at one level, padded by at least ``pad`` cells on every side,
+    and the chance baseline of g: mean and variance of lambda(b | a') over A's known cells,
+    tabulated over b's tempered k (1..max_dof) and log variance."""
+
+    factor: int
+    k: Array            # [H + 2 pad, W + 2 pad]
+    S: Array
+    origin: tuple[float, float]  # world x, y of padded cell (0, 0)
+    resolution: float
+    base_mean: Array    # [max_dof + 1, V]
+    base_var: Array
+    log_v_grid: Array   # [V]
+
+
+def _g(kb: Array, Sb: Array, ka: Array, Sa: Array, lvl: _Level) -> tuple[Array, Array]:
+    """(g, chance variance of g) per cell, both 0 where b or a is unknown."""
+    both = (kb > 0) & (ka > 0)
+    one = jnp.ones_like(kb)
+    kb_, Sb_ = jnp.where(kb > 0, kb, one), jnp.where(kb > 0, Sb, one)
+    lam = cells.log_predictive_integer(kb_, Sb_, jnp.where(both, ka, one),
+                                       jnp.where(both, Sa, one))
+    log_v = jnp.log(Sb_ / kb_)
+    grid = lvl.log_v_grid
+    pos = jnp.clip((log_v - grid[0]) / (grid[1] - grid[0]), 0.0, grid.shape[0] - 1.001)
+    i0 = jnp.floor(pos).astype(jnp.int32)
+    frac = pos - i0
+    row = jnp.clip(kb_, 0, lvl.base_mean.shape[0] - 1).astype(jnp.int32)
+
+    def interp(table):
+        return table[row, i0] * (1 - frac) + table[row, i0 + 1] * frac
+
+    return (jnp.where(both, lam - interp(lvl.base_mean), 0.0),
+            jnp.where(both, interp(lvl.base_var), 0.0))
+
+
+def _level(a: GridMap, factor: int, pad: int, max_dof: int, log_v_range: tuple[float, float],
+           samples: int = 2048, points: int = 128) -> _Level:
+    """A at level ``factor`` (tempered after pooling) with its chance tables."""
+    pooled = pool(a, factor)
+    k, S = temper(pooled.k, pooled.S, max_dof)
+    ka, Sa = k[k > 0], S[k > 0]
+    if ka.size > samples:  # an even spread of A's known cells, deterministic
+        pick = np.linspace(0, ka.size - 1, samples).astype(np.int64)
+        ka, Sa = ka[pick], Sa[pick]
+    lo, hi = log_v_range
+    grid = np.linspace(lo - 1.0, hi + 1.0, points)
+    lam_mean, lam_var = _chance_tables(jnp.asarray(grid, jnp.float32), jnp.asarray(ka, jnp.float32),
+                                       jnp.asarray(Sa, jnp.float32), max_dof)
+    mean = np.zeros((max_dof + 1, points))
+    var = np.zeros((max_dof + 1, points))
+    mean[1:], var[1:] = np.asarray(lam_mean), np.asarray(lam_var)
+    # padded by ``pad`` cells before, and after up to a shape bucket (jit reuse)
+    H, W = k.shape
+    after = (_bucket(H + 2 * pad, 64) - H - pad, _bucket(W + 2 * pad, 64) - W - pad)
+    kp = np.pad(k, ((pad, after[0]), (pad, after[1])))
+    Sp = np.pad(S, ((pad, after[0]), (pad, after[1])))
+    r = pooled.resolution
+    return _Level(factor, jnp.asarray(kp, jnp.float32), jnp.asarray(Sp, jnp.float32),
+                  (a.origin[0] - pad * r, a.origin[1] - pad * r), r,
+                  jnp.asarray(mean, jnp.float32), jnp.asarray(var, jnp.float32),
+                  jnp.asarray(grid, jnp.float32))
+
+
+@partial(jax.jit, static_argnames=("max_dof",))
+def _chance_tables(log_v: Array, ka: Array, Sa: Array, max_dof: int) -> tuple[Array, Array]:
+    """Mean and variance over A's cells (ka, Sa [n]) of lambda(b | a) for b of tempered
+    k = 1..max_dof and variance exp(log_v) ([max_dof, V] each)."""
+    kb = jnp.arange(1, max_dof + 1, dtype=jnp.float32)[:, None, None]
+    Sb = kb * jnp.exp(log_v)[None, :, None]
+    shape = (max_dof, log_v.shape[0], ka.shape[0])
+    lam = cells.log_predictive_integer(jnp.broadcast_to(kb, shape), jnp.broadcast_to(Sb, shape),
+                                       jnp.broadcast_to(ka, shape), jnp.broadcast_to(Sa, shape))
+    return jnp.mean(lam, axis=2), jnp.var(lam, axis=2)
+
+
+class _Moving(NamedTuple):
+    """B at one level: the centres [N, 2] (B's frame) of its known cells on its own lattice
+    of that level (eq. 14 summed per block, then tempered), with their k, S [N]."""
+
+    centres: Array
+    k: Array
+    S: Array
+
+
+def _bucket(n: int, quantum: int) -> int:
+    """n rounded up to a multiple of ``quantum``: padded shapes that later alignments share,
+    so the jitted scorers compile once per bucket rather than once per map."""
+    return max(quantum, -(-n // quantum) * quantum)
+
+
+def _moving(b: GridMap, factor: int, max_dof: int) -> _Moving:
+    pooled = pool(b, factor)
+    centres, k, S = known_cells(pooled)
+    kt, St = temper(k, S, max_dof)
+    n = _bucket(len(k), 1024)
+    pad = ((0, n - len(k)),)
+    return _Moving(jnp.asarray(np.pad(centres, pad + ((0, 0),)), jnp.float32),
+                   jnp.asarray(np.pad(kt, pad), jnp.float32),
+                   jnp.asarray(np.pad(St, pad), jnp.float32))
+
+
+def _score_pose(moving: _Moving, pose: Array, lvl: _Level) -> tuple[Array, Array, Array]:
+    """(score, chance variance, B cells on A's known cells) of one pose at a level: each of
+    B's cells is scored against the cell of A's lattice its centre falls in."""
+    H, W = lvl.k.shape
+    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+    x = pose[0] + c * moving.centres[:, 0] - s * moving.centres[:, 1]
+    y = pose[1] + s * moving.centres[:, 0] + c * moving.centres[:, 1]
+    i = jnp.floor((x - lvl.origin[0]) / lvl.resolution).astype(jnp.int32)
+    j = jnp.floor((y - lvl.origin[1]) / lvl.resolution).astype(jnp.int32)
+    inside = (i >= 0) & (i < H) & (j >= 0) & (j < W)
+    ka = jnp.where(inside, lvl.k[jnp.clip(i, 0, H - 1), jnp.clip(j, 0, W - 1)], 0.0)
+    Sa = jnp.where(inside, lvl.S[jnp.clip(i, 0, H - 1), jnp.clip(j, 0, W - 1)], 0.0)
+    g, var = _g(moving.k, moving.S, ka, Sa, lvl)
+    return jnp.sum(g), jnp.sum(var), jnp.sum((ka > 0) & (moving.k > 0))
+
+
+@jax.jit
+def _score_poses(moving: _Moving, poses: Array, lvl: _Level) -> tuple[Array, Array, Array]:
+    return lax.map(lambda p: _score_pose(moving, p, lvl), poses)
+
+
+def score_poses(a: GridMap, b: GridMap, poses: np.ndarray, factor: int = 1,
+                max_dof: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(score, z, overlap) [n] of B placed at each of ``poses`` [n, 3] in A's frame, at the
+    lattice of ``factor`` x ``factor`` A cells (the module's score)."""
+    moving, lvl = _prepare(a, b, factor, max_dof)
+    score, var, overlap = _score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)
+    score, var = np.asarray(score, np.float64), np.asarray(var, np.float64)
+    return score, score / np.sqrt(np.maximum(var, 1e-12)), np.asarray(overlap)
+
+
+def _log_v_range(*grids: GridMap) -> tuple[float, float]:
+    lo, hi = np.inf, -np.inf
+    for g in grids:
+        v = g.S[g.known] / g.k[g.known]
+        lo, hi = min(lo, float(np.log(v.min()))), max(hi, float(np.log(v.max())))
+    return lo, hi
+
+
+def _radius(b: GridMap) -> float:
+    centres, _, _ = known_cells(b)
+    return float(np.max(np.hypot(centres[:, 0], centres[:, 1]))) + b.resolution
+
+
+def _prepare(a: GridMap, b: GridMap, factor: int, max_dof: int) -> tuple[_Moving, _Level]:
+    moving = _moving(b, factor, max_dof)
+    pad = int(math.ceil(_radius(b) / (a.resolution * factor))) + 2
+    return moving, _level(a, factor, pad, max_dof, _log_v_range(a, b))
+
+
+def _heading_step(radius: float, cell: float) -> float:
+    """Heading step that moves B's farthest cell by half a cell of side ``cell``."""
+    return min(0.5 * cell / max(radius, cell), math.radians(10.0))
+
+
+@partial(jax.jit, static_argnames=("nx", "ny"))
+def _shift_scores(bi: Array, bj: Array, bk: Array, bS: Array, lvl: _Level, nx: int, ny: int
+                  ) -> Array:
+    """Scores [headings, nx, ny] of B's cells (k, S [N]) at padded lattice cells (bi, bj)
+    [headings, N], shifted by every whole cell (sx, sy)."""
+
+    def heading(ij):
+        i, j = ij
+
+        def row(sx):
+            jj = j[None, :] + jnp.arange(ny)[:, None]
+            ii = jnp.broadcast_to(i[None, :] + sx, jj.shape)
+            g, _ = _g(jnp.broadcast_to(bk, jj.shape), jnp.broadcast_to(bS, jj.shape),
+                      lvl.k[ii, jj], lvl.S[ii, jj], lvl)
+            return jnp.sum(g, axis=1)
+
+        return lax.map(row, jnp.arange(nx))
+
+    return lax.map(heading, (bi, bj))
+
+
+def _coarse_search(a: GridMap, b: GridMap, factor: int, params: AlignParams,
+                   prior: PosePrior | None) -> tuple[np.ndarray, np.ndarray]:
+    """Every heading and whole-cell shift at level ``factor``: the poses [n, 3] and scores [n]
+    of the best distinct peaks (at most ``params.candidates``)."""
+    moving = _moving(b, factor, params.max_dof)
+    centres = np.asarray(moving.centres, np.float64)
+    r = a.resolution * factor
+    radius = _radius(b)
+    pad = 2 * int(math.ceil(radius / r)) + 2
+    lvl = _level(a, factor, pad, params.max_dof, _log_v_range(a, b))
+    step = _heading_step(radius, r)
+    if prior is not None:
+        spread = 4.0 * math.sqrt(prior.cov[2, 2])
+        n = max(1, int(math.ceil(spread / step)))
+        headings = prior.mean[2] + step * np.arange(-n, n + 1)
+    else:
+        headings = np.arange(0.0, 2 * math.pi, step)
+    # B's cells rotated per heading and indexed on a lattice of cell r through B's frame
+    # origin: a translation of the padded lattice's origin plus whole cells n keeps those
+    # indices (floor(x + n) = floor(x) + n), so each heading is indexed once for all shifts.
+    c, s = np.cos(headings)[:, None], np.sin(headings)[:, None]
+    bi = np.floor((c * centres[:, 0] - s * centres[:, 1]) / r).astype(np.int32)
+    bj = np.floor((s * centres[:, 0] + c * centres[:, 1]) / r).astype(np.int32)
+    # Shift index (sx, sy) puts B's cell (i, j) on padded cell (i - i_min + sx, ...), in range
+    # for every B cell; the padding (twice B's reach) leaves no overlapping placement out.
+    Hp, Wp = lvl.k.shape
+    i_min, j_min = int(bi.min()), int(bj.min())
+    bi_s, bj_s = bi - i_min, bj - j_min
+    nx, ny = Hp - int(bi_s.max()), Wp - int(bj_s.max())
+    scores = np.asarray(_shift_scores(jnp.asarray(bi_s), jnp.asarray(bj_s), moving.k, moving.S,
+                                      lvl, nx, ny), np.float64)
+    # Shift index sx is n = sx - i_min whole cells: B's frame origin at lattice origin + n r.
+    sx = np.arange(nx) - i_min
+    sy = np.arange(ny) - j_min
+    xs = lvl.origin[0] + sx * r
+    ys = lvl.origin[1] + sy * r
+    poses = np.stack(np.broadcast_arrays(headings[:, None, None], xs[None, :, None],
+                                         ys[None, None, :]), -1)[..., [1, 2, 0]].reshape(-1, 3)
+    flat = scores.reshape(-1)
+    if prior is not None:
+        flat = flat + _log_prior(poses, prior)
+    return _distinct_peaks(poses, flat, params)
+
+
+def _log_prior(poses: np.ndarray, prior: PosePrior) -> np.ndarray:
+    d = poses - prior.mean
+    d[:, 2] = np.remainder(d[:, 2] + math.pi, 2 * math.pi) - math.pi
+    return -0.5 * np.einsum("na,ab,nb->n", d, np.linalg.inv(prior.cov), d)
+
+
+def _distinct(p: np.ndarray, q: np.ndarray, params: AlignParams) -> bool:
+    dh = abs(math.remainder(float(p[2] - q[2]), 2 * math.pi))
+    return math.hypot(p[0] - q[0], p[1] - q[1]) >= params.distinct_m or dh >= params.distinct_rad
+
+
+def _distinct_peaks(poses: np.ndarray, scores: np.ndarray, params: AlignParams
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    order = np.argsort(-scores, kind="stable")[: 200 * params.candidates]
+    kept: list[int] = []
+    for n in order:
+        if all(_distinct(poses[n], poses[m], params) for m in kept):
+            kept.append(int(n))
+            if len(kept) == params.candidates:
+                break
+    return poses[kept], scores[kept]
+
+
+def _refine(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
+            prior: PosePrior | None, rounds: int = 10) -> tuple[np.ndarray, float]:
+    """Local grid search: a 5 x 5 x 5 grid of ``step`` around the pose, re-centred on its
+    best point until that is inside (at most ``rounds`` times): a hill climb to the peak."""
+    t, _ = candidate_grid(5, 2.0)
+    t = np.asarray(t, np.float64)
+    best_score = -np.inf
+    for _ in range(rounds):
+        poses = pose + t * step
+        s = np.asarray(_score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)[0],
+                       np.float64)
+        if prior is not None:
+            s = s + _log_prior(poses, prior)
+        n = int(np.argmax(s))
+        pose, best_score = poses[n], float(s[n])
+        if np.all(np.abs(t[n]) < 2):
+            break
+    return pose, best_score
+
+
+def _laplace(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
+             prior: PosePrior | None) -> tuple[np.ndarray, np.ndarray]:
+    """Mode and covariance of the quadratic fitted to the score on a 5 x 5 x 5 grid of
+    ``step`` around ``pose``; the mode stays within the grid, and a direction where the
+    fitted score does not curve down gets the variance ``FLAT_VARIANCE`` (in grid steps^2)."""
+    t, _ = candidate_grid(5, 2.0)
+    poses = pose + np.asarray(t, np.float64) * step
+    s = np.asarray(_score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)[0],
+                   np.float64)
+    if prior is not None:
+        s = s + _log_prior(poses, prior)
+    coef = np.asarray(quadratic_design(t), np.float64) @ (s - s.max())
+    b, H = quadratic_hessian(coef[None])
+    b, H = np.asarray(b[0], np.float64), np.asarray(H[0], np.float64)
+    vals, vecs = np.linalg.eigh(-H)
+    curved = vals > 1e-9
+    inv_vals = np.where(curved, 1.0 / np.where(curved, vals, 1.0), FLAT_VARIANCE)
+    mode = vecs @ (np.where(curved, inv_vals, 0.0) * (vecs.T @ b))
+    mode = np.clip(mode, -2.0, 2.0)
+    cov_t = (vecs * inv_vals) @ vecs.T
+    return pose + mode * step, cov_t * np.outer(step, step)
+
+
+def _choose_coarse(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrior | None) -> int:
+    """The finest power-of-two level whose exhaustive search costs at most ``budget`` cell
+    evaluations (headings x shifts x B's coarse cells)."""
+    if params.coarse:
+        return params.coarse
+    radius = _radius(b)
+    nb = int(b.known.sum())
+    factor = 1
+    while True:
+        r = a.resolution * factor
+        headings = 2 * math.pi / _heading_step(radius, r)
+        if prior is not None:
+            headings = min(headings, 8 * math.sqrt(prior.cov[2, 2]) /
+                           _heading_step(radius, r) + 1)
+        shifts = (a.shape[0] / factor + 2 * radius / r) * (a.shape[1] / factor + 2 * radius / r)
+        cells_b = max(1.0, nb / factor ** 2)
+        if headings * shifts * cells_b <= params.budget or factor >= 64:
+            return factor
+        factor *= 2
+
+
+def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
+               prior: PosePrior | None = None, refuse: bool = True) -> Alignment:
+    """The pose of B's frame in A's frame that best places B's map on A's (the module's
+    score), with its covariance and the best distinct runner-up. With ``refuse`` (default) an
+    overlap too small, a match too weak or ambiguous, or a flat score raises
+    ``AlignmentRefused`` naming the figures; otherwise the alignment is returned as found."""
+    if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
+        raise InputError(f"the maps have different resolutions ({a.resolution} m and "
+                         f"{b.resolution} m); align maps built with one [map] resolution")
+    for name, g in (("A", a), ("B", b)):
+        if not g.known.any():
+            raise InputError(f"map {name} has no known cell")
+    factor = _choose_coarse(a, b, params, prior)
+    poses, _ = _coarse_search(a, b, factor, params, prior)
+    radius = _radius(b)
+    levels = {}
+    f = factor // 2
+    while f >= 1:
+        levels[f] = _prepare(a, b, f, params.max_dof)
+        f //= 2
+    refined: list[tuple[float, np.ndarray]] = []
+    for pose in poses:
+        for f, (moving, lvl) in levels.items():
+            r = a.resolution * f
+            step = np.array([r / 2, r / 2, _heading_step(radius, r)])
+            pose, score = _refine(moving, lvl, pose, step, prior)
+        # candidates that climbed to the same peak count once
+        if all(_distinct(pose, p, params) for _, p in refined):
+            refined.append((score, pose))
+    refined.sort(key=lambda sp: -sp[0])
+    moving, lvl = levels[1] if 1 in levels else _prepare(a, b, 1, params.max_dof)
+    step = np.array([a.resolution / 2, a.resolution / 2, _heading_step(radius, a.resolution)])
+    best_pose, cov = _laplace(moving, lvl, refined[0][1], step, prior)
+    others = [p for _, p in refined[1:] if _distinct(p, best_pose, params)]
+    test = np.vstack([best_pose[None]] + [p[None] for p in others])
+    score, var, overlap = (np.asarray(v, np.float64) for v in
+                           _score_poses(moving, jnp.asarray(test, jnp.float32), lvl))
+    z = score / np.sqrt(np.maximum(var, 1e-12))
+    runner = int(np.argmax(score[1:])) + 1 if len(others) else None
+    nan3 = np.full(3, np.nan)
+    best_pose[2] = math.remainder(best_pose[2], 2 * math.pi)
+    result = Alignment(
+        pose=best_pose, covariance=cov, score=float(score[0]), z=float(z[0]),
+        overlap=int(overlap[0]),
+        runner_up_pose=test[runner] if runner else nan3,
+        runner_up_score=float(score[runner]) if runner else math.nan,
+        runner_up_z=float(z[runner]) if runner else math.nan, coarse=factor)
+    if refuse:
+        check_alignment(result, params)
+    return result
+
+
+def check_alignment(al: Alignment, params: AlignParams = AlignParams()) -> None:
+    """Raise ``AlignmentRefused`` when the alignment cannot be trusted (see AlignParams)."""
+    std = np.sqrt(np.clip(np.diag(al.covariance), 0.0, None))
+    figures = (f"best z {al.z:.1f} (score {al.score:.0f}, {al.overlap} cells overlapping), "
+               f"runner-up z {al.runner_up_z:.1f}")
+    if al.overlap < params.min_overlap:
+        why = f"the maps overlap by {al.overlap} cells at best (fewer than {params.min_overlap})"
+    elif not al.z >= params.min_z:
+        why = f"the best match is not told from chance (z below {params.min_z:g})"
+    elif math.isfinite(al.runner_up_z) and al.z - al.runner_up_z < params.min_gap_z:
+        rp = al.runner_up_pose
+        why = (f"the match is ambiguous: a distinct placement at ({rp[0]:.2f} m, {rp[1]:.2f} m, "
+               f"{math.degrees(rp[2]):.1f} deg) scores within {params.min_gap_z:g} in z")
+    elif not (np.all(std[:2] <= params.max_std_m) and std[2] <= params.max_std_rad):
+        why = (f"the score is flat along some direction (std {std[0]:.2f} m, {std[1]:.2f} m, "
+               f"{math.degrees(std[2]):.2f} deg)")
+    else:
+        return
+    raise AlignmentRefused(f"cannot align the maps: {why}; {figures}", al)
