@@ -17,8 +17,9 @@ import numpy as np
 from gslam_jax.errors import InputError
 
 __all__ = ["COORDINATE_FRACTION", "HEADING_LIMIT", "HEADING_STEP", "MAX_SPEED", "MAX_TURN", "Run",
-           "RunError", "coordinate_limit", "describe_cells", "float32_limit", "integrate_controls",
-           "known_positions", "load_run", "save_run", "validate_run"]
+           "RunError", "check_start_pose", "coordinate_limit", "describe_cells", "float32_limit",
+           "float32_spacing", "integrate_controls", "known_positions", "load_run", "save_run",
+           "validate_run"]
 
 
 class RunError(InputError):
@@ -135,6 +136,15 @@ def float32_limit(step: float) -> float:
     return math.ldexp(1.0, math.floor(math.log2(step)) + 24)
 
 
+def float32_spacing(x: float) -> float:
+    """The distance between float32 numbers at magnitude ``x`` (inf beyond float32's range)."""
+    x = abs(float(x))
+    if x >= float(np.finfo(np.float32).max):
+        return math.inf
+    tiny = float(np.finfo(np.float32).smallest_subnormal)
+    return max(math.ldexp(1.0, math.frexp(x)[1] - 24), tiny) if x else tiny
+
+
 def coordinate_limit(resolution: float) -> float:
     """Metres from the origin within which float32 resolves COORDINATE_FRACTION of a map cell
     of ``resolution`` metres (the limit on the start pose and the map extent)."""
@@ -153,7 +163,7 @@ def check_start_pose(pose: np.ndarray, resolution: float, fail) -> None:
     if far >= limit:
         fail("initial_pose", f"position ({pose[0]:.6g}, {pose[1]:.6g}) m is {far:.4g} m from "
              f"the origin; the filter's float32 poses there are "
-             f"{float(np.spacing(np.float32(far))):.3g} m apart, coarser than 1/"
+             f"{float32_spacing(far):.3g} m apart, coarser than 1/"
              f"{1 / COORDINATE_FRACTION:.0f} of the {resolution:g} m cells (at most {limit:g} m "
              "from the origin at this resolution); give the start pose in a local frame (e.g. "
              "subtract the first position from every position)")

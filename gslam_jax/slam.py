@@ -22,7 +22,8 @@ from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap, place
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.rbpf.motion import MotionParams
-from gslam_jax.run import Run, RunError, coordinate_limit, describe_cells, known_positions
+from gslam_jax.run import (Run, RunError, check_start_pose, coordinate_limit, describe_cells,
+                           float32_spacing, known_positions)
 
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "filter_config",
            "filter_params", "local_observations", "raw_observations", "ObsSettings",
@@ -101,7 +102,7 @@ def check_float32_reach(vo_poses: np.ndarray, extent: MapExtent, resolution: flo
         t = int(np.argmax(far >= limit))
         raise RunError(f"field 'controls': the VO path reaches ({xy[t, 0]:.6g}, {xy[t, 1]:.6g}) m "
                        f"at frame {t}, {far[t]:.4g} m from the origin; float32 poses there are "
-                       f"{float(np.spacing(np.float32(far[t]))):.3g} m apart, too coarse for "
+                       f"{float32_spacing(far[t]):.3g} m apart, too coarse for "
                        f"[map] resolution {resolution:g} m (at most {limit:g} m from the origin)")
     lo = np.asarray(extent.origin, np.float64)
     hi = lo + np.asarray(extent.shape, np.float64) * resolution
@@ -140,7 +141,8 @@ def map_memory() -> tuple[int, str]:
 def check_prior(prior: PriorMap, config: Config) -> None:
     """ConfigError when the prior map cannot be the filter's map: another resolution than
     [map] resolution (the filter's grid lies on the prior's lattice), or a start pose or
-    spread that is not finite (the spread must be >= 0)."""
+    spread that is not finite (the spread must be >= 0), or a start beyond float32's reach of
+    the map's cells (``run.check_start_pose``)."""
     res = prior.grid.resolution
     if not math.isclose(res, config.map.resolution, rel_tol=1e-6):
         raise ConfigError(f"the prior map {prior.source or ''} has resolution {res:g} m, "
@@ -153,6 +155,11 @@ def check_prior(prior: PriorMap, config: Config) -> None:
     if sigma.shape != (3,) or not (np.isfinite(sigma).all() and (sigma >= 0).all()):
         raise ConfigError(f"the start pose's standard deviations must be 3 finite numbers "
                           f">= 0 (x, y, theta), got {sigma.tolist()}")
+
+    def fail(field: str, msg: str) -> None:
+        raise ConfigError(f"--start (the start pose in the prior map): {msg}")
+
+    check_start_pose(start, res, fail)  # within float32's reach of the map's cells
 
 
 def rebase(run: Run, start: np.ndarray) -> Run:

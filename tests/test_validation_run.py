@@ -7,7 +7,7 @@ from synthetic import make_run
 
 from gslam_jax.config import ConfigError
 from gslam_jax.run import (MAX_SPEED, Run, RunError, coordinate_limit, float32_limit,
-                           integrate_controls, load_run, save_run, validate_run)
+                           float32_spacing, integrate_controls, load_run, save_run, validate_run)
 from gslam_jax.slam import check_float32_reach, map_extent
 
 
@@ -261,3 +261,24 @@ def test_map_extent_beyond_float32_reach():
     with pytest.raises(ConfigError, match=r"\[map\] margin 10000 m"):
         check(xy[:2], 1e4)
     check(xy[:2], 5.0)
+
+
+def test_prior_map_start_beyond_float32_reach_is_refused():
+    """``gslam run --prior-map M --start 1e300,1e300,0`` passed as finite; now named."""
+    from gslam_jax.config import Config
+    from gslam_jax.gridmap import GridMap
+    from gslam_jax.slam import PriorMap, check_prior
+
+    grid = GridMap(np.ones((8, 8)), np.ones((8, 8)), (0.0, 0.0), 0.16)
+    prior = PriorMap(grid, np.array([1e300, 1e300, 0.0]), np.zeros(3), "m.npz")
+    with pytest.raises(ConfigError, match=r"--start \(the start pose in the prior map\): "
+                                          r"position \(1e\+300, 1e\+300\) m"):
+        check_prior(prior, Config())
+    check_prior(prior._replace(start=np.array([100.0, -50.0, 3.0])), Config())
+
+
+@pytest.mark.parametrize("x", [0.0, 1e-40, 1e-3, 1.0, 1.5, 8191.9, 8192.0, 1e15, 3e38, 1e300])
+def test_float32_spacing_against_numpy(x):
+    with np.errstate(over="ignore"):
+        expected = float(np.spacing(np.float32(x)))
+    assert float32_spacing(x) == (np.inf if np.isnan(expected) else expected)
