@@ -166,8 +166,8 @@ class Config:
             (f.proposal_stages >= 1, "filter", "proposal_stages", "must be at least 1"),
             (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
-            (all(getattr(self.motion, k) >= 0 for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),
-             "motion", "alpha_*", "must be non-negative"),
+            *((getattr(self.motion, k) >= 0, "motion", k, "must be non-negative")
+              for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),
             (m.resolution > 0, "map", "resolution", "must be positive"),
             (m.margin >= 0, "map", "margin", "must be non-negative"),
             # S = 0 with k > 0 would make log S = -inf and every log weight NaN

@@ -352,7 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--score-path", choices=choices.SCORE_PATHS,
                    help="path scored by rms: final best particle or weighted mean "
                    "(default: [filter] estimate)")
-    p.add_argument("--batch", type=int, help="parameter sets per chunk")
+    p.add_argument("--batch", type=_positive_int, help="parameter sets per chunk")
     p.add_argument("--out", type=Path, help="write results.csv, results.json and best.toml here "
                    "when complete (default results/search-<time>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
@@ -366,7 +366,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=_positive_float, default=0.05, help="learning rate (> 0)")
     p.add_argument("--steps", type=_positive_int, default=100)
     p.add_argument("--params", help="comma-separated names (default: the objective's)")
-    p.add_argument("--runs-per-step", type=int, default=4)
+    p.add_argument("--runs-per-step", type=_positive_int, default=4)
     p.add_argument("--crn", action="store_true", help="common random numbers across steps")
     p.add_argument("--out", type=Path, help="write tuned.toml (a config for --config) and "
                    "tuned.json here when complete (default results/tune-<time>)")

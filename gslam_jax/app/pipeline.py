@@ -53,11 +53,19 @@ def check_local_map_size(config: Config) -> None:
                           f"terrain; use a [map] resolution of at most "
                           f"{2.0 * lm.max_range / MIN_LOCAL_CELLS:g} m (the paper's is 0.16 m) "
                           "or a longer [localmap] max_range")
+    if not lm.cells and span == float("inf"):  # an absurd max_range over resolution
+        raise ConfigError(f"[localmap] max_range {lm.max_range:g} m at [map] resolution {res:g} "
+                          f"m gives local maps of more cells per side than a float holds, more "
+                          f"than {MAX_LOCAL_CELLS}; use a coarser [map] resolution or a shorter "
+                          "[localmap] max_range")
     L = localmap_params(config).size
     if L > MAX_LOCAL_CELLS:
         how = (f"[localmap] cells = {lm.cells}" if lm.cells else
                f"[localmap] max_range {lm.max_range:g} m at [map] resolution {res:g} m")
-        raise ConfigError(f"{how} gives local maps of {L} x {L} cells ({L * L * 24 / 2**20:.0f} "
+        # an absurd max_range makes L an integer beyond floats: its size in powers of ten
+        side = str(L) if L < 10**6 else f"about 1e{len(str(L)) - 1}"
+        mb = f"{L * L * 24 / 2**20:.0f}" if L < 10**6 else f"about 1e{len(str(L * L * 24)) - 7}"
+        raise ConfigError(f"{how} gives local maps of {side} x {side} cells ({mb} "
                           f"MB of statistics each), more than {MAX_LOCAL_CELLS} per side; use a "
                           "coarser [map] resolution or a shorter [localmap] max_range")
 
