@@ -19,6 +19,7 @@ from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still
 from gslam_jax.errors import InputError
 from gslam_jax.app.outputs import json_ready  # light too
 from gslam_jax.app.progress import ProgressBar
+from gslam_jax.app import merge
 from gslam_jax.app.results import ResultsError, results_folder
 from gslam_jax.datasets.registry import Source, get_source, source_names
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
@@ -75,9 +76,8 @@ def _triple(text: str, nonnegative: bool) -> tuple[float, float, float]:
     except ValueError:
         values = ()
     what = "three numbers >= 0" if nonnegative else "three numbers"
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected {what} separated by commas, got {text!r}")
-    if nonnegative and min(values) < 0:
+    if len(values) != 3 or not all(math.isfinite(v) and (v >= 0 or not nonnegative)
+                                   for v in values):
         raise argparse.ArgumentTypeError(f"expected {what} separated by commas, got {text!r}")
     return values  # type: ignore[return-value]
 
@@ -454,6 +454,8 @@ def _build_rest(sub) -> None:
     p.add_argument("--json", type=Path)
     p.add_argument("--quick", action="store_true", help="Mars Yard A, one seed, J <= 100")
     p.set_defaults(func=cmd_table1)
+
+    merge.add_parser(sub)
 
     p = sub.add_parser("compare", help="dense JAX filter vs the tiled copy-on-write reference")
     p.add_argument("run_file", nargs="?", type=Path, help="Run file (default: a simulated course)")
