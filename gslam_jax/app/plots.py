@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 
 __all__ = ["draw_map", "save_map_png", "save_map_comparison_png", "save_ground_truth_png",
-           "save_ess_png"]
+           "save_ess_png", "save_maps_png"]
 
 _UNKNOWN = (0.16, 0.19, 0.24)
 _STD_RANGE = (0.01, 1.0)  # metres: sand .. walls
@@ -179,3 +179,31 @@ def _figsize(shape: tuple[int, ...], panels: int) -> tuple[float, float]:
     aspect = shape[1] / max(shape[0], 1)  # height / width of one panel
     width = 6.5 * panels
     return width + 1.5, float(np.clip(6.5 * aspect, 2.5, 10.0)) + 0.8
+
+
+def save_maps_png(out: str | Path, panels: Sequence[tuple[str, np.ndarray, Sequence[float],
+                                                           np.ndarray | None]],
+                  resolution: float, suptitle: str | None = None, dpi: int = 120) -> Path:
+    """Maps side by side in one frame and one window, same colour scale: panels of (title,
+    expected std [Nx, Ny], origin, path [T, >=2] or None), e.g. run A, run B placed in A's
+    frame, and their merge."""
+    out = Path(out)
+    shape = (max(p[1].shape[0] for p in panels), max(p[1].shape[1] for p in panels))
+    w, h = _figsize(shape, len(panels))
+    fig, axes = plt.subplots(1, len(panels), figsize=(w, h), squeeze=False)
+    axes = list(axes[0])
+    im = None
+    for ax, (title, std, origin, path) in zip(axes, panels):
+        im = draw_map(ax, std, origin, resolution, path, title)
+    windows = [w for w in (_data_window(p[1], p[2], resolution) for p in panels) if w]
+    if windows:
+        box = np.array(windows)
+        for ax in axes:
+            ax.set_xlim(box[:, 0].min(), box[:, 1].max())
+            ax.set_ylim(box[:, 2].min(), box[:, 3].max())
+    fig.colorbar(im, ax=axes, label="expected std of heights (m)", shrink=0.8)
+    if suptitle:
+        fig.suptitle(suptitle)
+    fig.savefig(out, dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return out

@@ -35,7 +35,7 @@ from typing import Iterator, NamedTuple
 from gslam_jax.errors import InputError
 
 __all__ = ["MARKER", "MARKER_FORMAT", "RESULT_FILES", "ResultsError", "Staged", "results_folder",
-           "is_complete"]
+           "is_complete", "writing"]
 
 MARKER = "COMPLETE"
 
@@ -218,6 +218,17 @@ def results_folder(out: str | Path | None, kind: str, overwrite: bool = False,
             shutil.rmtree(staging, ignore_errors=True)
             _remove_empty(new)
         raise
+
+
+@contextlib.contextmanager
+def writing(folder: Staged) -> Iterator[None]:
+    """Writing a command's files into its staging folder: an OSError (a full disk) becomes a
+    ResultsError naming the folder (the staging folder is then removed, nothing published)."""
+    try:
+        yield
+    except OSError as err:
+        raise ResultsError(f"{folder.name}: cannot write the results ({err.strerror or err}); "
+                           f"nothing was written to {folder.target}") from err
 
 
 @contextlib.contextmanager

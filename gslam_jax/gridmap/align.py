@@ -495,7 +495,9 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
             refined.append((score, pose))
     refined.sort(key=lambda sp: -sp[0])
     moving, lvl = levels[1] if 1 in levels else _prepare(a, b, 1, params.max_dof)
-    step = np.array([a.resolution / 2, a.resolution / 2, _heading_step(radius, a.resolution)])
+    # the fit spans +-2 cells: the score is piecewise constant within a cell, so a narrower
+    # grid would fit its steps rather than its shape
+    step = np.array([a.resolution, a.resolution, 2 * _heading_step(radius, a.resolution)])
     best_pose, cov = _laplace(moving, lvl, refined[0][1], step, prior)
     others = [p for _, p in refined[1:] if _distinct(p, best_pose, params)]
     test = np.vstack([best_pose[None]] + [p[None] for p in others])
