@@ -1,0 +1,149 @@
+"""Map reuse on the simulator: is run B, started in run A's finished map, at least as accurate
+as A itself (and as B without the map)?
+
+    python -m experiments.prior_map --out results/prior_map [--courses ...] [--seeds 0 1]
+        [--max-frames N] [--sigma 0.5,0.5,0.1]
+
+For each course and seed s:
+
+* A: ``gslam run --course C --seed s`` (the simulator's course, world and noise of seed s);
+* B: the same course and world (seed s) driven again with the VO and sensor noise of seed
+  s + 100, written as a Run file (``gslam run --seed`` would change the course and the world
+  too, so B is built here from the simulator's two halves, ``drive_course`` and ``sense_run``);
+* B plain: ``gslam run B.npz``; B on A's map: ``gslam run B.npz --prior-map A --start X,Y,TH``
+  with and without ``--start-sigma``.
+
+B's start in A's frame: A's filter starts at A's true first pose (the simulator's Run gives it
+as ``initial_pose``), so A's map frame is the simulator's world frame, exactly at the start;
+B drives the same course, so its true start in that frame is B's ``initial_pose`` (read from
+the Run file, printed in the commands). Every command is run through ``gslam_jax.app.cli.main``
+and written to OUT/commands.txt; the figures come from each run's summary.json (RMS after the
+rigid fit, over every frame).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gslam_jax.app import cli
+
+
+def make_b(course: str, seed: int, noise_seed: int, max_frames: int | None, path: Path) -> None:
+    """Run file of ``course`` with the course and world of ``seed`` and the VO and sensor noise
+    of ``noise_seed``."""
+    from gslam_jax.config import Config
+    from gslam_jax.datasets.sim import drive_course, sense_run
+    from gslam_jax.run import save_run
+    from gslam_jax.sim.courses import make_course
+    from gslam_jax.sim.environments import world_for_course
+    from gslam_jax.sim.vonoise import VO_PROFILES
+    from gslam_jax.vo.localmap import localmap_params
+
+    odo = drive_course(make_course(course, seed), noise_seed, VO_PROFILES[course],
+                       max_frames=max_frames)
+    world = world_for_course(odo.course, seed)
+    run, _ = sense_run(odo, world, noise_seed, localmap_params(Config()))
+    save_run(path, run)
+
+
+def gslam(args: list[str], log: Path) -> dict:
+    """``gslam`` with ``args`` (recorded in ``log``); the summary.json of its --out."""
+    with open(log, "a") as f:
+        f.write("gslam " + " ".join(args) + "\n")
+    code = cli.main(args)
+    if code:
+        raise SystemExit(f"gslam {' '.join(args)} exited with {code}")
+    return json.loads((Path(args[args.index("--out") + 1]) / "summary.json").read_text())
+
+
+def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str) -> dict:
+    """A, B plain, B on A's map (exact start, then spread by ``sigma``) for one course/seed."""
+    from gslam_jax.run import load_run
+
+    d = out / f"{course}-{seed}"
+    d.mkdir(parents=True, exist_ok=True)
+    log = out / "commands.txt"
+    frames = [] if max_frames is None else ["--max-frames", str(max_frames)]
+    row: dict = {"course": course, "seed": seed, "b_noise_seed": seed + 100}
+    t0 = time.perf_counter()
+    a = gslam(["run", "--course", course, "--seed", str(seed), *frames, "--out", str(d / "A"),
+               "--overwrite"], log)
+    b_file = d / "B.npz"
+    make_b(course, seed, seed + 100, max_frames, b_file)
+    with open(log, "a") as f:
+        f.write(f"# B.npz: python -c 'from experiments.prior_map import make_b; make_b("
+                f"\"{course}\", {seed}, {seed + 100}, {max_frames}, \"{b_file}\")'\n")
+    start = np.asarray(load_run(b_file).start_pose(), np.float64)
+    start_text = ",".join(repr(float(v)) for v in start)
+    plain = gslam(["run", str(b_file), "--out", str(d / "B-plain"), "--overwrite"], log)
+    prior = gslam(["run", str(b_file), "--prior-map", str(d / "A"), "--start", start_text,
+                   "--out", str(d / "B-prior"), "--overwrite"], log)
+    spread = gslam(["run", str(b_file), "--prior-map", str(d / "A"), "--start", start_text,
+                    "--start-sigma", sigma, "--out", str(d / "B-prior-sigma"), "--overwrite"],
+                   log)
+    row.update(frames=a["frames"], a_rms=a["slam_rms_m"], a_vo_rms=a["vo_rms_m"],
+               b_vo_rms=plain["vo_rms_m"], b_plain_rms=plain["slam_rms_m"],
+               b_prior_rms=prior["slam_rms_m"], b_prior_sigma_rms=spread["slam_rms_m"],
+               cells_added=prior["prior_map"]["cells_added"],
+               prior_known_cells=prior["prior_map"]["prior_known_cells"],
+               seconds=time.perf_counter() - t0)
+    print(json.dumps(row))
+    return row
+
+
+def _xy(folder: Path) -> np.ndarray:
+    """Positions [T, 2] of a results folder's reported path (trajectory_tum.txt)."""
+    return np.loadtxt(folder / "trajectory_tum.txt")[:, 1:3]
+
+
+def agreement(out: Path, row: dict) -> dict:
+    """How far B's paths lie from A's, frame by frame, in A's frame (no fit): B drives A's
+    course on A's clock, so frame t is the same true pose in both runs, and plain B starts at
+    the same true pose as A. A small distance with the prior: B is localised in A's map (and
+    shares its errors)."""
+    d = out / f"{row['course']}-{row['seed']}"
+    a = _xy(d / "A")
+    rms = {name: float(np.sqrt(np.mean(np.sum((_xy(d / name) - a) ** 2, axis=1))))
+           for name in ("B-plain", "B-prior", "B-prior-sigma")}
+    return {"b_plain_to_a_m": rms["B-plain"], "b_prior_to_a_m": rms["B-prior"],
+            "b_prior_sigma_to_a_m": rms["B-prior-sigma"]}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--courses", nargs="+", default=["mars-yard-a", "arroyo-a", "maze"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--sigma", default="0.5,0.5,0.1", help="--start-sigma of the spread runs")
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    table = args.out / "prior_map.json"
+    if table.exists():
+        rows = json.loads(table.read_text())
+    done = {(r["course"], r["seed"]) for r in rows}
+    for course in args.courses:
+        for seed in args.seeds:
+            if (course, seed) in done:
+                continue
+            rows.append(one(course, seed, args.out, args.max_frames, args.sigma))
+            table.write_text(json.dumps(rows, indent=1))
+    rows = [{**r, **agreement(args.out, r)} for r in rows]
+    table.write_text(json.dumps(rows, indent=1))
+    print(f"{'course':12} {'seed':>4} {'A':>7} {'B VO':>7} {'B':>7} {'B+A':>7} {'B+A s':>7}"
+          f" {'B-A':>7} {'B+A-A':>7} {'s-A':>7}")
+    for r in rows:
+        print(f"{r['course']:12} {r['seed']:>4} {r['a_rms']:7.3f} {r['b_vo_rms']:7.3f} "
+              f"{r['b_plain_rms']:7.3f} {r['b_prior_rms']:7.3f} {r['b_prior_sigma_rms']:7.3f} "
+              f"{r['b_plain_to_a_m']:7.3f} {r['b_prior_to_a_m']:7.3f} "
+              f"{r['b_prior_sigma_to_a_m']:7.3f}")
+
+
+if __name__ == "__main__":
+    main()
