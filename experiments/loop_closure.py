@@ -171,7 +171,8 @@ def summary(rows: list[dict], share: float = 0.8) -> dict:
 
 
 def plot(rows: list[dict], path: Path) -> None:
-    """Closure probability against loop length, one line per (proposal, J); VO dashed."""
+    """Closure probability against loop length, one line per (proposal, J: informed dotted);
+    VO only dashed. Circles and KITTI cuts share the length axis."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -179,7 +180,8 @@ def plot(rows: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for name, s in summary(rows).items():
         lengths = sorted(s["rates"])
-        ax.plot(lengths, [s["rates"][x][0] for x in lengths], "o-", label=name)
+        style = "s:" if name.startswith("informed") else "o-"
+        ax.plot(lengths, [s["rates"][x][0] for x in lengths], style, label=name)
     vo = {}
     for r in rows:
         if r["closed"] is not None:
@@ -217,13 +219,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--margin-per-m", type=float, default=0.1,
                     help="map margin (m) per metre of loop, at least [map] margin")
     ap.add_argument("--radius", type=float, default=2.0, help="revisit radius of KITTI cuts, m")
-    ap.add_argument("--config", type=Path)
+    ap.add_argument("--config", type=Path, help="TOML config; a Table I config's tables for "
+                    "--course apply (configs/table1.toml: that course's calibrated noise)")
     ap.add_argument("--set", action="append", default=[])
     ap.add_argument("--json", type=Path, help="write settings and every run here")
     ap.add_argument("--plot", type=Path, help="write the closure plot here (PNG)")
     args = ap.parse_args(argv)
     env = environment()
-    config = layered_config(args.config, None, args.set + [f"map.store={args.store}"])
+    config = layered_config(args.config, args.course, args.set + [f"map.store={args.store}"])
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
     rows: list[dict] = []
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
