@@ -11,6 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gslam_jax.gridmap.grid import GridMap  # the one map value; metrics builds them
 from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, known_positions
 
@@ -216,19 +217,6 @@ def ess_summary(ess: np.ndarray, num_particles: int,
     if resampled is not None:
         out["resamples"] = int(np.sum(resampled))
     return out
-
-
-class GridMap(NamedTuple):
-    """A global variance grid map: cell (i, j) covers x in [x0 + i res, x0 + (i+1) res), y
-    likewise with j (axis 0 is x, as in the local maps). k, S as in ``cells.py``."""
-
-    k: np.ndarray
-    S: np.ndarray
-    origin: tuple[float, float]
-    resolution: float
-
-    def expected_std(self) -> np.ndarray:
-        return np.asarray(cells.expected_std(self.k, self.S), dtype=np.float64)
 
 
 def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:

@@ -57,9 +57,10 @@ class PriorMap(NamedTuple):
     ``start``). ``source`` says where the map was read from (for the results)."""
 
     grid: GridMap
-    start: np.ndarray        # [3] x, y, theta
-    start_sigma: np.ndarray  # [3] standard deviations, >= 0
+    start: np.ndarray | None  # [3] x, y, theta; None: to be located (``relocalise``)
+    start_sigma: np.ndarray   # [3] standard deviations, >= 0
     source: str = ""
+    located: dict | None = None  # how the start was located, when it was (summary.json)
 
 
 def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin: float,
@@ -148,6 +149,8 @@ def check_prior(prior: PriorMap, config: Config) -> None:
         raise ConfigError(f"the prior map {prior.source or ''} has resolution {res:g} m, "
                           f"[map] resolution is {config.map.resolution:g} m: they must be "
                           "equal (set [map] resolution to the prior map's)")
+    if prior.start is None:  # located later, from the run (``locate_prior_start``)
+        return
     start, sigma = np.asarray(prior.start, float), np.asarray(prior.start_sigma, float)
     if start.shape != (3,) or not np.isfinite(start).all():
         raise ConfigError(f"the start pose in the prior map must be 3 finite numbers "
@@ -160,6 +163,24 @@ def check_prior(prior: PriorMap, config: Config) -> None:
         raise ConfigError(f"--start (the start pose in the prior map): {msg}")
 
     check_start_pose(start, res, fail)  # within float32's reach of the map's cells
+
+
+def locate_prior_start(prior: PriorMap, run: Run, config: Config) -> PriorMap:
+    """``prior`` with its start located from ``run`` when it has none
+    (``relocalise.locate_start``: the run's first metres aligned in the prior map); the
+    spread is the given one when it is not zero, else the located one. AlignmentRefused (an
+    InputError) when the run's start cannot be told from the map."""
+    if prior.start is not None:
+        return prior
+    from gslam_jax.relocalise import locate_start
+
+    found = locate_start(prior.grid, run)
+    given = np.asarray(prior.start_sigma, float)
+    sigma = given if np.any(given > 0) else found.sigma
+    located = {"frames": found.frames, **found.alignment.summary()}
+    prior = prior._replace(start=found.start, start_sigma=sigma, located=located)
+    check_prior(prior, config)
+    return prior
 
 
 def rebase(run: Run, start: np.ndarray) -> Run:
@@ -456,6 +477,7 @@ def prior_summary(prior: PriorMap, result: SlamResult) -> dict:
     known = np.asarray(result.kmap) > 0
     return {"path": prior.source, "start": np.asarray(prior.start, float).tolist(),
             "start_sigma": np.asarray(prior.start_sigma, float).tolist(),
+            **({"start_located": prior.located} if prior.located is not None else {}),
             "origin": list(prior.grid.origin), "resolution": prior.grid.resolution,
             "prior_known_cells": int(grid.known.sum()),
             "cells_added": int(np.sum(known & ~grid.known)),

@@ -11,6 +11,8 @@ target only once every file is written.
 
 from __future__ import annotations
 
+import math
+
 from pathlib import Path
 from typing import Callable
 
@@ -118,9 +120,10 @@ def check_gps(gps: str | Path | None, run, seed: int | None, log=None):
 
 
 def load_prior(path: Path, start, start_sigma, config: Config):
-    """The ``slam.PriorMap`` of ``--prior-map PATH --start X,Y,THETA [--start-sigma ...]``,
+    """The ``slam.PriorMap`` of ``--prior-map PATH [--start X,Y,THETA] [--start-sigma ...]``,
     read and checked before any work: a MapFileError names an unusable map, a ConfigError a
-    missing start or a resolution other than [map] resolution (``slam.check_prior``)."""
+    resolution other than [map] resolution (``slam.check_prior``). Without ``start`` the start
+    is located from the run once it is loaded (``slam.locate_prior_start``)."""
     import numpy as np
 
     from gslam_jax.gridmap import load_map
@@ -128,12 +131,10 @@ def load_prior(path: Path, start, start_sigma, config: Config):
 
     path = Path(path)
     grid = load_map(path)
-    if start is None:
-        raise ConfigError(f"--prior-map {path}: give --start X,Y,THETA, the run's start pose in "
-                          "the prior map's frame (metres, radians)")
     file = path / "map.npz" if path.is_dir() else path
     sigma = np.zeros(3) if start_sigma is None else np.asarray(start_sigma, np.float64)
-    prior = PriorMap(grid, np.asarray(start, np.float64), sigma, str(file.resolve()))
+    start = None if start is None else np.asarray(start, np.float64)  # None: located later
+    prior = PriorMap(grid, start, sigma, str(file.resolve()))
     check_prior(prior, config)
     return prior
 
@@ -164,6 +165,14 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
         if save_run is not None:
             save_run_file(save_run, run)
         gps_input = check_gps(gps, run, src.seed, log=gps_log)
+        if prior is not None and prior.start is None:
+            prior = slam.locate_prior_start(prior, run, config)
+            found = prior.located
+            print(f"start located in the prior map: x {prior.start[0]:.2f} m, y "
+                  f"{prior.start[1]:.2f} m, heading {math.degrees(prior.start[2]):.1f} deg (from "
+                  f"the first {found['frames']} frames, z {found['z']:.1f} against runner-up "
+                  f"{found['runner_up_z']:.1f}); particles spread by "
+                  f"{[round(float(v), 3) for v in prior.start_sigma]}")
         result = slam.run_slam(run, config, progress=bar("gamma-slam"), prior=prior)
         if prior is not None:  # the VO-only map and the figures in the prior's frame too
             loaded = loaded._replace(run=slam.rebase(run, prior.start))

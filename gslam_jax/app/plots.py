@@ -2,7 +2,7 @@
 VO-only map beside the Gamma-SLAM map, and the effective sample size over frames (Fig. 4, top).
 
 Map inputs are expected-std arrays [Nx, Ny] (axis 0 is x, NaN = unknown), the world position of
-cell (0, 0)'s corner and the cell side, as in ``metrics.GridMap``. Colours: dark = flat,
+cell (0, 0)'s corner and the cell side, as in ``gridmap.GridMap``. Colours: dark = flat,
 bright = tall/rough, on a log scale; unknown cells are drawn in a muted blue-grey.
 """
 

@@ -423,24 +423,42 @@ def _refine(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
 def _laplace(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
              prior: PosePrior | None) -> tuple[np.ndarray, np.ndarray]:
     """Mode and covariance of the quadratic fitted to the score on a 5 x 5 x 5 grid of
-    ``step`` around ``pose``; the mode stays within the grid, and a direction where the
-    fitted score does not curve down gets the variance ``FLAT_VARIANCE`` (in grid steps^2)."""
+    ``step`` around ``pose``, in the coordinates (centroid of B's cells in A's frame, heading):
+    turning about B's frame origin far from its cells would couple heading and shift into a
+    narrow diagonal ridge that a quadratic on a grid fits badly. The mode stays within the
+    grid; a direction where the fitted score does not curve down gets the variance
+    ``FLAT_VARIANCE`` (in grid steps^2). The covariance is carried back to the pose."""
+    known = np.asarray(moving.k) > 0
+    c_b = np.asarray(moving.centres, np.float64)[known].mean(axis=0)
+
+    def to_pose(u: np.ndarray) -> np.ndarray:
+        c, s = np.cos(u[..., 2]), np.sin(u[..., 2])
+        return np.stack([u[..., 0] - (c * c_b[0] - s * c_b[1]),
+                         u[..., 1] - (s * c_b[0] + c * c_b[1]), u[..., 2]], -1)
+
+    c0, s0 = math.cos(pose[2]), math.sin(pose[2])
+    u0 = np.array([pose[0] + c0 * c_b[0] - s0 * c_b[1], pose[1] + s0 * c_b[0] + c0 * c_b[1],
+                   pose[2]])
     t, _ = candidate_grid(5, 2.0)
-    poses = pose + np.asarray(t, np.float64) * step
-    s = np.asarray(_score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)[0],
-                   np.float64)
+    t = np.asarray(t, np.float64)
+    poses = to_pose(u0 + t * step)
+    s = np.asarray(_score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)[0], np.float64)
     if prior is not None:
         s = s + _log_prior(poses, prior)
-    coef = np.asarray(quadratic_design(t), np.float64) @ (s - s.max())
+    coef = np.asarray(quadratic_design(jnp.asarray(t, jnp.float32)), np.float64) @ (s - s.max())
     b, H = quadratic_hessian(coef[None])
     b, H = np.asarray(b[0], np.float64), np.asarray(H[0], np.float64)
     vals, vecs = np.linalg.eigh(-H)
     curved = vals > 1e-9
     inv_vals = np.where(curved, 1.0 / np.where(curved, vals, 1.0), FLAT_VARIANCE)
-    mode = vecs @ (np.where(curved, inv_vals, 0.0) * (vecs.T @ b))
-    mode = np.clip(mode, -2.0, 2.0)
-    cov_t = (vecs * inv_vals) @ vecs.T
-    return pose + mode * step, cov_t * np.outer(step, step)
+    mode = np.clip(vecs @ (np.where(curved, inv_vals, 0.0) * (vecs.T @ b)), -2.0, 2.0)
+    cov_u = ((vecs * inv_vals) @ vecs.T) * np.outer(step, step)
+    u = u0 + mode * step
+    c, s_ = math.cos(u[2]), math.sin(u[2])
+    J = np.array([[1.0, 0.0, s_ * c_b[0] + c * c_b[1]],
+                  [0.0, 1.0, -c * c_b[0] + s_ * c_b[1]],
+                  [0.0, 0.0, 1.0]])
+    return to_pose(u), J @ cov_u @ J.T
 
 
 def _choose_coarse(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrior | None) -> int:

@@ -43,6 +43,13 @@ class GridMap(NamedTuple):
     def known(self) -> np.ndarray:
         return self.k > 0
 
+    def expected_std(self) -> np.ndarray:
+        """Posterior expected std of each cell's heights (``cells.expected_std``; NaN where
+        unknown), float64."""
+        from gslam_jax.rbpf import cells
+
+        return np.asarray(cells.expected_std(self.k, self.S), dtype=np.float64)
+
 
 def load_map(path: str | Path) -> GridMap:
     """The map of a ``gslam run`` results folder (its ``map.npz``) or of a ``.npz`` file with
