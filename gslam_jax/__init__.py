@@ -9,8 +9,11 @@ Where things live, lowest layer first (``tests/test_layers.py`` keeps imports go
 * ``run``: the ``Run`` container (controls, local maps) and its ``.npz`` format;
 * ``vo``: the stereo front-end, images -> VO increments -> points -> ``localmap``;
 * ``sim``: the simulator; ``tiled``: the independent copy-on-write reference;
-  ``metrics``: RMS after the rigid fit, drift;
+  ``gridmap``: finished maps as values (``GridMap``), their global alignment by the gamma
+  likelihood (``align_maps``) and merging (``merge_maps``, ``merge_runs``);
+* ``metrics``: RMS after the rigid fit, drift, maps at given poses;
 * ``datasets``: the sources of frames, one module each (``datasets.registry``);
+  ``relocalise``: where a run starts in an earlier map (``locate_start``);
 * ``slam``: the host driver, ``run_slam(run, config)``;
 * ``gps``: alignment to GPS, UTM, georeferenced outputs; ``tuning``: parameter search, optax
   tuning, motion-noise fit;
@@ -34,6 +37,14 @@ _EXPORTS = {
     "save_run": "gslam_jax.run",
     "run_slam": "gslam_jax.slam",
     "SlamResult": "gslam_jax.slam",
+    "PriorMap": "gslam_jax.slam",
+    "GridMap": "gslam_jax.gridmap",
+    "load_map": "gslam_jax.gridmap",
+    "align_maps": "gslam_jax.gridmap.align",
+    "merge_maps": "gslam_jax.gridmap.merge",
+    "merge_runs": "gslam_jax.gridmap.merge",
+    "load_run_folder": "gslam_jax.gridmap.merge",
+    "locate_start": "gslam_jax.relocalise",
     "Source": "gslam_jax.datasets.registry",
     "run_pipeline": "gslam_jax.app.pipeline",
 }
