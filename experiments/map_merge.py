@@ -33,7 +33,7 @@ from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.gps import align_to_gps
 from gslam_jax.gps.georeference import gps_input
-from gslam_jax.gridmap import GridMap, compose, invert_pose
+from gslam_jax.gridmap import GridMap, add, compose, invert_pose, transform
 from gslam_jax.gridmap.align import AlignmentRefused, align_maps, check_alignment
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
@@ -67,6 +67,28 @@ def _path_fit(path_a: np.ndarray, path_b: np.ndarray) -> np.ndarray:
     return np.array([t[0], t[1], math.atan2(R[1, 0], R[0, 0])])
 
 
+def _cell_error(grid_b: GridMap, est: np.ndarray, truth: np.ndarray) -> float:
+    """RMS distance between B's known cells placed by ``est`` and by ``truth``: the error as
+    the merge sees it (the frame origin's error alone grows with its distance from the map)."""
+    from gslam_jax.gridmap import apply_pose, known_cells
+
+    centres, _, _ = known_cells(grid_b)
+    d = apply_pose(est, centres) - apply_pose(truth, centres)
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def _figure(out: Path, grid_a: GridMap, grid_b: GridMap, pose: np.ndarray, merged: GridMap,
+            course: str) -> None:
+    from gslam_jax.app.plots import save_maps_png
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    placed = transform(grid_b, pose, like=grid_a)
+    save_maps_png(out, [(f"A ({course})", grid_a.expected_std(), grid_a.origin, None),
+                        ("B placed by the alignment", placed.expected_std(), placed.origin, None),
+                        ("merged", merged.expected_std(), merged.origin, None)],
+                  grid_a.resolution)
+
+
 def _error(est: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return (float(math.hypot(est[0] - truth[0], est[1] - truth[1])),
             float(abs(math.degrees(math.remainder(est[2] - truth[2], 2 * math.pi)))))
@@ -88,7 +110,8 @@ def _run_maps(course: str, noise_seed: int | None, start: np.ndarray | None, con
               gps_seed: int) -> dict:
     """Run the course (sim seed 0; B: another noise seed and start pose ``start``): its map,
     true start, extent and the pose of its map frame in the GPS site frame."""
-    run, _ = simulate_run(course, seed=0, params=localmap_params(config), noise_seed=noise_seed)
+    run, info = simulate_run(course, seed=0, params=localmap_params(config),
+                             noise_seed=noise_seed)
     if start is not None:
         run = run._replace(initial_pose=start)
     grid, result = _slam_map(run, config)
@@ -96,7 +119,44 @@ def _run_maps(course: str, noise_seed: int | None, start: np.ndarray | None, con
     return {"k": grid.k, "S": grid.S, "origin": np.asarray(grid.origin),
             "resolution": grid.resolution, "g0": g0, "path": result.path,
             "size": np.max(np.abs(run.ground_truth[:, :2] - g0[:2])),
-            "gps_frame": _gps_frame(run, result, gps_seed)}
+            "gps_frame": _gps_frame(run, result, gps_seed),
+            **({} if start is not None else {
+                "world_height": info.world.height, "world_rough": info.world.rough,
+                "world_origin": np.asarray(info.world.origin),
+                "world_resolution": info.world.resolution})}
+
+
+def _true_std(a: dict, grid: GridMap) -> np.ndarray:
+    """The simulated world's true spread of heights in each cell of ``grid`` (a map in the
+    world frame): the spread of the world's pixel heights in the cell with each pixel's own
+    return spread (``World.rough``) added in quadrature; NaN where no pixel falls."""
+    h, rough = a["world_height"], a["world_rough"]
+    res_w = float(a["world_resolution"])
+    i, j = np.meshgrid(np.arange(h.shape[0]), np.arange(h.shape[1]), indexing="ij")
+    x = a["world_origin"][0] + (i + 0.5) * res_w
+    y = a["world_origin"][1] + (j + 0.5) * res_w
+    ci = np.floor((x - grid.origin[0]) / grid.resolution).astype(np.int64).ravel()
+    cj = np.floor((y - grid.origin[1]) / grid.resolution).astype(np.int64).ravel()
+    inside = (ci >= 0) & (ci < grid.shape[0]) & (cj >= 0) & (cj < grid.shape[1])
+    flat = (ci * grid.shape[1] + cj)[inside]
+    hv, rv = h.ravel()[inside].astype(np.float64), rough.ravel()[inside].astype(np.float64)
+    size = grid.shape[0] * grid.shape[1]
+    n = np.bincount(flat, minlength=size)
+    s1 = np.bincount(flat, hv, minlength=size)
+    s2 = np.bincount(flat, hv * hv, minlength=size)
+    r2 = np.bincount(flat, rv * rv, minlength=size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var = s2 / n - (s1 / n) ** 2 + r2 / n
+    return np.sqrt(np.clip(var, 0.0, None)).reshape(grid.shape)
+
+
+def _roughness_corr(a: dict, grid: GridMap) -> float:
+    """Correlation of log expected std with log true spread over the map's known cells: an
+    obstacle doubled by a misplaced merge blurs it."""
+    truth = _true_std(a, grid)
+    std = grid.expected_std()
+    ok = np.isfinite(std) & np.isfinite(truth) & (truth > 0) & (std > 0)
+    return float(np.corrcoef(np.log(std[ok]), np.log(truth[ok]))[0, 1])
 
 
 def _grid(d: dict) -> GridMap:
@@ -110,6 +170,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json", default=None)
     ap.add_argument("--cache", default=None, help="keep each run's map here (re-runs skip SLAM)")
     ap.add_argument("--maps-only", action="store_true", help="only run SLAM and fill --cache")
+    ap.add_argument("--figures", default=None, help="write A, B placed and the merge of each "
+                    "course's first trial here")
     ap.add_argument("--cross", type=int, default=10,
                     help="pairs of different courses to align (each should be refused)")
     args = ap.parse_args(argv)
@@ -140,6 +202,11 @@ def main(argv: list[str] | None = None) -> dict:
                 refused = None
             except AlignmentRefused as err:
                 refused = str(err)
+            merged = add(maps[course]["a"], transform(grid_b, al.pose, like=maps[course]["a"]))
+            placed_true = transform(grid_b, truth, like=maps[course]["a"])
+            corr = {"corr_a": _roughness_corr(a, maps[course]["a"]),
+                    "corr_b_placed_true": _roughness_corr(a, placed_true),
+                    "corr_merged": _roughness_corr(a, merged)}
             gps = compose(invert_pose(a["gps_frame"]), b["gps_frame"])
             fit = _path_fit(a["path"], b["path"])
             fdist, fhead = _error(al.pose, fit)
@@ -147,13 +214,19 @@ def main(argv: list[str] | None = None) -> dict:
             gdist, ghead = _error(gps, truth)
             std = np.sqrt(np.diag(al.covariance))
             row = {"course": course, "trial": i, "error_m": dist, "error_deg": head,
+                   "cells_error_m": _cell_error(grid_b, al.pose, truth),
                    "path_fit_error_m": fdist, "path_fit_error_deg": fhead,
+                   "path_fit_cells_error_m": _cell_error(grid_b, al.pose, fit),
+                   "gps_cells_error_m": _cell_error(grid_b, gps, truth),
                    "std_m": float(math.hypot(std[0], std[1])),
                    "std_deg": math.degrees(float(std[2])), "z": al.z,
                    "runner_up_z": al.runner_up_z, "overlap": al.overlap, "refused": refused,
-                   "gps_error_m": gdist, "gps_error_deg": ghead, "seconds": seconds}
+                   "gps_error_m": gdist, "gps_error_deg": ghead, "seconds": seconds, **corr}
             report["trials"].append(row)
             print(json.dumps(row), flush=True)
+            if args.figures and i == 0:
+                _figure(Path(args.figures) / f"merge-{course}.png", maps[course]["a"], grid_b,
+                        al.pose, merged, course)
     courses = list(maps)
     for i in range(0 if args.maps_only else args.cross):
         course = courses[i % len(courses)]
