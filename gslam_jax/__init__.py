@@ -27,7 +27,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-__version__ = "0.1.0"
+from gslam_jax.version import __version__
 
 _EXPORTS = {
     "Config": "gslam_jax.config",

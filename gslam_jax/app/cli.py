@@ -19,7 +19,7 @@ from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still
 from gslam_jax.errors import InputError
 from gslam_jax.app.outputs import json_ready  # light too
 from gslam_jax.app.progress import ProgressBar
-from gslam_jax.app import merge
+from gslam_jax.app import info, merge
 from gslam_jax.app.results import ResultsError, results_folder
 from gslam_jax.datasets.registry import Source, get_source, source_names
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
@@ -316,6 +316,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gslam", description="Gamma-SLAM in JAX "
                                      "(Marks et al., Journal of Field Robotics 2009)")
+    info.add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run Gamma-SLAM on a Run file, a simulated course or a dataset")
@@ -384,6 +385,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=cmd_fit_motion)
     _build_rest(sub)
+    info.add_parser(sub)
+    info.add_examples(sub)
     return parser
 
 

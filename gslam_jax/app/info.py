@@ -1,0 +1,125 @@
+"""``gslam --version``, ``gslam config`` and the examples that end every command's ``--help``.
+
+Nothing here imports JAX: ``--version`` reads the installed packages' versions from their
+metadata, and ``gslam config`` only needs the settings layer.
+"""
+
+from __future__ import annotations
+
+import argparse
+from importlib import metadata
+from pathlib import Path
+
+from gslam_jax.version import __version__
+
+__all__ = ["EXAMPLES", "add_examples", "add_parser", "add_version", "cmd_config",
+           "version_text"]
+
+# The distributions --version names: the array stack, and OpenCV under any of its wheels.
+_PACKAGES = (("jax", ("jax",)), ("jaxlib", ("jaxlib",)), ("numpy", ("numpy",)),
+             ("opencv", ("opencv-python-headless", "opencv-python", "opencv-contrib-python",
+                         "opencv-contrib-python-headless")))
+
+# Two or three examples per command, shown at the end of its --help.
+EXAMPLES = {
+    "run": """\
+  gslam run                                        # the simulated Mars Yard A course
+  gslam run --source kitti --path DIR --sequence 00 --config configs/kitti.toml
+  gslam run log.npz --out results/log --overwrite  # a Run file, into a chosen folder""",
+    "search": """\
+  gslam search --space configs/search_example.toml --n 64 --objective rms
+  gslam search --space configs/search_example.toml --course maze --out results/maze-search""",
+    "tune": """\
+  gslam tune --objective supervised --steps 50 --out tuned
+  gslam tune --params alpha_d,alpha_theta --optimizer sgd --lr 0.01 --steps 20""",
+    "fit-motion": """\
+  gslam fit-motion --source kitti --path DIR --sequence 00 --out fitted.toml
+  gslam fit-motion log.npz --window 10     # errors summed over windows of 10 frames""",
+    "bench": """\
+  gslam bench                              # J = 50, 200, 1000 on a 640-cell map
+  gslam bench --particles 200 --store dense shared --course mars-yard-a""",
+    "table1": """\
+  gslam table1 --quick                     # Mars Yard A, one seed, J <= 100
+  gslam table1 --config configs/table1.toml --json table1.json""",
+    "merge": """\
+  gslam merge results/A results/B --out results/merged
+  gslam merge results/A/map.npz results/B/map.npz --no-gps""",
+    "compare": """\
+  gslam compare --exact                    # both filters round identically
+  gslam compare log.npz --store shared --out results/compare""",
+    "config": """\
+  gslam config                             # the default config as TOML
+  gslam config --out my.toml               # ... written to a file, to edit for --config
+  gslam config --config configs/kitti.toml --set filter.particles=100""",
+}
+
+
+def version_text() -> str:
+    """``gslam <version>`` and the versions of jax, jaxlib, numpy and OpenCV (from the installed
+    packages' metadata: nothing is imported)."""
+    found = []
+    for name, dists in _PACKAGES:
+        for dist in dists:
+            try:
+                found.append(f"{name} {metadata.version(dist)}")
+                break
+            except metadata.PackageNotFoundError:
+                continue
+        else:
+            found.append(f"{name} not installed")
+    return f"gslam {__version__} ({', '.join(found)})"
+
+
+class _Version(argparse.Action):
+    """``--version``: print ``version_text()`` and exit (looked up only when asked for)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="print the versions of gslam, jax, numpy and OpenCV and exit"):
+        super().__init__(option_strings, dest, nargs=0, default=default, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(version_text())
+        parser.exit()
+
+
+def add_version(parser: argparse.ArgumentParser) -> None:
+    """``--version`` on the top-level parser."""
+    parser.add_argument("--version", action=_Version)
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("config", help="print the default config as TOML (or the config that "
+                       "--config and --set make), or write it with --out")
+    p.add_argument("--config", type=Path, help="start from this TOML config instead of the "
+                   "defaults (its [course.<name>.*] tables are not applied)")
+    p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
+                   help="override one config value (repeatable)")
+    p.add_argument("--out", type=Path, help="write the config to this file (TOML, for "
+                   "--config) instead of printing it")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    p.set_defaults(func=cmd_config)
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    from gslam_jax.app.outfile import check_output_file, write_text_atomic
+    from gslam_jax.config import ConfigError, config_to_toml, layered_config
+
+    if args.out is not None:  # a folder, a read-only place, an existing file: refused first
+        check_output_file(args.out, "--out")
+        if args.out.exists() and not args.overwrite:
+            raise ConfigError(f"--out {args.out}: exists (--overwrite replaces it)")
+    text = config_to_toml(layered_config(args.config, None, args.set))
+    if args.out is None:
+        print(text, end="")
+    else:
+        write_text_atomic(args.out, text, "--out")
+        print(f"config: {args.out} (for --config)")
+    return 0
+
+
+def add_examples(sub) -> None:
+    """End the ``--help`` of every command in ``sub`` with its EXAMPLES (as written)."""
+    for name, parser in sub.choices.items():
+        if name in EXAMPLES:
+            parser.epilog = "examples:\n" + EXAMPLES[name]
+            parser.formatter_class = argparse.RawDescriptionHelpFormatter
