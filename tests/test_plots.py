@@ -59,3 +59,108 @@ def test_ground_truth_png(tmp_path) -> None:
     with pytest.raises(ValueError, match="ground_truth"):
         save_ground_truth_png(tmp_path / "x.png", _std_map(1), (0, 0), _std_map(1), (0, 0),
                               0.16, np.zeros(5), gt, gt)
+
+
+def test_every_map_figure_and_errors_png_written(tmp_path) -> None:
+    from gslam_jax.app.plots import save_errors_png, save_ground_truth_png, save_maps_png
+
+    gt = np.stack([np.linspace(1, 10, 20), np.linspace(1, 5, 20), np.zeros(20)], axis=1)
+    outs = [
+        save_map_png(tmp_path / "map.png", _std_map(0), (0.0, 0.0), 0.16, gt),
+        save_map_comparison_png(tmp_path / "cmp.png", _std_map(1), (0.0, 0.0), _std_map(2),
+                                (0.0, 0.0), 0.16, gt + 0.2, gt),
+        save_ground_truth_png(tmp_path / "gt.png", _std_map(1), (0.0, 0.0), _std_map(2),
+                              (0.0, 0.0), 0.16, gt, gt + 0.2, gt - 0.2),
+        save_maps_png(tmp_path / "merge.png", [("A", _std_map(1), (0.0, 0.0), gt),
+                                               ("merged", _std_map(2), (0.0, 0.0), None)], 0.16),
+        save_ess_png(tmp_path / "ess.png", np.linspace(20, 6, 30), 20),
+        save_errors_png(tmp_path / "errors.png", gt, [("VO only", gt + 0.1), ("SLAM", gt)]),
+    ]
+    for out in outs:
+        assert out.stat().st_size > 0 and imread(out)[..., :3].std() > 0.01, out.name
+
+
+def test_map_legend_names_lines_marks_and_unobserved() -> None:
+    import matplotlib.pyplot as plt
+
+    from gslam_jax.app.plots import draw_line, draw_map, map_legend
+
+    fig, ax = plt.subplots()
+    path = np.stack([np.linspace(1, 10, 20), np.linspace(1, 5, 20)], axis=1)
+    draw_map(ax, _std_map(0), (0.0, 0.0), 0.16, path, "t", path_label="VO path")
+    draw_line(ax, path + 1, "ground truth", color="cyan")
+    map_legend(ax, _std_map(0))
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels == ["VO path", "ground truth", "start", "end", "unobserved"]
+    full = np.ones((4, 4))  # every cell observed: no "unobserved" entry
+    ax.clear()
+    draw_map(ax, full, (0.0, 0.0), 0.16, path, path_label="VO path")
+    map_legend(ax, full)
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["VO path", "start", "end"]
+    plt.close(fig)
+
+
+def test_error_along_distance_hand_built() -> None:
+    """A straight truth at x = -3, -1, 1, 3 and an estimate off by +d, -d, -d, +d across it
+    (moved by an arbitrary rigid motion): the offsets have zero mean and zero moment along the
+    line, so the best fit leaves every error at d. A frame without ground truth is skipped and
+    the distance bridges it."""
+    from gslam_jax.app.plots import error_along_distance
+
+    d = 0.25
+    x = np.array([-3.0, -1.0, 1.0, 3.0])
+    gt = np.stack([x, np.zeros(4), np.zeros(4)], axis=1)
+    est = gt.copy()
+    est[:, 1] = d * np.array([1, -1, -1, 1])
+    a = 0.7
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    est[:, :2] = est[:, :2] @ rot.T + [5.0, -2.0]
+    gt = np.insert(gt, 2, np.nan, axis=0)  # frame 2 has no ground truth
+    est = np.insert(est, 2, [100.0, 100.0, 0.0], axis=0)  # and its estimate must not count
+    distance, error = error_along_distance(gt, est)
+    np.testing.assert_allclose(distance, [0.0, 2.0, 4.0, 6.0], atol=1e-12)
+    np.testing.assert_allclose(error, d, atol=1e-12)
+    assert error_along_distance(gt[:1], est[:1])[0].size == 0  # fewer than 2 known frames
+
+
+def test_error_along_distance_against_brute_force() -> None:
+    """The errors are those of the rigid motion minimising the summed squared error (found by
+    SciPy from scratch), and their RMS is the summary's RMS."""
+    from scipy.optimize import minimize
+
+    from gslam_jax.app.plots import error_along_distance
+    from gslam_jax.metrics import errors_over_known_frames
+
+    rng = np.random.default_rng(3)
+    t = np.linspace(0, 2 * np.pi, 25)
+    gt = np.stack([6 * np.cos(t), 3 * np.sin(t), t], axis=1)
+    est = gt + rng.normal(0, 0.3, gt.shape)
+    est[:, :2] = est[:, :2] @ np.array([[0.0, -1.0], [1.0, 0.0]]).T + 4.0
+    gt[[5, 6, 17]] = np.nan
+
+    known = np.isfinite(gt[:, 0])
+
+    def residuals(v):
+        c, s = np.cos(v[0]), np.sin(v[0])
+        moved = est[known, :2] @ np.array([[c, -s], [s, c]]).T + v[1:]
+        return np.hypot(*(moved - gt[known, :2]).T)
+
+    best = min((minimize(lambda v: np.sum(residuals(v) ** 2), [a0, 0.0, 0.0],
+                         method="Nelder-Mead", options={"xatol": 1e-10, "fatol": 1e-14,
+                                                        "maxiter": 20000})
+                for a0 in np.linspace(-np.pi, np.pi, 8, endpoint=False)), key=lambda r: r.fun)
+    distance, error = error_along_distance(gt, est)
+    np.testing.assert_allclose(error, residuals(best.x), atol=1e-5)
+    steps = np.hypot(*np.diff(gt[known, :2], axis=0).T)
+    np.testing.assert_allclose(distance, np.r_[0.0, np.cumsum(steps)])
+    rms = errors_over_known_frames({"vo": est}, gt)["vo_rms_m"]
+    assert np.sqrt(np.mean(error ** 2)) == pytest.approx(rms, rel=1e-12)
+
+
+def test_error_along_distance_refuses_mismatched_shapes() -> None:
+    from gslam_jax.app.plots import error_along_distance
+
+    with pytest.raises(ValueError, match="estimate"):
+        error_along_distance(np.zeros((5, 3)), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="ground_truth"):
+        error_along_distance(np.zeros(5), np.zeros((5, 3)))

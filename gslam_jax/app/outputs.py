@@ -39,8 +39,9 @@ def _write_json(path: Path, data: dict) -> None:
 def write_figures(out: Path, run, result, num_particles: int,
                   threshold: float = 0.5) -> np.ndarray:
     """Map PNGs (VO-only beside Gamma-SLAM, coloured by expected std) and the ESS plot with the
-    resampling threshold (``threshold`` J, filter.resample_ratio); returns the Gamma-SLAM map's
-    expected std."""
+    resampling threshold (``threshold`` J, filter.resample_ratio); with ground truth, the truth
+    over the maps and ``errors.png`` (position error against distance travelled, after the
+    RMS's rigid fit). Returns the Gamma-SLAM map's expected std."""
     from gslam_jax import metrics
     from gslam_jax.rbpf import cells
     from gslam_jax.app import plots
@@ -49,7 +50,8 @@ def write_figures(out: Path, run, result, num_particles: int,
     vo_map = metrics.vo_only_map(run)
     vo_std = np.asarray(cells.expected_std(vo_map.k, vo_map.S))
     plots.save_map_png(out / "map.png", slam_std, result.map_origin, result.resolution,
-                       path=result.path, title="Gamma-SLAM")
+                       path=result.path, title="Gamma-SLAM map (best particle)",
+                       path_label="Gamma-SLAM path")
     plots.save_map_comparison_png(out / "maps_vo_vs_slam.png", vo_std, vo_map.origin, slam_std,
                                   result.map_origin, result.resolution, vo_path=result.vo_path,
                                   slam_path=result.path)
@@ -61,6 +63,8 @@ def write_figures(out: Path, run, result, num_particles: int,
             plots.save_ground_truth_png(out / "ground_truth.png", vo_std, vo_map.origin,
                                         slam_std, result.map_origin, result.resolution, gt,
                                         result.vo_path, result.path)
+            plots.save_errors_png(out / "errors.png", run.ground_truth,
+                                  [("VO only", result.vo_path), ("Gamma-SLAM", result.path)])
     return slam_std
 
 

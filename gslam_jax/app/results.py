@@ -44,7 +44,8 @@ MARKER = "COMPLETE"
 RESULT_FILES = frozenset({
     MARKER, "summary.json", "config.toml", "simulation.json", "trajectory_tum.txt",
     "trajectory_kitti.txt", "vo_tum.txt", "ground_truth_tum.txt", "map.npz", "map.png",
-    "maps_vo_vs_slam.png", "ground_truth.png", "ess.png", "trace.npz", "trajectory_utm.txt",
+    "maps_vo_vs_slam.png", "ground_truth.png", "errors.png", "ess.png", "trace.npz",
+    "trajectory_utm.txt",
     "map_utm.png",
     "map_utm.pgw", "gps_alignment.npz", "results.csv", "results.json", "best.toml",
     "tuned.json", "tuned.toml", "compare.json", "compare_fig4.png"})
