@@ -26,6 +26,7 @@ from gslam_jax.run import (Run, RunError, check_start_pose, coordinate_limit, de
                            float32_spacing, known_positions)
 
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "filter_config",
+           "extent_filter_config",
            "filter_params", "local_observations", "raw_observations", "ObsSettings",
            "obs_settings", "refine_observations", "map_observations", "map_memory", "RunArrays",
            "run_arrays", "ground_truth_mask",
@@ -223,18 +224,8 @@ def filter_config(config: Config, run: Run, prior: PriorMap | None = None
         lattice, cover = prior.grid.origin, _prior_cover(prior.grid)
     extent = map_extent(run.vo_poses(), L, config.map.resolution, margin, probe.window,
                         lattice, cover)
-    cfg = rbpf.FilterConfig(
-        num_particles=f.particles, map_shape=extent.shape, map_origin=extent.origin,
-        resolution=config.map.resolution, local_size=L, resampler=f.resampler,
-        resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
-        unknown_samples=f.unknown_samples, observed_cells=observed_cells(run),
-        particle_block=f.particle_block, tempering=f.tempering, ess_target=f.ess_target,
-        store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles,
-        proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
-        proposal_stages=f.proposal_stages)
+    cfg = extent_filter_config(config, extent, L, observed_cells(run))
     available, what = map_memory()
-    cfg = maps.choose_store(cfg, available, what).validate()
-    cfg = cfg._replace(particle_block=cfg.update_block)
     if prior is not None and cfg.store == "shared" and not cfg.pool_tiles:
         cfg = _prior_pool(cfg, prior)
     try:
@@ -244,6 +235,27 @@ def filter_config(config: Config, run: Run, prior: PriorMap | None = None
         raise
     check_float32_reach(run.vo_poses(), extent, config.map.resolution, config.map.margin)
     return cfg
+
+
+def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
+                         observed: int = 0) -> rbpf.FilterConfig:
+    """Static filter settings on a given map ``extent`` with local maps of side ``local_size``
+    and at most ``observed`` informative cells each (0: L*L): the config's [filter] and [map]
+    settings, ``store = "auto"`` resolved for this machine's memory (``maps.choose_store``)
+    and ``particle_block = 0`` for the default backend. The memory check is the caller's."""
+    f = config.filter
+    cfg = rbpf.FilterConfig(
+        num_particles=f.particles, map_shape=tuple(extent.shape), map_origin=tuple(extent.origin),
+        resolution=config.map.resolution, local_size=local_size, resampler=f.resampler,
+        resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
+        unknown_samples=f.unknown_samples, observed_cells=observed,
+        particle_block=f.particle_block, tempering=f.tempering, ess_target=f.ess_target,
+        store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles,
+        proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
+        proposal_stages=f.proposal_stages)
+    available, what = map_memory()
+    cfg = maps.choose_store(cfg, available, what).validate()
+    return cfg._replace(particle_block=cfg.update_block)
 
 
 def _prior_pool(cfg: rbpf.FilterConfig, prior: PriorMap) -> rbpf.FilterConfig:

@@ -1,0 +1,279 @@
+"""Gamma-SLAM on a live robot: frames pushed one at a time, the estimate after each.
+
+``Online`` drives the same kernel as ``slam.run_slam`` (``rbpf.scan_frames`` over one frame,
+``slam.refine_observations``, ``slam.filter_params``, ``slam.extent_filter_config``), one
+jitted call per frame, compiled at the first frame and never again: every frame has the same
+shapes (a frame without a local map carries a zero one and is not updated). Frame t's PRNG key
+is ``fold_in(key, t)``, which under JAX's partitionable threefry (the default) is
+``rbpf.frame_keys(key, T)[t]``: on the same frames, the same seed and the same map, the poses
+are the batch run's.
+
+A live robot has no path yet, so the map cannot be sized from it: its extent is given (a
+``slam.MapExtent``, or the side in metres of the square the robot drives in, centred on the
+start). The map does not grow (a larger map would be a new shape, hence a recompilation):
+when a local map reaches past its edge the frame is applied with the cells beyond the edge
+skipped, as the batch run does, and ``MapEdgeError`` is raised.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gslam_jax import rbpf, slam
+from gslam_jax.config import Config, ConfigError
+from gslam_jax.errors import InputError
+from gslam_jax.gridmap import GridMap
+from gslam_jax.rbpf import cells, maps
+from gslam_jax.run import coordinate_limit, integrate_controls
+from gslam_jax.vo.localmap import LocalMapBuilder, localmap_params
+
+__all__ = ["Online", "OnlineFrame", "OnlineStats", "Particles", "MapEdgeError",
+           "DEFAULT_SIZE", "online_step"]
+
+DEFAULT_SIZE = 100.0  # metres: side of the square the robot drives in when no extent is given
+
+
+class MapEdgeError(InputError):
+    """A local map reached past the edge of the live map's fixed extent."""
+
+
+class OnlineFrame(NamedTuple):
+    """The estimate after one pushed frame (host values)."""
+
+    pose: np.ndarray   # [3] the highest-weight particle's pose (x, y, theta)
+    mean: np.ndarray   # [3] the weighted mean pose (circular mean heading)
+    ess: float         # effective sample size after the frame's update (J without one)
+    updated: bool      # the frame carried a local map
+    resampled: bool
+    seconds: float     # wall time of this push (the first includes the compilation)
+
+
+class Particles(NamedTuple):
+    pose: np.ndarray    # [J, 3]
+    weight: np.ndarray  # [J] normalised weights
+
+
+class OnlineStats(NamedTuple):
+    """Timing of the frames pushed so far. ``realtime_factor``: seconds of log (the span of the
+    pushed times after the first frame) per second of filter compute over those frames (the
+    first, which compiles, excluded); > 1 keeps up with the robot. NaN until two frames."""
+
+    frames: int
+    updates: int
+    compile_seconds: float      # the first push (compilation included)
+    seconds: float              # every later push
+    log_seconds: float
+    realtime_factor: float
+    frame_latency: np.ndarray   # [frames - 1] seconds per push after the first
+    update_latency: np.ndarray  # [updates after the first frame] seconds of pushes with a map
+
+
+@partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
+def online_step(state: rbpf.FilterState, key: jax.Array, t: jax.Array, control: jax.Array,
+                raw_obs: jax.Array, has_obs: jax.Array, settings: slam.ObsSettings,
+                params: rbpf.FilterParams, cfg: rbpf.FilterConfig
+                ) -> tuple[rbpf.FilterState, tuple[rbpf.StepInfo, jax.Array, jax.Array]]:
+    """One frame t of the batch run's scan: its key ``fold_in(key, t)``, its raw observation
+    [L, L, 2] refined (``slam.refine_observations``) and, where ``has_obs``, the update.
+    ``state`` is donated. Returns the state and the frame's (StepInfo, best pose, mean pose)."""
+    keys = jax.random.fold_in(key, t)[None]
+    obs = slam.refine_observations(raw_obs[None], settings)
+    index = jnp.where(has_obs, 0, -1).astype(jnp.int32)[None]
+    state, out = rbpf.scan_frames(state, keys, control[None], index, obs, params, cfg)
+    return state, jax.tree.map(lambda x: x[0], out)
+
+
+def _extent(config: Config, size: float, start: np.ndarray, local_size: int) -> slam.MapExtent:
+    """The map around the square of side ``size`` metres centred on ``start`` (plus a local
+    map's reach), sized by the batch run's rule (``slam.map_extent``)."""
+    if not (math.isfinite(size) and size >= 0):
+        raise ConfigError(f"Online: map_extent must be a size >= 0 metres, got {size}")
+    probe = rbpf.FilterConfig(num_particles=1, map_shape=(8, 8), map_origin=(0.0, 0.0),
+                              resolution=config.map.resolution, local_size=local_size)
+    return slam.map_extent(start[None], local_size, config.map.resolution, 0.5 * size,
+                           probe.window)
+
+
+class Online:
+    """Gamma-SLAM one frame at a time (see the module docstring).
+
+    config: the run's settings ([filter], [motion], [map], [localmap]).
+    map_extent: ``slam.MapExtent`` (origin, shape in cells), or a float: the side in metres of
+        the square centred on ``start_pose`` the robot may drive in; None: ``DEFAULT_SIZE``.
+    start_pose: [3] the pose before the first frame (zeros: the robot's own frame).
+    seed: the filter's seed (None: [filter] seed); the batch run with that seed draws the same.
+    local_size: side L of the local maps pushed (None: from [localmap], ``localmap_params``).
+    observed_cells: the cap M on informative cells per local map (0: L*L, no cap).
+    filter_config: a ready ``rbpf.FilterConfig`` instead of the four above (e.g. a batch run's
+        ``slam.filter_config``, to reproduce it).
+    """
+
+    def __init__(self, config: Config, map_extent: slam.MapExtent | tuple | float | None = None,
+                 *, start_pose: np.ndarray | None = None, seed: int | None = None,
+                 local_size: int | None = None, observed_cells: int = 0,
+                 filter_config: rbpf.FilterConfig | None = None):
+        self.config = config
+        self.start = np.zeros(3) if start_pose is None else np.asarray(start_pose, np.float64)
+        if self.start.shape != (3,) or not np.isfinite(self.start).all():
+            raise ConfigError(f"Online: start_pose must be 3 finite numbers (x, y, theta), "
+                              f"got {np.asarray(start_pose).tolist()}")
+        self.localmap = localmap_params(config)
+        if filter_config is None:
+            L = self.localmap.size if local_size is None else int(local_size)
+            if map_extent is None or isinstance(map_extent, (int, float)):
+                size = DEFAULT_SIZE if map_extent is None else float(map_extent)
+                extent = _extent(config, size, self.start, L)
+            else:
+                extent = slam.MapExtent(*map_extent)
+            filter_config = slam.extent_filter_config(config, extent, L, observed_cells)
+        elif map_extent is not None or local_size is not None or observed_cells:
+            raise ConfigError("Online: give either filter_config or map_extent, local_size and "
+                              "observed_cells, not both")
+        cfg = filter_config.validate()
+        available, what = slam.map_memory()
+        H, W = cfg.map_shape
+        maps.check_memory(cfg, available, what, extent=f" (the live map, {H * cfg.resolution:.4g}"
+                                                       f" x {W * cfg.resolution:.4g} m)")
+        self._check_reach(cfg)
+        self.cfg = cfg
+        self.params = slam.filter_params(config)
+        self.settings = slam.obs_settings(config)
+        self.key = jax.random.key(config.filter.seed if seed is None else seed)
+        self.state = rbpf.init(cfg, jnp.asarray(self.start, jnp.float32))
+        self._zero_obs = jnp.zeros((cfg.local_size, cfg.local_size, 2), jnp.float32)
+        self._builder = LocalMapBuilder(self.localmap)
+        self._vo_pose = self.start.copy()
+        self._poses: list[np.ndarray] = []      # per frame [J, 3]
+        self._ancestors: list[np.ndarray] = []  # per frame [J]
+        self._times: list[float] = []
+        self._latency: list[float] = []
+        self._updated: list[bool] = []
+        self.best: list[np.ndarray] = []        # per frame best pose [3]
+        self.mean: list[np.ndarray] = []        # per frame mean pose [3]
+
+    def _check_reach(self, cfg: rbpf.FilterConfig) -> None:
+        lo = np.asarray(cfg.map_origin, np.float64)
+        hi = lo + np.asarray(cfg.map_shape, np.float64) * cfg.resolution
+        reach, limit = float(max(np.abs(lo).max(), np.abs(hi).max())), \
+            coordinate_limit(cfg.resolution)
+        if reach >= limit:
+            raise ConfigError(f"Online: the map reaches {reach:.4g} m from the origin, where "
+                              f"float32 no longer resolves {cfg.resolution:g} m cells (at most "
+                              f"{limit:g} m); start nearer the origin or give a smaller extent")
+
+    @property
+    def frames(self) -> int:
+        return len(self._times)
+
+    def _observation(self, stats: np.ndarray) -> jax.Array:
+        """Raw observation [L, L, 2] of local-map statistics [L, L, 3], as ``run_slam``'s."""
+        L = self.cfg.local_size
+        stats = np.asarray(stats, np.float64)
+        if stats.shape != (L, L, 3):
+            raise InputError(f"frame {self.frames}: local_map must be [{L}, {L}, 3] statistics "
+                             f"(n, sum z, sum z^2), got shape {list(stats.shape)}")
+        with np.errstate(over="ignore", invalid="ignore"):
+            raw = cells.obs_from_stats(stats, 0.0).astype(np.float32)
+        if not np.isfinite(raw).all():
+            i, j = (int(v) for v in np.argwhere(~np.isfinite(raw).all(-1))[0])
+            raise InputError(f"frame {self.frames}: local_map cell ({i}, {j}) statistics "
+                             f"{stats[i, j].tolist()} are not finite in float32")
+        return jnp.asarray(raw)
+
+    def push(self, control: np.ndarray, local_map: np.ndarray | None = None,
+             time_s: float | None = None) -> OnlineFrame:
+        """One frame: ``control`` [3] the VO increment (dx, dy, dtheta) in the robot frame of
+        the previous frame (``Run.controls``), ``local_map`` [L, L, 3] the statistics
+        (n, sum z, sum z^2) of the local map completed at this frame or None, ``time_s`` its
+        time in seconds (for ``stats``; None: the frame index). InputError for a malformed
+        frame, ``slam.WeightError`` for non-finite weights, MapEdgeError past the map's edge."""
+        t = self.frames
+        u = np.asarray(control, np.float64)
+        if u.shape != (3,) or not np.isfinite(u).all():
+            raise InputError(f"frame {t}: control must be 3 finite numbers (dx, dy, dtheta), "
+                             f"got {np.asarray(control).tolist()}")
+        stamp = float(t if time_s is None else time_s)
+        if self._times and not stamp > self._times[-1]:
+            raise InputError(f"frame {t}: time {stamp} s is not after the previous frame's "
+                             f"{self._times[-1]} s")
+        raw = self._zero_obs if local_map is None else self._observation(local_map)
+        t0 = time.perf_counter()
+        self.state, (info, best, mean) = online_step(
+            self.state, self.key, jnp.int32(t), jnp.asarray(u, jnp.float32), raw,
+            jnp.bool_(local_map is not None), self.settings, self.params, self.cfg)
+        info, best, mean = jax.device_get((info, best, mean))
+        seconds = time.perf_counter() - t0
+        self._times.append(stamp)
+        self._latency.append(seconds)
+        self._updated.append(local_map is not None)
+        self._poses.append(info.pose)
+        self._ancestors.append(info.ancestors)
+        self.best.append(best)
+        self.mean.append(mean)
+        self._vo_pose = integrate_controls(u[None], self._vo_pose)[0]
+        batch = jax.tree.map(lambda x: np.asarray(x)[None], info)  # a one-frame chunk
+        maps_so_far = int(sum(self._updated))
+        slam._check_weights(batch, t, 1, {t: maps_so_far - 1 if local_map is not None else -1})
+        slam._check_map_status(batch, t, self.cfg)
+        if int(info.dropped_cells):
+            raise InputError(f"frame {t}: the local map has more informative cells than "
+                             f"observed_cells = {self.cfg.max_observed}; raise it (0: no cap)")
+        if int(info.extent_violations):
+            lo = np.asarray(self.cfg.map_origin)
+            hi = lo + np.asarray(self.cfg.map_shape) * self.cfg.resolution
+            raise MapEdgeError(
+                f"frame {t}: the local map reached past the edge of the live map "
+                f"(x {lo[0]:.2f} .. {hi[0]:.2f} m, y {lo[1]:.2f} .. {hi[1]:.2f} m) for "
+                f"{int(info.extent_violations)} particles, whose cells beyond it were skipped; "
+                "the map does not grow: give Online a larger map_extent")
+        return OnlineFrame(pose=best, mean=mean, ess=float(info.ess), updated=bool(info.updated),
+                           resampled=bool(info.resampled), seconds=seconds)
+
+    def push_points(self, control: np.ndarray, points: np.ndarray,
+                    time_s: float | None = None) -> OnlineFrame:
+        """One frame of robot-frame points [N, 3] (x forward, y left, z up): fused into local
+        maps at the VO poses every [localmap] travel metres (``LocalMapBuilder``, the first at
+        the first frame, as ``build_local_maps`` does), then ``push``."""
+        pose = integrate_controls(np.asarray(control, np.float64)[None], self._vo_pose)[0]
+        stats = self._builder.add(pose, np.asarray(points, np.float64))
+        if self.frames == 0 and stats is None:
+            stats = self._builder.flush()
+        return self.push(control, stats, time_s)
+
+    def particles(self) -> Particles:
+        """The particles now: poses [J, 3] and normalised weights [J]."""
+        pose, log_w = jax.device_get((self.state.pose, self.state.log_w))
+        return Particles(np.asarray(pose, np.float64), np.exp(np.asarray(log_w, np.float64)))
+
+    def map(self) -> GridMap:
+        """The highest-weight particle's map now (k, S float64 on the live extent)."""
+        k, S = rbpf.particle_map(self.state, self.state.best, self.cfg)
+        return GridMap(np.asarray(k, np.float64), np.asarray(S, np.float64),
+                       tuple(self.cfg.map_origin), float(self.cfg.resolution))
+
+    def path(self) -> np.ndarray:
+        """[T, 3] the best particle's path through its ancestry (``SlamResult.best_path``)."""
+        if not self._poses:
+            return np.zeros((0, 3))
+        return np.asarray(rbpf.backtrack_path(jnp.asarray(np.stack(self._poses)),
+                                              jnp.asarray(np.stack(self._ancestors)),
+                                              self.state.best), np.float64)
+
+    def stats(self) -> OnlineStats:
+        """Timing so far (``OnlineStats``)."""
+        lat = np.asarray(self._latency[1:], np.float64)
+        upd = lat[np.asarray(self._updated[1:], bool)]
+        log = self._times[-1] - self._times[0] if self._times else 0.0
+        seconds = float(lat.sum())
+        rtf = log / seconds if seconds > 0 else float("nan")
+        return OnlineStats(frames=self.frames, updates=int(sum(self._updated)),
+                           compile_seconds=self._latency[0] if self._latency else 0.0,
+                           seconds=seconds, log_seconds=log, realtime_factor=rtf,
+                           frame_latency=lat, update_latency=upd)
