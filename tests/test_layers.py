@@ -22,7 +22,7 @@ LAYERS = {
     "sim": 4, "metrics": 4,
     "datasets": 5, "loops": 5, "relocalise": 5,
     "slam": 6,
-    "gps": 7, "tuning": 7,
+    "gps": 7, "tuning": 7, "online": 7,
     "app": 8,
     "": 9,  # gslam_jax/__init__.py: the public API gathers from every layer
 }

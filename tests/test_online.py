@@ -1,0 +1,123 @@
+"""The live API (``online.Online``): frame by frame it reproduces the batch run bit for bit on
+the same frames, seed and map; one compilation for every frame; fixed extent, refused edge."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from synthetic import World, truth_and_controls
+
+from gslam_jax import slam
+from gslam_jax.config import Config, ConfigError, FilterSection, LocalMapSection
+from gslam_jax.errors import InputError
+from gslam_jax.online import MapEdgeError, Online, online_step
+from gslam_jax.run import Run, integrate_controls
+from gslam_jax.vo.localmap import build_local_maps, localmap_params
+
+CONFIG = Config(filter=FilterSection(particles=8, seed=3),
+                localmap=LocalMapSection(max_range=5.0, travel=1.0))
+
+
+@pytest.fixture(scope="module")
+def frames():
+    """Points per frame, VO controls with a heading drift, and the batch Run built from them."""
+    world, rng = World(0), np.random.default_rng(1)
+    gt, u_true = truth_and_controls("loop", 30)
+    u = u_true + np.array([0.0, 0.0, 0.004])
+    points = [world.observe(p, rng) for p in gt]
+    obs_index, local_maps, _ = build_local_maps(integrate_controls(u), points,
+                                                localmap_params(CONFIG))
+    run = Run(controls=u, obs_index=obs_index, local_maps=local_maps, resolution=0.16,
+              timestamps=np.arange(30) * 0.2, ground_truth=gt, initial_pose=np.zeros(3))
+    return run, points
+
+
+@pytest.fixture(scope="module")
+def batch(frames):
+    run, _ = frames
+    return slam.run_slam(run, CONFIG), slam.filter_config(CONFIG, run)
+
+
+def test_online_reproduces_the_batch_run_with_one_compilation(frames, batch):
+    run, points = frames
+    res, cfg = batch
+    live = Online(CONFIG, filter_config=cfg)
+    compiled = []
+    for t in range(run.num_frames):
+        m = run.obs_index[t]
+        out = live.push(run.controls[t], run.local_maps[m] if m >= 0 else None,
+                        run.timestamps[t])
+        np.testing.assert_array_equal(out.pose, res.best_pose[t])
+        compiled.append(online_step._cache_size())
+    assert compiled[-1] == compiled[0]  # every frame after the first reuses its compilation
+    np.testing.assert_array_equal(np.stack(live.mean), res.mean_pose)
+    np.testing.assert_array_equal(live.path(), res.best_path)
+    grid = live.map()
+    np.testing.assert_array_equal(grid.k, res.kmap)
+    np.testing.assert_array_equal(grid.S, res.smap)
+    assert grid.origin == res.map_origin
+    p = live.particles()
+    assert p.pose.shape == (8, 3) and p.weight.sum() == pytest.approx(1.0, abs=1e-5)
+
+    # points fused into local maps by Online itself: the same frames, the same poses
+    fused = Online(CONFIG, filter_config=cfg)
+    for t in range(run.num_frames):
+        fused.push_points(run.controls[t], points[t], run.timestamps[t])
+    assert online_step._cache_size() == compiled[0]
+    np.testing.assert_array_equal(np.stack(fused.best), res.best_pose)
+
+    s = live.stats()
+    assert s.frames == 30 and s.updates == int(np.sum(run.obs_index >= 0))
+    assert s.log_seconds == pytest.approx(run.timestamps[-1] - run.timestamps[0])
+    assert s.realtime_factor == pytest.approx(s.log_seconds / s.frame_latency.sum())
+    assert len(s.update_latency) == int(np.sum(run.obs_index[1:] >= 0))
+
+
+def test_a_given_extent_sizes_the_filter_as_the_batch_run(frames, batch):
+    run, _ = frames
+    _, cfg = batch
+    live = Online(CONFIG, slam.MapExtent(cfg.map_origin, cfg.map_shape),
+                  local_size=cfg.local_size, observed_cells=cfg.observed_cells)
+    assert live.cfg == cfg
+
+
+def test_a_size_in_metres_covers_the_square_around_the_start():
+    start = np.array([3.0, -2.0, 0.5])
+    live = Online(CONFIG, 10.0, start_pose=start)
+    cfg = live.cfg
+    lo = np.asarray(cfg.map_origin)
+    hi = lo + np.asarray(cfg.map_shape) * cfg.resolution
+    reach = 5.0 + 0.5 * cfg.window * cfg.resolution  # half the side plus a rotated local map
+    assert (lo <= start[:2] - reach + 1e-9).all() and (hi >= start[:2] + reach - 1e-9).all()
+    assert (hi - lo < 2 * reach + 8 * cfg.resolution + 1e-9).all()  # rounded up to 8 cells
+    np.testing.assert_array_equal(live.particles().pose, np.tile(start, (8, 1)).astype(
+        np.float32))
+
+
+def test_the_map_edge_is_refused_naming_the_frame(frames):
+    run, _ = frames
+    live = Online(CONFIG, 0.0)  # a map of one local map's reach around the start
+    with pytest.raises(MapEdgeError, match=r"frame \d+: the local map reached past the edge "
+                                           r"of the live map .* give Online a larger "
+                                           r"map_extent"):
+        for t in range(run.num_frames):
+            m = run.obs_index[t]
+            live.push(run.controls[t], run.local_maps[m] if m >= 0 else None)
+
+
+def test_bad_frames_are_refused_before_the_filter(frames, batch):
+    run, _ = frames
+    live = Online(CONFIG, filter_config=batch[1])
+    with pytest.raises(InputError, match=r"frame 0: control must be 3 finite numbers"):
+        live.push([0.1, np.nan, 0.0])
+    L = batch[1].local_size
+    with pytest.raises(InputError, match=rf"frame 0: local_map must be \[{L}, {L}, 3\]"):
+        live.push([0.1, 0.0, 0.0], np.zeros((4, 4, 3)))
+    live.push([0.1, 0.0, 0.0], None, 1.0)
+    with pytest.raises(InputError, match=r"frame 1: time 1.0 s is not after the previous "
+                                         r"frame's 1.0 s"):
+        live.push([0.1, 0.0, 0.0], None, 1.0)
+    with pytest.raises(ConfigError, match="start_pose must be 3 finite numbers"):
+        Online(CONFIG, 10.0, start_pose=[0.0, 1.0])
+    with pytest.raises(ConfigError, match="either filter_config or map_extent"):
+        Online(CONFIG, 10.0, filter_config=batch[1])
