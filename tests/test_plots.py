@@ -164,3 +164,27 @@ def test_error_along_distance_refuses_mismatched_shapes() -> None:
         error_along_distance(np.zeros((5, 3)), np.zeros((4, 3)))
     with pytest.raises(ValueError, match="ground_truth"):
         error_along_distance(np.zeros(5), np.zeros((5, 3)))
+
+
+def test_write_figures_writes_errors_png_only_with_ground_truth(tmp_path, monkeypatch) -> None:
+    from types import SimpleNamespace
+
+    from gslam_jax import metrics
+    from gslam_jax.app.outputs import write_figures
+
+    rng = np.random.default_rng(0)
+    k = np.where(rng.uniform(size=(40, 30)) < 0.8, 5.0, 0.0)
+    grid = metrics.GridMap(k, k * 0.01, (-1.0, -1.0), 0.16)
+    monkeypatch.setattr(metrics, "vo_only_map", lambda run: grid)
+    path = np.stack([np.linspace(0, 4, 12), np.linspace(0, 2, 12), np.zeros(12)], axis=1)
+    result = SimpleNamespace(kmap=grid.k, smap=grid.S, map_origin=grid.origin,
+                             resolution=grid.resolution, path=path, vo_path=path + 0.05,
+                             ess=np.linspace(10, 4, 12), resampled=np.zeros(12, bool))
+    for name, gt in (("with", path + 0.01), ("without", None)):
+        out = tmp_path / name
+        out.mkdir()
+        write_figures(out, SimpleNamespace(ground_truth=gt), result, 10)
+        figures = {"map.png", "maps_vo_vs_slam.png", "ess.png"} | \
+            ({"ground_truth.png", "errors.png"} if gt is not None else set())
+        assert {p.name for p in out.iterdir()} == figures
+        assert all((out / f).stat().st_size > 0 for f in figures)

@@ -63,6 +63,7 @@ def write_figures(out: Path, run, result, num_particles: int,
             plots.save_ground_truth_png(out / "ground_truth.png", vo_std, vo_map.origin,
                                         slam_std, result.map_origin, result.resolution, gt,
                                         result.vo_path, result.path)
+        if np.isfinite(np.asarray(run.ground_truth)[:, :2]).all(axis=1).sum() >= 2:
             plots.save_errors_png(out / "errors.png", run.ground_truth,
                                   [("VO only", result.vo_path), ("Gamma-SLAM", result.path)])
     return slam_std

@@ -38,7 +38,7 @@ __all__ = [
 _UNKNOWN = (0.16, 0.19, 0.24)
 _LEGEND_FACE = (0.32, 0.32, 0.34)
 _STD_RANGE = (0.01, 1.0)  # metres: sand .. walls
-_STD_LABEL = "expected std of heights (m): dark = flat, bright = rough"
+_STD_LABEL = "expected std of heights (m)\ndark = flat, bright = rough"
 _PATH = {"color": "white", "lw": 0.8}
 _TRUTH = {"color": "cyan", "ls": "--", "lw": 1.0}
 
@@ -109,7 +109,7 @@ def save_map_png(out: str | Path, std: np.ndarray, origin: Sequence[float], reso
     out = Path(out)
     std = np.asarray(std)
     w, h = _figsize(std.shape, 1)
-    fig, ax = plt.subplots(figsize=(w, h))
+    fig, ax = plt.subplots(figsize=(w, h), layout="compressed")
     im = draw_map(ax, std, origin, resolution, path, title or "Map by expected std of heights",
                   path_label=path_label)
     map_legend(ax, std)
@@ -118,8 +118,7 @@ def save_map_png(out: str | Path, std: np.ndarray, origin: Sequence[float], reso
         ax.set_xlim(window[0], window[1])
         ax.set_ylim(window[2], window[3])
     fig.colorbar(im, ax=ax, label=_STD_LABEL, shrink=0.8)
-    fig.tight_layout()
-    fig.savefig(out, dpi=dpi)
+    fig.savefig(out, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return out
 
@@ -136,7 +135,7 @@ def save_map_comparison_png(out: str | Path, vo_std: np.ndarray, vo_origin: Sequ
     out = Path(out)
     shape = (max(vo_std.shape[0], slam_std.shape[0]), max(vo_std.shape[1], slam_std.shape[1]))
     w, h = _figsize(shape, 2)
-    fig, axes = plt.subplots(1, 2, figsize=(w, h))
+    fig, axes = plt.subplots(1, 2, figsize=(w, h), layout="compressed")
     draw_map(axes[0], vo_std, vo_origin, resolution, vo_path, titles[0],
              path_label=path_labels[0])
     im = draw_map(axes[1], slam_std, slam_origin, resolution, slam_path, titles[1],
@@ -172,7 +171,7 @@ def save_ground_truth_png(out: str | Path, vo_std: np.ndarray, vo_origin: Sequen
         raise ValueError(f"ground_truth must be [T, >=2], got shape {gt.shape}")
     shape = (max(vo_std.shape[0], slam_std.shape[0]), max(vo_std.shape[1], slam_std.shape[1]))
     w, h = _figsize(shape, 2)
-    fig, axes = plt.subplots(1, 2, figsize=(w, h))
+    fig, axes = plt.subplots(1, 2, figsize=(w, h), layout="compressed")
     draw_map(axes[0], vo_std, vo_origin, resolution, vo_path, "VO only", path_label="VO path")
     im = draw_map(axes[1], slam_std, slam_origin, resolution, slam_path, "Gamma-SLAM",
                   path_label="Gamma-SLAM path")
@@ -306,7 +305,8 @@ def save_maps_png(out: str | Path, panels: Sequence[tuple[str, np.ndarray, Seque
     out = Path(out)
     shape = (max(p[1].shape[0] for p in panels), max(p[1].shape[1] for p in panels))
     w, h = _figsize(shape, len(panels))
-    fig, axes = plt.subplots(1, len(panels), figsize=(w, h), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(w, h), squeeze=False,
+                             layout="compressed")
     axes = list(axes[0])
     labels = list(path_labels) if path_labels is not None else \
         [f"path of {p[0]}" for p in panels]
