@@ -16,7 +16,12 @@ from gslam_jax.config import Config
 from gslam_jax.datasets.registry import LoadedSource
 
 __all__ = ["json_ready", "write_figures", "local_maps_used", "summarise", "write_outputs",
-           "print_summary", "MOTION_NOISE_TOLERANCE"]
+           "print_summary", "timing_text", "MOTION_NOISE_TOLERANCE", "MIN_DRIFT_DISTANCE"]
+
+# Below this ground-truth distance (metres) a run has no drift percentage and no motion-noise
+# check: a vehicle standing still turns any error into a huge percentage of almost nothing,
+# and its VO errors are noise about no motion.
+MIN_DRIFT_DISTANCE = 1.0
 
 
 def json_ready(value):
@@ -76,8 +81,20 @@ def local_maps_used(run) -> int:
     return int(np.unique(index[index >= 0]).size)
 
 
+def _first_chunk_frames(frames: int) -> int:
+    """The frames of the filter's first chunk, timed with its compilation (``compile_seconds``):
+    ``slam.run_slam``'s default ``chunk``, as the pipeline runs it."""
+    import inspect
+
+    from gslam_jax.slam import run_slam
+
+    return min(frames, int(inspect.signature(run_slam).parameters["chunk"].default))
+
+
 def summarise(run, result, config: Config, description: str) -> dict:
-    """The figures of ``summary.json`` (without the GPS figures)."""
+    """The figures of ``summary.json`` (without the GPS figures). With ground truth that moved
+    less than MIN_DRIFT_DISTANCE there is no drift percentage and no ``motion_fit``; a
+    ``drift_note`` says why."""
     from gslam_jax import metrics
 
     summary = {
@@ -94,12 +111,21 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "vo_failures": int(np.sum(run.vo_failed)) if run.vo_failed is not None else 0,
         "filter_seconds": result.seconds,
         "compile_seconds": result.compile_seconds,
+        "compile_frames": _first_chunk_frames(run.num_frames),
     }
     if run.ground_truth is not None:
         paths = {"vo": result.vo_path, "slam": result.path}
         summary.update(metrics.errors_over_known_frames(paths, run.ground_truth))
-        summary.update(metrics.drift_over_known_frames(paths, run.ground_truth))
-        summary.update(_motion_check(run, config))
+        drift = metrics.drift_over_known_frames(paths, run.ground_truth)
+        moved = drift.get("gt_distance_m")
+        if moved is not None and moved < MIN_DRIFT_DISTANCE:
+            summary["gt_distance_m"] = moved
+            summary["drift_note"] = (
+                f"the vehicle moved {moved:.1f} m by the ground truth, under "
+                f"{MIN_DRIFT_DISTANCE:g} m: no drift percentage and no motion-noise check")
+        else:
+            summary.update(drift)
+            summary.update(_motion_check(run, config))
     return summary
 
 
@@ -168,9 +194,22 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
 MOTION_NOISE_TOLERANCE = 3.0
 
 
+def timing_text(summary: dict) -> str:
+    """The filter's time: the first chunk of frames (``compile_frames``) is timed together with
+    the compilation, the rest (``filter_seconds``) without it."""
+    frames, first = summary["frames"], summary["compile_frames"]
+    compiled = f"{summary['compile_seconds']:.1f} s"
+    if first >= frames:
+        return (f"filter: {compiled} for {frames} frames, compilation included (all frames ran "
+                "in the first chunk, which compiles)")
+    rest, seconds = frames - first, summary["filter_seconds"]
+    return (f"filter: {seconds:.1f} s for {rest} frames ({1e3 * seconds / rest:.3g} ms a frame) "
+            f"after {compiled} for compilation and the first {first} frames")
+
+
 def print_summary(summary: dict, run, result) -> None:
     """The console report of a finished run."""
-    print(f"distance: {summary['distance_m']:.1f} m")
+    print(f"distance: {summary['distance_m']:.1f} m by VO")
     if run.ground_truth is not None:
         scored = summary["gt_frames_scored"]
         over = "" if scored == run.num_frames else \
@@ -181,7 +220,9 @@ def print_summary(summary: dict, run, result) -> None:
         if "slam_drift_pct" in summary:
             print(f"ground-truth distance: {summary['gt_distance_m']:.1f} m, final drift: VO-only "
                   f"{summary['vo_drift_pct']:.2f} %, Gamma-SLAM {summary['slam_drift_pct']:.2f} %")
-        else:
+        elif "drift_note" in summary:
+            print(f"note: {summary['drift_note']}")
+        elif "vo_rms_m" not in summary:
             print(f"ground truth: only {scored} of {run.num_frames} frames have a finite pose; "
                   "no RMS")
     fit = summary.get("motion_fit")
@@ -193,8 +234,8 @@ def print_summary(summary: dict, run, result) -> None:
                   f"{off['heading']:.2g}x (heading) what this run's VO errors fit (alpha_d "
                   f"{fit['alpha_d']:.2g}, alpha_theta_d {fit['alpha_theta_d']:.2g}, alpha_theta "
                   f"{fit['alpha_theta']:.2g}); `gslam fit-motion` writes a config with them")
-    print(f"resampling events: {summary['resampling_events']}, filter time "
-          f"{result.seconds:.1f} s (+{result.compile_seconds:.1f} s first chunk incl. compile)")
+    print(f"resampling events: {summary['resampling_events']}")
+    print(timing_text(summary))
     if result.extent_violations:
         print(f"WARNING: {result.extent_violations} particle updates reached the map edge")
     used, total = summary["local_maps_used"], summary["local_maps"]
