@@ -15,6 +15,7 @@ Where things live, lowest layer first (``tests/test_layers.py`` keeps imports go
 * ``datasets``: the sources of frames, one module each (``datasets.registry``);
   ``relocalise``: where a run starts in an earlier map (``locate_start``);
 * ``slam``: the host driver, ``run_slam(run, config)``;
+* ``online``: the same filter one frame at a time for a live robot (``Online``);
 * ``gps``: alignment to GPS, UTM, georeferenced outputs; ``tuning``: parameter search, optax
   tuning, motion-noise fit;
 * ``app``: the ``gslam`` command line, ``gslam run`` as functions, results, figures.
@@ -32,12 +33,19 @@ from gslam_jax.version import __version__
 _EXPORTS = {
     "Config": "gslam_jax.config",
     "load_config": "gslam_jax.config",
+    "parse_config": "gslam_jax.config",
     "Run": "gslam_jax.run",
     "load_run": "gslam_jax.run",
     "save_run": "gslam_jax.run",
     "run_slam": "gslam_jax.slam",
     "SlamResult": "gslam_jax.slam",
     "PriorMap": "gslam_jax.slam",
+    "MapExtent": "gslam_jax.slam",
+    "Online": "gslam_jax.online",
+    "OnlineFrame": "gslam_jax.online",
+    "OnlineStats": "gslam_jax.online",
+    "MapEdgeError": "gslam_jax.online",
+    "simulate_run": "gslam_jax.datasets.sim",
     "GridMap": "gslam_jax.gridmap",
     "load_map": "gslam_jax.gridmap",
     "align_maps": "gslam_jax.gridmap.align",
@@ -46,6 +54,7 @@ _EXPORTS = {
     "load_run_folder": "gslam_jax.gridmap.merge",
     "locate_start": "gslam_jax.relocalise",
     "Source": "gslam_jax.datasets.registry",
+    "load_source": "gslam_jax.app.pipeline",
     "run_pipeline": "gslam_jax.app.pipeline",
 }
 

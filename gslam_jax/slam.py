@@ -463,6 +463,12 @@ class SlamResult(NamedTuple):
         return {"best": self.best_path, "mean": self.mean_pose,
                 "smoothed": self.smoothed_path}[self.estimate]
 
+    @property
+    def grid(self) -> GridMap:
+        """The best particle's map as a ``GridMap`` (float64), e.g. for ``align_maps``."""
+        return GridMap(np.asarray(self.kmap, np.float64), np.asarray(self.smap, np.float64),
+                       tuple(self.map_origin), float(self.resolution))
+
 
 def _prior_state(prior: PriorMap, cfg: rbpf.FilterConfig, key: jax.Array) -> rbpf.FilterState:
     """The filter's start with a prior map: the prior placed on the filter's grid in every
