@@ -9,10 +9,13 @@ import numpy as np
 import pytest
 
 from gslam_jax import loops
-from gslam_jax.config import Config
+from gslam_jax.config import Config, apply_overrides
 from gslam_jax.datasets.sim_path import simulate_path
 from gslam_jax.metrics import GridMap
 from gslam_jax.sim.vonoise import VO_PROFILES
+from gslam_jax.vo.localmap import localmap_params
+
+SMALL = apply_overrides(Config(), ["localmap.max_range=5"])  # 64-cell local maps: CI-sized
 
 
 def _circle(length: float, extra: float, step: float = 0.25) -> np.ndarray:
@@ -140,7 +143,8 @@ def noisy_loop(tmp_path_factory):
 
     file = circle_file(tmp_path_factory.mktemp("loop"), 30.0, 15.0)
     vo = VO_PROFILES["mars-yard-a"].scaled(4.0)
-    run, _ = simulate_path(file, seed=1, course="mars-yard-a", vo_noise=vo)
+    run, _ = simulate_path(file, seed=1, course="mars-yard-a", vo_noise=vo,
+                           params=localmap_params(SMALL))
     return file, vo, run
 
 
@@ -172,7 +176,7 @@ def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     from experiments.loop_closure import Loop, run_loop, summary
 
     file, vo, run = noisy_loop
-    rows = run_loop(Loop("circle-30", "circle", 30.0, file), 1, Config(), [8], ["motion"],
+    rows = run_loop(Loop("circle-30", "circle", 30.0, file), 1, SMALL, [8], ["motion"],
                     math.inf, course="mars-yard-a", vo_noise=vo)
     (row,) = rows
     assert isinstance(row["closed"], bool) and math.isfinite(row["error_m"])
