@@ -165,17 +165,6 @@ def test_whole_cell_shift_search_equals_the_pose_scorer() -> None:
 
 # --- alignment and merging on terrain with a known placement --------------------------------
 
-def test_align_recovers_an_unknown_placement() -> None:
-    a = _observe(5, np.zeros(3), 4.0, 1)
-    truth = np.array([1.3, -0.9, 2.4])  # B's frame in A's (the world is A's frame here)
-    b = _observe(5, truth, 2.5, 2)
-    al = align_maps(a, b)
-    dist, deg = _pose_error(al.pose, truth)
-    assert dist < 0.5 * RES and deg < 0.5, (al.pose, truth)
-    std = np.sqrt(np.diag(al.covariance))
-    assert np.all(std[:2] < 0.1) and al.z > al.runner_up_z
-
-
 def test_align_refuses_unrelated_or_featureless_maps() -> None:
     a = _observe(6, np.zeros(3), 4.0, 1)
     other = _observe(7, np.zeros(3), 2.5, 2)  # another terrain
@@ -189,11 +178,16 @@ def test_align_refuses_unrelated_or_featureless_maps() -> None:
         align_maps(a, GridMap(other.k, other.S, other.origin, 0.2))
 
 
-def test_merge_sums_the_aligned_statistics() -> None:
+def test_merge_recovers_an_unknown_placement_and_sums_the_statistics() -> None:
     a = _observe(5, np.zeros(3), 4.0, 1)
-    truth = np.array([1.3, -0.9, 2.4])
+    truth = np.array([1.3, -0.9, 2.4])  # B's frame in A's (the world is A's frame here)
     b = _observe(5, truth, 2.5, 2)
     merged = merge_maps([a, b])
+    al = merged.alignments[1]
+    dist, deg = _pose_error(al.pose, truth)
+    assert dist < 0.5 * RES and deg < 0.5, (al.pose, truth)
+    std = np.sqrt(np.diag(al.covariance))
+    assert np.all(std[:2] < 0.1) and not al.runner_up_z >= al.z  # NaN: no distinct peak
     assert merged.grid.k.sum() == pytest.approx(a.k.sum() + b.k.sum())
     assert merged.grid.S.sum() == pytest.approx(a.S.sum() + b.S.sum())
     np.testing.assert_allclose(merged.poses[1], merged.alignments[1].pose)

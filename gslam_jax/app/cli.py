@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import json
 import math
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,7 +19,7 @@ from gslam_jax.errors import InputError
 from gslam_jax.app.outputs import json_ready  # light too
 from gslam_jax.app.progress import ProgressBar
 from gslam_jax.app import info, merge
-from gslam_jax.app.results import ResultsError, results_folder
+from gslam_jax.app.results import results_folder, writing
 from gslam_jax.datasets.registry import Source, get_source, source_names
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
 
@@ -165,17 +164,6 @@ def _values_text(values: dict[str, float]) -> str:
     return ", ".join(f"{k} = {v:.5g}" for k, v in values.items())
 
 
-@contextlib.contextmanager
-def _writing(folder) -> Iterator[None]:
-    """Writing a command's files into its staging folder: an OSError (a full disk) becomes a
-    ResultsError naming the folder (the staging folder is then removed, nothing published)."""
-    try:
-        yield
-    except OSError as err:
-        raise ResultsError(f"{folder.name}: cannot write the results ({err.strerror or err}); "
-                           f"nothing was written to {folder.target}") from err
-
-
 def cmd_search(args: argparse.Namespace) -> int:
     from gslam_jax.config import config_to_toml
     from gslam_jax.tuning.search import search
@@ -195,7 +183,7 @@ def cmd_search(args: argparse.Namespace) -> int:
                             progress=ProgressBar("search"))
             best = result.best()
             best_config = config_with_values(config, best)
-            with _writing(folder):
+            with writing(folder):
                 result.to_csv(folder.staging / "results.csv")
                 result.to_json(folder.staging / "results.json")
                 (folder.staging / "best.toml").write_text(config_to_toml(best_config))
@@ -229,7 +217,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
                           lr=args.lr, steps=args.steps, names=names,
                           runs_per_step=args.runs_per_step, crn=args.crn, on_step=on_step)
             tuned_config = config_with_values(config, result.values)
-            with _writing(folder):
+            with writing(folder):
                 (folder.staging / "tuned.toml").write_text(config_to_toml(tuned_config))
                 (folder.staging / "tuned.json").write_text(json.dumps(json_ready({
                     "objective": result.objective, "values": result.values,

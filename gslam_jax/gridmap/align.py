@@ -324,8 +324,10 @@ def _shift_scores(bi: Array, bj: Array, bk: Array, bS: Array, lvl: _Level, nx: i
         def row(sx):
             jj = j[None, :] + jnp.arange(ny)[:, None]
             ii = jnp.broadcast_to(i[None, :] + sx, jj.shape)
-            g, _ = _g(jnp.broadcast_to(bk, jj.shape), jnp.broadcast_to(bS, jj.shape),
-                      lvl.k[ii, jj], lvl.S[ii, jj], lvl)
+            ka = lvl.k.at[ii, jj].get(mode="fill", fill_value=0.0)  # beyond: unknown
+            Sa = lvl.S.at[ii, jj].get(mode="fill", fill_value=0.0)
+            g, _ = _g(jnp.broadcast_to(bk, jj.shape), jnp.broadcast_to(bS, jj.shape), ka, Sa,
+                      lvl)
             return jnp.sum(g, axis=1)
 
         return lax.map(row, jnp.arange(nx))
@@ -362,8 +364,12 @@ def _coarse_search(a: GridMap, b: GridMap, factor: int, params: AlignParams,
     i_min, j_min = int(bi.min()), int(bj.min())
     bi_s, bj_s = bi - i_min, bj - j_min
     nx, ny = Hp - int(bi_s.max()), Wp - int(bj_s.max())
-    scores = np.asarray(_shift_scores(jnp.asarray(bi_s), jnp.asarray(bj_s), moving.k, moving.S,
-                                      lvl, nx, ny), np.float64)
+    # shapes padded to buckets so that later alignments reuse the compiled search
+    Hd = len(headings)
+    rows = np.minimum(np.arange(_bucket(Hd, 16)), Hd - 1)
+    scores = np.asarray(_shift_scores(jnp.asarray(bi_s[rows]), jnp.asarray(bj_s[rows]),
+                                      moving.k, moving.S, lvl, _bucket(nx, 32), _bucket(ny, 32)),
+                        np.float64)[:Hd, :nx, :ny]
     # Shift index sx is n = sx - i_min whole cells: B's frame origin at lattice origin + n r.
     sx = np.arange(nx) - i_min
     sy = np.arange(ny) - j_min
