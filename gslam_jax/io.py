@@ -46,8 +46,9 @@ def write_kitti(path: str | Path, poses: np.ndarray) -> None:
     Only the layout is KITTI's, not its frame. The planar pose is written in the robot/world
     frame of this project (x forward, y left, z up; rotation about z by theta, z = 0), not in
     KITTI's camera frame (x right, y down, z forward) that ``poses/NN.txt`` uses, so KITTI's
-    evaluation tools cannot compare this file with ``poses/NN.txt`` directly. (``gslam``'s own
-    metrics compare against ground truth that the KITTI source has moved into the robot frame.)
+    evaluation tools cannot compare this file with ``poses/NN.txt`` directly (``gslam run``
+    writes it as ``trajectory_robot_kitti.txt``; on KITTI runs ``trajectory_kitti.txt`` holds
+    the path in KITTI's camera frame, ``datasets.kitti.camera_poses``).
     """
     poses = np.asarray(poses, dtype=np.float64)
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])

@@ -28,10 +28,11 @@ def test_run_on_npz_writes_results(tmp_path, capsys):
     assert summary["frames"] == 25 and summary["particles"] == 8
     assert summary["gt_distance_m"] > 0 and summary["slam_drift_pct"] >= 0
     assert summary["vo_drift_pct"] >= 0
-    for name in ("trajectory_tum.txt", "trajectory_kitti.txt", "map.npz", "config.toml",
+    for name in ("trajectory_tum.txt", "trajectory_robot_kitti.txt", "map.npz", "config.toml",
                  "ground_truth.png"):
         assert (tmp_path / "out" / name).exists()
-    assert len((tmp_path / "out" / "trajectory_kitti.txt").read_text().splitlines()) == 25
+    assert len((tmp_path / "out" / "trajectory_robot_kitti.txt").read_text().splitlines()) == 25
+    assert not (tmp_path / "out" / "trajectory_kitti.txt").exists()  # KITTI's frame: KITTI runs
 
 
 def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):

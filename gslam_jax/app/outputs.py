@@ -153,7 +153,10 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
 
     The TUM files carry the dataset's own clock (``Run.time_origin_ns`` added, e.g. EuRoC's
     nanosecond timestamps); ``ground_truth_tum.txt`` holds the frames with a finite
-    ground-truth pose, beside the estimate, for evo. ``summary.json`` is written last."""
+    ground-truth pose, beside the estimate, for evo. ``trajectory_robot_kitti.txt`` is the path
+    in KITTI's file layout and this project's robot frame; on KITTI runs
+    (``loaded.kitti_frame``) ``trajectory_kitti.txt`` is the path in KITTI's camera frame, that
+    of ``poses/NN.txt`` (``datasets.kitti.camera_poses``). ``summary.json`` is written last."""
     from gslam_jax.config import config_to_toml
     from gslam_jax.io import save_map, write_kitti, write_tum
 
@@ -164,7 +167,11 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
         (out / "simulation.json").write_text(json.dumps(loaded.sim_info.summary(), indent=2,
                                                         default=float))
     write_tum(out / "trajectory_tum.txt", run.timestamps, result.path, origin_ns=origin)
-    write_kitti(out / "trajectory_kitti.txt", result.path)
+    write_kitti(out / "trajectory_robot_kitti.txt", result.path)
+    if loaded.kitti_frame is not None:
+        from gslam_jax.datasets.kitti import camera_poses
+        cams = camera_poses(result.path, run.start_pose(), loaded.kitti_frame)
+        np.savetxt(out / "trajectory_kitti.txt", cams[:, :3, :].reshape(-1, 12), fmt="%.9e")
     write_tum(out / "vo_tum.txt", run.timestamps, result.vo_path, origin_ns=origin)
     if run.ground_truth is not None:
         gt = np.asarray(run.ground_truth, np.float64)

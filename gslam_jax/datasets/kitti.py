@@ -6,6 +6,9 @@ z forward) is mounted ``camera_height`` metres above the ground and assumed leve
 and projected to (x, y, yaw) like the VO path. Without ``times.txt`` frames are 0.1 s apart.
 Image ``NNNNNN.png`` is frame NNNNNN and takes line NNNNNN (from 0) of times.txt and the poses
 file; frames must be consecutive, a gap is an error naming the missing image.
+
+The way back, for KITTI's evaluation tools: :func:`camera_poses` turns a planar robot path into
+camera-0-to-world poses in the frame of ``poses/NN.txt`` (:class:`KittiFrame`).
 """
 
 from __future__ import annotations
@@ -27,8 +30,9 @@ from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pos
 from gslam_jax.vo.localmap import localmap_params
 from gslam_jax.vo.stereo import DenseStereoParams
 
-__all__ = ["KittiParams", "Table", "read_table", "find_sequence", "read_kitti_calib",
-           "read_kitti_poses", "read_image", "kitti_frontend", "load_kitti"]
+__all__ = ["KittiParams", "KittiFrame", "Table", "read_table", "find_sequence",
+           "read_kitti_calib", "read_kitti_poses", "read_image", "robot_from_camera",
+           "kitti_frame", "camera_poses", "kitti_frontend", "load_kitti"]
 
 
 @dataclass(frozen=True)
@@ -146,6 +150,49 @@ def read_kitti_poses(path: Path) -> np.ndarray:
     return out
 
 
+class KittiFrame(NamedTuple):
+    """Where a KITTI run's robot frame sits in KITTI's: ``t_robot_cam`` (4x4, camera 0 to
+    robot, the mount the adapter used) and ``first_camera`` (4x4, ``poses/NN.txt``'s pose of
+    the run's first frame; the identity without a poses file)."""
+
+    t_robot_cam: np.ndarray
+    first_camera: np.ndarray
+
+
+def robot_from_camera(params: KittiParams) -> np.ndarray:
+    """4x4 camera-0-to-robot transform: KITTI's camera axes turned into the robot's (x forward,
+    y left, z up), ``params.camera_height`` above the ground, level."""
+    return make_transform(CAM_TO_ROBOT_AXES, [0.0, 0.0, params.camera_height])
+
+
+def kitti_frame(root: str | Path, params: KittiParams = KittiParams()) -> KittiFrame:
+    """The KittiFrame of the frames ``kitti_frontend(root, params)`` reads."""
+    seq = find_sequence(Path(root), params.sequence)
+    first = int(_check_frames(seq, params.max_frames)[0].stem)
+    pose_file = Path(root) / "poses" / f"{seq.name}.txt"
+    cam = read_kitti_poses(pose_file)[first] if pose_file.is_file() else np.eye(4)
+    return KittiFrame(robot_from_camera(params), cam)
+
+
+def camera_poses(path: np.ndarray, start: np.ndarray, frame: KittiFrame) -> np.ndarray:
+    """[T, 4, 4] camera-0-to-world poses in KITTI's frame (that of ``poses/NN.txt``) of a
+    planar robot ``path`` [T, 3] whose world is the robot frame at ``start`` (the Run's start
+    pose): the inverse of the adapter's change of the ground truth into the robot frame,
+    ``C_t = first_camera inv(T_rc) inv(S) P_t T_rc`` with P_t, S the planar poses as 4x4 (z = 0)
+    and T_rc = ``t_robot_cam``. What the planar path lacks (height, pitch, roll) stays that
+    of the level mount."""
+    path = np.asarray(path, np.float64)
+    planar = np.tile(np.eye(4), (len(path), 1, 1))
+    c, s = np.cos(path[:, 2]), np.sin(path[:, 2])
+    planar[:, 0, 0], planar[:, 0, 1], planar[:, 1, 0], planar[:, 1, 1] = c, -s, s, c
+    planar[:, 0, 3], planar[:, 1, 3] = path[:, 0], path[:, 1]
+    x, y, th = np.asarray(start, np.float64)
+    s0 = make_transform([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0],
+                         [0.0, 0.0, 1.0]], [x, y, 0.0])
+    t_rc = frame.t_robot_cam
+    return frame.first_camera @ invert(t_rc) @ invert(s0) @ planar @ t_rc
+
+
 def find_sequence(root: Path, sequence: str | None) -> Path:
     """The folder ``root/sequences/<sequence>``; with ``sequence`` None, the only folder there
     (none or several: a DatasetError listing them, asking for ``--sequence NN`` /
@@ -242,7 +289,7 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams(), *,
         cams = cams[frames]
     first = read_image(lefts[0])
     rig = read_kitti_calib(seq / "calib.txt", (first.shape[1], first.shape[0]))
-    t_robot_cam = make_transform(CAM_TO_ROBOT_AXES, [0.0, 0.0, params.camera_height])
+    t_robot_cam = robot_from_camera(params)
     gt = None
     if cams is not None:
         rel = invert(cams[0])  # world = robot frame at frame 0
@@ -265,12 +312,14 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
           ) -> LoadedSource:
     sequence = find_sequence(Path(src.path), src.sequence).name
     fe = KittiParams().frontend  # KITTI's own front-end defaults, with the config's settings
-    result = kitti_frontend(src.path, KittiParams(
+    params = KittiParams(
         sequence=sequence, max_frames=src.max_frames,
         frontend=replace(fe, local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
-                         stereo=stereo_settings(config, fe.stereo))), progress=progress)
+                         stereo=stereo_settings(config, fe.stereo)))
+    result = kitti_frontend(src.path, params, progress=progress)
     print(result.summary.text())
-    return LoadedSource(result.run, f"KITTI {src.path} sequence {sequence}")
+    return LoadedSource(result.run, f"KITTI {src.path} sequence {sequence}",
+                        kitti_frame=kitti_frame(src.path, params))
 
 
 SOURCE = DataSource(name="kitti", help="KITTI odometry layout (sequences/NN, poses/NN.txt)",

@@ -86,6 +86,7 @@ class LoadedSource(NamedTuple):
     run: Run
     description: str          # e.g. "KITTI DIR sequence 00", printed and in summary.json
     sim_info: Any | None = None  # datasets.sim.SimInfo for the simulator (simulation.json)
+    kitti_frame: Any | None = None  # datasets.kitti.KittiFrame, for trajectory_kitti.txt
 
 
 @dataclass(frozen=True)
