@@ -170,6 +170,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json", default=None)
     ap.add_argument("--cache", default=None, help="keep each run's map here (re-runs skip SLAM)")
     ap.add_argument("--maps-only", action="store_true", help="only run SLAM and fill --cache")
+    ap.add_argument("--cross-only", action="store_true",
+                    help="only align pairs of different courses (the trials' maps from --cache)")
     ap.add_argument("--figures", default=None, help="write A, B placed and the merge of each "
                     "course's first trial here")
     ap.add_argument("--cross", type=int, default=10,
@@ -192,7 +194,7 @@ def main(argv: list[str] | None = None) -> dict:
             truth = compose(g0, invert_pose(Q))
             grid_b = _grid(b)
             maps[course]["b"].append(grid_b)
-            if args.maps_only:
+            if args.maps_only or args.cross_only:
                 continue
             t0 = time.perf_counter()
             al = align_maps(maps[course]["a"], grid_b, refuse=False)
