@@ -493,3 +493,66 @@ def test_frontend_reports_progress(kitti_seq: Path):
     assert res.run.num_frames == N_KITTI
     assert calls[-1] == (N_KITTI, N_KITTI) and len(calls) >= 2
     assert all(a[0] < b[0] for a, b in zip(calls, calls[1:]))
+
+
+# --- a --path or --sequence that misses the dataset --------------------------------------------
+
+def test_kitti_missing_sequence_lists_those_found(kitti_seq: Path, captured: dict):
+    (kitti_seq / "sequences" / "07").mkdir()
+    with pytest.raises(FileNotFoundError, match=r"sequences/01: no such sequence; .*sequences "
+                       r"holds 00, 07$"):
+        kitti_frontend(kitti_seq, KittiParams(sequence="01"))
+
+
+def test_gslam_run_with_a_missing_sequence_lists_them_and_writes_nothing(kitti_seq: Path,
+                                                                         tmp_path: Path, capsys):
+    from gslam_jax.app.cli import main
+
+    out = tmp_path / "out"
+    assert main(["run", "--source", "kitti", "--path", str(kitti_seq), "--sequence", "1",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gslam: error: ") and err.rstrip().endswith("sequences holds 00")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("inside, sequence", [("sequences", ""), ("sequences/00", " --sequence 00"),
+                                              ("sequences/00/image_0", " --sequence 00"),
+                                              ("poses", "")])
+def test_kitti_path_inside_the_dataset_suggests_its_root(kitti_seq: Path, captured: dict,
+                                                         inside: str, sequence: str):
+    with pytest.raises(FileNotFoundError) as err:
+        kitti_frontend(kitti_seq / inside)
+    assert str(err.value).endswith(f"it lies inside the KITTI odometry folder {kitti_seq}: "
+                                   f"give --path {kitti_seq}{sequence}")
+    kitti_frontend(kitti_seq, KittiParams(sequence=sequence.split()[-1] if sequence else None))
+    assert captured["n"] == N_KITTI  # the suggestion works
+
+
+def test_kitti_path_elsewhere_says_what_layout_it_expected(tmp_path: Path, mav: Path):
+    with pytest.raises(FileNotFoundError, match=r"no 'sequences' folder \(expected the KITTI "
+                       r"odometry layout, DIR/sequences/NN/image_0/\.\.\.\)$"):
+        kitti_frontend(tmp_path / "mav0" / "imu0")
+    with pytest.raises(FileNotFoundError, match=r"looks like an EuRoC folder \(mav0\): "
+                       r"--source euroc$"):
+        kitti_frontend(mav.parent)
+    with pytest.raises(FileNotFoundError, match=r"nowhere: no such folder$"):
+        kitti_frontend(tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("inside", ["mav0/cam0", "mav0/cam0/data", "mav0/imu0"])
+def test_euroc_path_inside_the_dataset_suggests_its_root(mav: Path, captured: dict,
+                                                         inside: str):
+    root = mav.parent
+    with pytest.raises(FileNotFoundError, match=rf"{inside}: lies inside the EuRoC folder "
+                       rf"{root}: give --path {root} \(the folder holding mav0/\)$"):
+        euroc_frontend(root / inside)
+    euroc_frontend(mav)  # mav0 itself is accepted as before
+    assert captured["n"] == N_EUROC
+
+
+def test_euroc_path_elsewhere_says_what_layout_it_expected(kitti_seq: Path):
+    with pytest.raises(FileNotFoundError, match=r"no 'mav0' folder \(expected the EuRoC ASL "
+                       r"layout, DIR/mav0/cam0/\.\.\.\); it looks like a KITTI odometry folder "
+                       r"\(sequences/\): --source kitti$"):
+        euroc_frontend(kitti_seq)

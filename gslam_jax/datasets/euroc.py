@@ -42,7 +42,7 @@ from gslam_jax.vo.geometry import invert, make_transform, pose_to_2d
 from gslam_jax.vo.localmap import localmap_params
 
 __all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "quat_to_matrix",
-           "euroc_frontend", "load_euroc"]
+           "find_mav0", "euroc_frontend", "load_euroc"]
 
 
 @dataclass(frozen=True)
@@ -255,6 +255,28 @@ def _ground_truth(path: Path, ts: np.ndarray) -> np.ndarray:
     return poses
 
 
+def find_mav0(root: str | Path) -> Path:
+    """The ``mav0`` folder of an EuRoC ASL folder ``root`` (``root`` itself where it holds
+    ``cam0``). FileNotFoundError otherwise: one suggesting the dataset's root where ``root``
+    lies inside it (e.g. at ``mav0/cam0``), or a KITTI layout's source."""
+    root = Path(root)
+    if (root / "mav0").is_dir():
+        return root / "mav0"
+    if (root / "cam0").is_dir():
+        return root
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: no such folder")
+    for up in root.absolute().parents[:4]:
+        if up.name == "mav0" or (up / "mav0").is_dir():
+            top = up.parent if up.name == "mav0" else up
+            raise FileNotFoundError(f"{root}: lies inside the EuRoC folder {top}: give --path "
+                                    f"{top} (the folder holding mav0/)")
+    hint = ("; it looks like a KITTI odometry folder (sequences/): --source kitti"
+            if (root / "sequences").is_dir() else "")
+    raise FileNotFoundError(f"{root}: no 'mav0' folder (expected the EuRoC ASL layout, "
+                            f"DIR/mav0/cam0/...){hint}")
+
+
 def euroc_frontend(root: str | Path, params: EurocParams = EurocParams(), *,
                    progress: Callable[[int, int], None] | None = None) -> FrontEndResult:
     """Run the stereo front-end over an EuRoC ASL folder (``root`` holds ``mav0``).
@@ -267,7 +289,7 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams(), *,
     covers only some frames (NaN rows for the others) or none (the run has no ground truth), and
     when the gyro is not still in the gravity window (no bias removed); see the module docstring.
     """
-    mav = Path(root) / "mav0" if (Path(root) / "mav0").is_dir() else Path(root)
+    mav = find_mav0(root)
     cam0, cam1 = (read_sensor_yaml(mav / c / "sensor.yaml") for c in ("cam0", "cam1"))
     rig = euroc_rig(cam0, cam1)
     if params.max_frames is not None and params.max_frames < 1:

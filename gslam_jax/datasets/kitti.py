@@ -126,7 +126,8 @@ def read_table(path: Path, columns: int, delimiter: str | None = None, *, at_lea
             try:
                 stamps.append(int(fields[0]))
             except ValueError:
-                raise DatasetError(f"{path}:{n}: {fields[0]!r} is not an integer timestamp") from None
+                raise DatasetError(f"{path}:{n}: {fields[0]!r} is not an integer "
+                                   "timestamp") from None
         rows.append(row)
         lines.append(n)
     if not rows:
@@ -193,16 +194,35 @@ def camera_poses(path: np.ndarray, start: np.ndarray, frame: KittiFrame) -> np.n
     return frame.first_camera @ invert(t_rc) @ invert(s0) @ planar @ t_rc
 
 
+def _dataset_root_hint(root: Path) -> str:
+    """Where a ``root`` without ``sequences/`` lies: inside a KITTI odometry folder (e.g. at
+    ``sequences/00`` or ``poses``: its root and sequence to give instead), or at an EuRoC
+    folder; '' when neither."""
+    here = root.absolute()
+    for up in here.parents[:4]:
+        if (up / "sequences").is_dir():
+            rel = here.relative_to(up).parts
+            seq = f" --sequence {rel[1]}" if len(rel) > 1 and rel[0] == "sequences" else ""
+            return f"; it lies inside the KITTI odometry folder {up}: give --path {up}{seq}"
+    if (root / "mav0").is_dir() or root.name == "mav0":
+        return "; it looks like an EuRoC folder (mav0): --source euroc"
+    return ""
+
+
 def find_sequence(root: Path, sequence: str | None) -> Path:
     """The folder ``root/sequences/<sequence>``; with ``sequence`` None, the only folder there
     (none or several: a DatasetError listing them, asking for ``--sequence NN`` /
-    ``KittiParams(sequence=...)``)."""
+    ``KittiParams(sequence=...)``). A sequence that is not there is a FileNotFoundError listing
+    those that are; a ``root`` inside a KITTI folder one suggesting its root."""
     root = Path(root)
     seqs = root / "sequences"
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: no such folder")
     if not seqs.is_dir():
-        raise FileNotFoundError(f"{root}: no 'sequences' folder (expected the KITTI odometry layout)")
+        raise FileNotFoundError(f"{root}: no 'sequences' folder (expected the KITTI odometry "
+                                f"layout, DIR/sequences/NN/image_0/...){_dataset_root_hint(root)}")
+    found = sorted(p.name for p in seqs.iterdir() if p.is_dir())
     if sequence is None:
-        found = sorted(p.name for p in seqs.iterdir() if p.is_dir())
         if not found:
             raise DatasetError(f"{seqs}: no sequence folders")
         if len(found) > 1:
@@ -211,7 +231,8 @@ def find_sequence(root: Path, sequence: str | None) -> Path:
         sequence = found[0]
     path = seqs / sequence
     if not path.is_dir():
-        raise FileNotFoundError(f"{path}: no such sequence")
+        held = f"holds {', '.join(found)}" if found else "holds no sequence folders"
+        raise FileNotFoundError(f"{path}: no such sequence; {seqs} {held}")
     return path
 
 
