@@ -455,6 +455,7 @@ class SlamResult(NamedTuple):
     map_bytes: int = 0         # bytes the map store allocates (dense maps, or the tile pool)
     map_peak_bytes: int = 0    # most bytes the maps held at once (shared: live tiles + tables)
     estimate: str = "best"     # [filter] estimate: which trajectory ``path`` is
+    compile_frames: int = 0    # frames run in the first chunk, timed with the compilation
 
     @property
     def path(self) -> np.ndarray:
@@ -579,5 +580,6 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         exponent=infos.exponent, kmap=np.asarray(kmap), smap=np.asarray(smap),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
         empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
-        compile_seconds=compile_s, store=cfg.store, map_bytes=maps.map_bytes(cfg),
+        compile_seconds=compile_s, compile_frames=min(chunk, T), store=cfg.store,
+        map_bytes=maps.map_bytes(cfg),
         map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate)

@@ -81,16 +81,6 @@ def local_maps_used(run) -> int:
     return int(np.unique(index[index >= 0]).size)
 
 
-def _first_chunk_frames(frames: int) -> int:
-    """The frames of the filter's first chunk, timed with its compilation (``compile_seconds``):
-    ``slam.run_slam``'s default ``chunk``, as the pipeline runs it."""
-    import inspect
-
-    from gslam_jax.slam import run_slam
-
-    return min(frames, int(inspect.signature(run_slam).parameters["chunk"].default))
-
-
 def summarise(run, result, config: Config, description: str) -> dict:
     """The figures of ``summary.json`` (without the GPS figures). With ground truth that moved
     less than MIN_DRIFT_DISTANCE there is no drift percentage and no ``motion_fit``; a
@@ -111,7 +101,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "vo_failures": int(np.sum(run.vo_failed)) if run.vo_failed is not None else 0,
         "filter_seconds": result.seconds,
         "compile_seconds": result.compile_seconds,
-        "compile_frames": _first_chunk_frames(run.num_frames),
+        "compile_frames": result.compile_frames,
     }
     if run.ground_truth is not None:
         paths = {"vo": result.vo_path, "slam": result.path}
