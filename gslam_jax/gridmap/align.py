@@ -42,7 +42,7 @@ import numpy as np
 from jax import Array, lax
 
 from gslam_jax.errors import InputError
-from gslam_jax.gridmap.grid import GridMap, known_cells
+from gslam_jax.gridmap.grid import GridMap, compose, invert_pose, known_cells
 from gslam_jax.rbpf import cells
 from gslam_jax.rbpf.proposal import candidate_grid, quadratic_design, quadratic_hessian
 
@@ -69,6 +69,11 @@ class AlignParams(NamedTuple):
         position or heading.
     max_std_m, max_std_rad: the largest standard deviation of the fitted pose accepted (a flat
         score along some direction is refused).
+    budget: cell evaluations the coarsest level's exhaustive search may cost.
+    mutual: also align A onto B; the two placements must agree (composed, within
+        ``max_cycle_m`` and ``max_cycle_rad``). A map broken by its own run (walls doubled by a
+        diverged filter) can score best at a wrong placement in a repetitive scene; the reverse
+        search then finds another, and the merge is refused instead of made wrong.
     """
 
     max_dof: int = 8
@@ -82,6 +87,9 @@ class AlignParams(NamedTuple):
     max_std_m: float = 0.5
     max_std_rad: float = math.radians(2.0)
     budget: float = 4e8
+    mutual: bool = True
+    max_cycle_m: float = 0.5
+    max_cycle_rad: float = math.radians(2.0)
 
 
 class PosePrior(NamedTuple):
@@ -97,7 +105,8 @@ class Alignment(NamedTuple):
     """B's frame in A's frame: pose [3] (x, y, theta) and its covariance [3, 3]; the score
     (sum of log-likelihood ratios, see the module) and its z; the fine cells of B that landed
     on A's known cells; the best distinct runner-up (pose, score, z; NaN when none); the
-    coarse level used."""
+    coarse level used; how far the reverse alignment (A onto B), composed with this one, is
+    from the identity (NaN when not checked)."""
 
     pose: np.ndarray
     covariance: np.ndarray
@@ -108,6 +117,8 @@ class Alignment(NamedTuple):
     runner_up_score: float
     runner_up_z: float
     coarse: int
+    cycle_m: float = math.nan
+    cycle_rad: float = math.nan
 
     def summary(self) -> dict:
         std = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
@@ -119,7 +130,8 @@ class Alignment(NamedTuple):
                 "score": self.score, "z": self.z, "overlap_cells": self.overlap,
                 "runner_up_pose": [float(v) for v in self.runner_up_pose],
                 "runner_up_score": self.runner_up_score, "runner_up_z": self.runner_up_z,
-                "coarse_level": self.coarse}
+                "coarse_level": self.coarse, "cycle_error_m": self.cycle_m,
+                "cycle_error_deg": math.degrees(self.cycle_rad)}
 
 
 class AlignmentRefused(InputError):
@@ -491,9 +503,11 @@ def _choose_coarse(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrior
 def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
                prior: PosePrior | None = None, refuse: bool = True) -> Alignment:
     """The pose of B's frame in A's frame that best places B's map on A's (the module's
-    score), with its covariance and the best distinct runner-up. With ``refuse`` (default) an
-    overlap too small, a match too weak or ambiguous, or a flat score raises
-    ``AlignmentRefused`` naming the figures; otherwise the alignment is returned as found."""
+    score), with its covariance and the best distinct runner-up; with ``params.mutual`` A is
+    aligned onto B as well (under the inverse prior's mean, its covariance taken as it is) and
+    the disagreement of the two recorded. With ``refuse`` (default) an overlap too small, a
+    match too weak, ambiguous or not mutual, or a flat score raises ``AlignmentRefused`` naming
+    the figures; otherwise the alignment is returned as found."""
     if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
         raise InputError(f"the maps have different resolutions ({a.resolution} m and "
                          f"{b.resolution} m); align maps built with one [map] resolution")
@@ -539,6 +553,16 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
         runner_up_z=float(z[runner]) if runner else math.nan, coarse=factor)
     if refuse:
         check_alignment(result, params)
+    if params.mutual:
+        reverse_prior = None if prior is None else PosePrior(
+            invert_pose(prior.mean), prior.cov)
+        back = align_maps(b, a, params._replace(mutual=False), prior=reverse_prior,
+                          refuse=False)
+        cycle = compose(result.pose, back.pose)
+        result = result._replace(cycle_m=float(math.hypot(cycle[0], cycle[1])),
+                                 cycle_rad=float(abs(cycle[2])))
+        if refuse:
+            check_alignment(result, params)
     return result
 
 
@@ -555,6 +579,11 @@ def check_alignment(al: Alignment, params: AlignParams = AlignParams()) -> None:
         rp = al.runner_up_pose
         why = (f"the match is ambiguous: a distinct placement at ({rp[0]:.2f} m, {rp[1]:.2f} m, "
                f"{math.degrees(rp[2]):.1f} deg) scores within {params.min_gap_z:g} in z")
+    elif not (al.cycle_m <= params.max_cycle_m and al.cycle_rad <= params.max_cycle_rad) \
+            and math.isfinite(al.cycle_m):
+        why = (f"the alignment is not mutual: aligning A onto B places it {al.cycle_m:.2f} m "
+               f"and {math.degrees(al.cycle_rad):.1f} deg from the inverse (one of the maps may "
+               "be inconsistent in itself)")
     elif not (np.all(std[:2] <= params.max_std_m) and std[2] <= params.max_std_rad):
         why = (f"the score is flat along some direction (std {std[0]:.2f} m, {std[1]:.2f} m, "
                f"{math.degrees(std[2]):.2f} deg)")
