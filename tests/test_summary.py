@@ -79,3 +79,11 @@ def test_the_timing_line_of_a_longer_run_times_the_frames_after_the_first_chunk(
     assert line == ("filter: 3.0 s for 1488 frames (2 ms a frame) after 6.0 s for compilation "
                     "and the first 512 frames")
 
+
+
+def test_the_real_time_factor_is_log_time_over_compute(parked):
+    summary, printed = parked
+    assert summary["log_seconds"] == pytest.approx(2.9)  # 30 frames, 0.1 s apart
+    compute = summary["filter_seconds"] + summary["compile_seconds"]
+    assert summary["realtime_factor"] == pytest.approx(2.9 / compute)
+    assert f"real-time factor {summary['realtime_factor']:.2g}: 2.9 s of log" in printed

@@ -101,6 +101,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "vo_failures": int(np.sum(run.vo_failed)) if run.vo_failed is not None else 0,
         "filter_seconds": result.seconds,
         "compile_seconds": result.compile_seconds,
+        **_realtime(run, result),
         "compile_frames": result.compile_frames,
     }
     if run.ground_truth is not None:
@@ -191,6 +192,15 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
 MOTION_NOISE_TOLERANCE = 3.0
 
 
+def _realtime(run, result) -> dict:
+    """``log_seconds`` (the run's time span) and ``realtime_factor``: seconds of log per
+    second of filter compute, compilation included (what a robot's first run costs)."""
+    t = np.asarray(run.timestamps, np.float64)
+    span = float(t[-1] - t[0]) if t.size else 0.0
+    compute = result.seconds + result.compile_seconds
+    return {"log_seconds": span, "realtime_factor": span / compute if compute > 0 else None}
+
+
 def timing_text(summary: dict) -> str:
     """The filter's time: the first chunk of frames (``compile_frames``) is timed together with
     the compilation, the rest (``filter_seconds``) without it."""
@@ -233,6 +243,10 @@ def print_summary(summary: dict, run, result) -> None:
                   f"{fit['alpha_theta']:.2g}); `gslam fit-motion` writes a config with them")
     print(f"resampling events: {summary['resampling_events']}")
     print(timing_text(summary))
+    if summary.get("realtime_factor") is not None:
+        compute = summary["filter_seconds"] + summary["compile_seconds"]
+        print(f"real-time factor {summary['realtime_factor']:.2g}: {summary['log_seconds']:.1f} s "
+              f"of log in {compute:.1f} s of filter compute, compilation included")
     if result.extent_violations:
         print(f"WARNING: {result.extent_violations} particle updates reached the map edge")
     used, total = summary["local_maps_used"], summary["local_maps"]
