@@ -223,6 +223,7 @@ def main(argv: list[str] | None = None) -> dict:
                    "std_m": float(math.hypot(std[0], std[1])),
                    "std_deg": math.degrees(float(std[2])), "z": al.z,
                    "runner_up_z": al.runner_up_z, "overlap": al.overlap, "refused": refused,
+                   "cycle_m": al.cycle_m, "cycle_deg": math.degrees(al.cycle_rad),
                    "gps_error_m": gdist, "gps_error_deg": ghead, "seconds": seconds, **corr}
             report["trials"].append(row)
             print(json.dumps(row), flush=True)
