@@ -36,6 +36,7 @@ from gslam_jax.gps.georeference import gps_input
 from gslam_jax.gridmap import GridMap, add, compose, invert_pose, transform
 from gslam_jax.gridmap.align import AlignmentRefused, align_maps, check_alignment
 from gslam_jax.machine import environment
+from gslam_jax.metrics import rigid_fit_2d
 from gslam_jax.vo.localmap import localmap_params
 
 
@@ -56,15 +57,9 @@ def _gps_frame(run, result, seed: int) -> np.ndarray:
 
 def _path_fit(path_a: np.ndarray, path_b: np.ndarray) -> np.ndarray:
     """The pose of B's frame in A's that best lays B's estimated path on A's, frame by frame
-    (both drive the same true poses): least-squares rigid fit (Kabsch) of the positions."""
-    pa, pb = np.asarray(path_a, np.float64)[:, :2], np.asarray(path_b, np.float64)[:, :2]
-    ca, cb = pa.mean(axis=0), pb.mean(axis=0)
-    u, _, vt = np.linalg.svd((pb - cb).T @ (pa - ca))
-    R = (u @ vt).T
-    if np.linalg.det(R) < 0:
-        R = (u @ np.diag([1.0, -1.0]) @ vt).T
-    t = ca - R @ cb
-    return np.array([t[0], t[1], math.atan2(R[1, 0], R[0, 0])])
+    (both drive the same true poses): ``metrics.rigid_fit_2d`` of the positions."""
+    fit = rigid_fit_2d(path_b, path_a)
+    return np.array([fit.translation[0], fit.translation[1], fit.angle])
 
 
 def _cell_error(grid_b: GridMap, est: np.ndarray, truth: np.ndarray) -> float:
