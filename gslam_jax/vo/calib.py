@@ -8,6 +8,7 @@ EuRoC ships raw images with a radial-tangential model (``from_raw``).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import cv2
@@ -15,7 +16,11 @@ import numpy as np
 
 from gslam_jax.errors import InputError
 
-__all__ = ["CalibrationError", "RectifiedRig", "ImageError"]
+__all__ = ["CalibrationError", "CameraModel", "RectifiedRig", "ImageError", "DISTORTION_MODELS"]
+
+# ROS distortion_model names and how many coefficients D holds for each (None: any of 4, 5, 8,
+# 12 or 14, as OpenCV reads them).
+DISTORTION_MODELS = {"plumb_bob": None, "rational_polynomial": None, "equidistant": 4}
 
 
 class CalibrationError(InputError):
@@ -24,6 +29,67 @@ class CalibrationError(InputError):
 
 class ImageError(InputError):
     """An image is missing, unreadable or of the wrong size; the message names the file/frame."""
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """One camera of a stereo pair as ROS and OpenCV describe it: raw intrinsics ``k`` (3x3),
+    distortion ``d``, the rectifying rotation ``r`` (3x3, raw camera to rectified) and the
+    rectified projection ``p`` (3x4; the right camera's ``p[0, 3]`` is ``-fx * baseline``),
+    for images of ``size`` (width, height)."""
+
+    k: np.ndarray
+    d: np.ndarray
+    r: np.ndarray
+    p: np.ndarray
+    size: tuple[int, int]
+    distortion_model: str = "plumb_bob"
+
+    def check(self, where: str) -> None:
+        """CalibrationError naming ``where`` and the field for a wrong shape or value."""
+        shapes = {"K": (self.k, (3, 3)), "R": (self.r, (3, 3)), "P": (self.p, (3, 4))}
+        for name, (a, shape) in shapes.items():
+            a = np.asarray(a, float)
+            if a.shape != shape:
+                raise CalibrationError(f"{where}: field {name!r} must be {shape[0]}x{shape[1]}, "
+                                       f"got shape {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise CalibrationError(f"{where}: field {name!r} has a non-finite entry")
+        if self.distortion_model not in DISTORTION_MODELS:
+            raise CalibrationError(f"{where}: distortion_model {self.distortion_model!r} is not "
+                                   f"supported ({', '.join(DISTORTION_MODELS)})")
+        d = np.asarray(self.d, float).ravel()
+        wanted = DISTORTION_MODELS[self.distortion_model]
+        allowed = (wanted,) if wanted else (0, 4, 5, 8, 12, 14)
+        if d.size not in allowed and not (d.size and not d.any()):
+            raise CalibrationError(f"{where}: field 'D' has {d.size} coefficients; "
+                                   f"{self.distortion_model} takes "
+                                   f"{' or '.join(map(str, allowed))}")
+        if not np.all(np.isfinite(d)):
+            raise CalibrationError(f"{where}: field 'D' has a non-finite entry")
+        if not (np.asarray(self.k, float)[0, 0] > 0 and np.asarray(self.k, float)[1, 1] > 0):
+            raise CalibrationError(f"{where}: field 'K': focal lengths must be positive")
+        r = np.asarray(self.r, float)
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-5) or np.linalg.det(r) < 0:
+            raise CalibrationError(f"{where}: field 'R' is not a rotation (R R^T != I or det < 0)")
+        if not (int(self.size[0]) > 0 and int(self.size[1]) > 0):
+            raise CalibrationError(f"{where}: image size must be positive, got {self.size}")
+
+    @property
+    def rectified(self) -> bool:
+        """The images are already rectified: no distortion and no rectifying rotation."""
+        return (not np.asarray(self.d, float).any()
+                and np.allclose(np.asarray(self.r, float), np.eye(3), atol=1e-9))
+
+    def remap_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """``cv2.remap`` tables (x, y) taking a raw image to the rectified one."""
+        k, d = np.asarray(self.k, float), np.asarray(self.d, float).ravel()
+        r, p = np.asarray(self.r, float), np.asarray(self.p, float)[:, :3]
+        size = (int(self.size[0]), int(self.size[1]))
+        if self.distortion_model == "equidistant":
+            return cv2.fisheye.initUndistortRectifyMap(k, d.reshape(4, 1), r, p, size,
+                                                       cv2.CV_32FC1)
+        return cv2.initUndistortRectifyMap(k, d, r, p, size, cv2.CV_32FC1)
 
 
 @dataclass(frozen=True)
@@ -107,6 +173,28 @@ class RectifiedRig:
                 *cv2.initUndistortRectifyMap(k1, d1, r1, p1, size, cv2.CV_32FC1))
         return cls(fx=fx, fy=p0[1, 1], cx=p0[0, 2], cy=p0[1, 2],
                    baseline=baseline, size=size, r_left=r0, maps=maps)
+
+    @classmethod
+    def from_rectification(cls, left: "CameraModel", right: "CameraModel",
+                           source: str = "<calibration>") -> "RectifiedRig":
+        """From each camera's raw intrinsics K, distortion D, rectifying rotation R and rectified
+        projection P (ROS ``sensor_msgs/CameraInfo``, OpenCV/ROS calibration YAML).
+
+        Images whose D is zero and R the identity are taken as already rectified (no remap);
+        otherwise remap tables are built with ``cv2.initUndistortRectifyMap`` (radial-tangential
+        models) or ``cv2.fisheye.initUndistortRectifyMap`` (``equidistant``). The baseline is
+        ``-P_right[0, 3] / P_right[0, 0]`` (as :meth:`from_projections`).
+        """
+        if left.size != right.size:
+            raise CalibrationError(f"{source}: the cameras' image sizes differ "
+                                   f"({left.size} and {right.size})")
+        for name, cam in (("left", left), ("right", right)):
+            cam.check(f"{source}: {name}")
+        rig = cls.from_projections(left.p, right.p, left.size, source)
+        if all(cam.rectified for cam in (left, right)):
+            return rig
+        maps = (*left.remap_tables(), *right.remap_tables())
+        return dataclasses.replace(rig, r_left=np.asarray(left.r, float), maps=maps)
 
     def rectify(self, left: np.ndarray, right: np.ndarray,
                 frame: str = "") -> tuple[np.ndarray, np.ndarray]:
