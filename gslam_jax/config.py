@@ -17,11 +17,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from gslam_jax import choices
 from gslam_jax.errors import InputError
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
-           "StereoSection", "Config", "read_toml", "load_config", "parse_config",
+           "StereoSection", "RigSection", "Config", "read_toml", "load_config", "parse_config",
            "apply_overrides", "section_to_toml", "config_to_toml", "load_table_config",
            "layered_config"]
 
@@ -122,12 +124,62 @@ class StereoSection:
 
 
 @dataclass(frozen=True)
+class RigSection:
+    """The camera mount of the image sources (kitti, euroc, sim-stereo, stereo;
+    ``datasets.mount.camera_mount``): the left camera on the robot (x forward, y left, z up,
+    origin on the ground under the robot). ``height`` (m, camera above the ground), ``pitch``
+    (deg, nose down positive), ``roll`` (deg, about the forward axis, right side down
+    positive), ``yaw`` (deg, left positive), ``forward`` and ``lateral`` (m, robot x and y);
+    or ``matrix``, the full 4x4 camera-to-robot transform (16 numbers, or 4 rows of 4), not
+    both. 0 or empty keeps the source's own value (KITTI: 1.65 m, level)."""
+
+    height: float = 0.0
+    pitch: float = 0.0
+    roll: float = 0.0
+    yaw: float = 0.0
+    forward: float = 0.0
+    lateral: float = 0.0
+    matrix: tuple[float, ...] = ()
+
+    def is_default(self) -> bool:
+        return self == RigSection()
+
+    def given(self) -> list[str]:
+        """The keys set (not 0 or empty), in declaration order."""
+        return [f.name for f in dataclasses.fields(self) if getattr(self, f.name)]
+
+    def check(self) -> tuple[str, str] | None:
+        """(key, problem) of the first bad value, or None."""
+        if not self.height >= 0:
+            return "height", "must be >= 0 (0: the source's own)"
+        for key, limit in (("pitch", 90.0), ("roll", 180.0), ("yaw", 180.0)):
+            if not abs(getattr(self, key)) <= limit:
+                return key, f"must be in [-{limit:g}, {limit:g}] degrees (0: the source's own)"
+        if not self.matrix:
+            return None
+        others = [k for k in self.given() if k != "matrix"]
+        if others:
+            return "matrix", (f"and {', '.join(others)} are exclusive: give the full 4x4 or "
+                              "the values, not both")
+        m = np.array(self.matrix, float).reshape(4, 4)
+        if not np.all(np.isfinite(m)):
+            return "matrix", "must be finite"
+        if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+            return "matrix", f"bottom row must be [0, 0, 0, 1], got {m[3].tolist()}"
+        r = m[:3, :3]
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+            return "matrix", "rotation part is not a rotation (R R^T != I or det < 0)"
+        return None
+
+
+@dataclass(frozen=True)
 class Config:
     filter: FilterSection = field(default_factory=FilterSection)
     motion: MotionSection = field(default_factory=MotionSection)
     map: MapSection = field(default_factory=MapSection)
     localmap: LocalMapSection = field(default_factory=LocalMapSection)
     stereo: StereoSection = field(default_factory=StereoSection)
+    rig: RigSection = field(default_factory=RigSection)
 
     def validate(self, source: str = "<config>") -> "Config":
         """Check every value; a ConfigError names the source, section and key at fault.
@@ -194,11 +246,14 @@ class Config:
         for ok, section, key, msg in checks:
             if not ok:
                 raise ConfigError(f"{source}: [{section}] {key} {msg}")
+        bad = self.rig.check()
+        if bad is not None:
+            raise ConfigError(f"{source}: [rig] {bad[0]} {bad[1]}")
         return self
 
 
 _SECTION_TYPES = {"filter": FilterSection, "motion": MotionSection, "map": MapSection,
-                  "localmap": LocalMapSection, "stereo": StereoSection}
+                  "localmap": LocalMapSection, "stereo": StereoSection, "rig": RigSection}
 
 
 def _coerce(value: Any, expected: type, where: str) -> Any:
@@ -207,6 +262,15 @@ def _coerce(value: Any, expected: type, where: str) -> Any:
             return float(value)
         except OverflowError:
             raise ConfigError(f"{where}: {value} is too large for a float") from None
+    if expected is tuple:  # a matrix: 16 numbers, or 4 rows of 4 (flattened, row-major)
+        rows = value if isinstance(value, list) else None
+        if rows and all(isinstance(r, list) for r in rows):
+            if len(rows) != 4 or any(len(r) != 4 for r in rows):
+                raise ConfigError(f"{where}: expected 4 rows of 4 numbers")
+            rows = [v for r in rows for v in r]
+        if rows is None or len(rows) not in (0, 16):
+            raise ConfigError(f"{where}: expected 16 numbers or 4 rows of 4, got {value!r}")
+        return tuple(_coerce(v, float, where) for v in rows)
     if expected is int and isinstance(value, bool):
         raise ConfigError(f"{where}: expected int, got bool")
     if not isinstance(value, expected):
@@ -215,7 +279,8 @@ def _coerce(value: Any, expected: type, where: str) -> Any:
     return value
 
 
-def parse_config(data: dict[str, Any], source: str = "<config>", base: Config | None = None) -> Config:
+def parse_config(data: dict[str, Any], source: str = "<config>",
+                 base: Config | None = None) -> Config:
     """Build a Config from a parsed TOML table, checking every section, key and type."""
     base = base or Config()
     sections = {}
@@ -232,7 +297,8 @@ def parse_config(data: dict[str, Any], source: str = "<config>", base: Config | 
             if key not in types:
                 raise ConfigError(f"{source}: unknown key '{key}' in [{name}]; known keys: "
                                   f"{', '.join(types)}")
-            expected = {"int": int, "float": float, "str": str, "bool": bool}[types[key]]
+            expected = {"int": int, "float": float, "str": str, "bool": bool,
+                        "tuple[float, ...]": tuple}[types[key]]
             values[key] = _coerce(value, expected, f"{source}: [{name}] {key}")
         sections[name] = dataclasses.replace(getattr(base, name), **values)
     return dataclasses.replace(base, **sections).validate(source)
@@ -291,6 +357,9 @@ def section_to_toml(config: Config, name: str) -> str:
             lines.append(f'{key} = "{value}"')
         elif isinstance(value, bool):
             lines.append(f"{key} = {'true' if value else 'false'}")
+        elif isinstance(value, tuple):  # a matrix: 4 rows of 4, or []
+            rows = [value[i:i + 4] for i in range(0, len(value), 4)]
+            lines.append(f"{key} = [{', '.join(str(list(r)) for r in rows)}]")
         else:
             lines.append(f"{key} = {value!r}")
     return "\n".join(lines) + "\n"

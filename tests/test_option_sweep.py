@@ -132,6 +132,7 @@ CONFIG_VALID = {
     ("motion", "alpha_theta"): {"0"}, ("localmap", "min_height"): {"-1", "0"},
     ("localmap", "max_height"): {"-1", "0"}, ("localmap", "cells"): {"0"},
     ("stereo", "num_disparities"): {"0"}, ("stereo", "block"): {"0"}, ("stereo", "stride"): {"0"},
+    **{("rig", k): {"0"} for k in ("height", "pitch", "roll", "yaw", "forward", "lateral")},
 }
 
 

@@ -38,7 +38,8 @@ class Source:
 
     ``seed`` is the simulation seed (None: 0); it only applies to simulated sources and to
     ``--gps sim``. ``noise_seed`` (sources that declare ``noise_seed``) draws the VO and sensor
-    noise from another seed than the world and path: the same terrain driven again. ``max_frames`` cuts the sources that declare ``cuts_frames``. A Run file is
+    noise from another seed than the world and path: the same terrain driven again.
+    ``max_frames`` cuts the sources that declare ``cuts_frames``. A Run file is
     ``Source(run_file=path)`` (its source is ``RUN_FILE``).
     """
 
@@ -158,7 +159,7 @@ def _names(predicate: Callable[[DataSource], bool]) -> str:
 def check_source(src: Source, config: Config | None = None, gps: str | None = None) -> None:
     """ConfigError for options the source would silently ignore: source options beside a Run
     file, ``--path``/``--sequence``/``--max-frames`` for a source that takes none, ``--seed``
-    where nothing is simulated, [stereo] settings for a source without images; and for a
+    where nothing is simulated, [stereo] or [rig] settings for a source without images; and for a
     missing ``--path``."""
     spec = src.spec
     if src.run_file is not None:
@@ -191,10 +192,13 @@ def check_source(src: Source, config: Config | None = None, gps: str | None = No
         raise ConfigError(f"--seed {src.seed}: {what} is not simulated, so the simulation seed "
                           "would be ignored; the filter's seed is filter.seed (--set "
                           "filter.seed=N)")
+    images = ', '.join(s for s in source_names() if get_source(s).images)
     if config is not None and not config.stereo.is_default() and not spec.images:
-        raise ConfigError(f"[stereo] settings apply to stereo images (--source "
-                          f"{', '.join(s for s in source_names() if get_source(s).images)}); "
+        raise ConfigError(f"[stereo] settings apply to stereo images (--source {images}); "
                           f"{what} has none")
+    if config is not None and not config.rig.is_default() and not spec.images:
+        raise ConfigError(f"[rig] {', '.join(config.rig.given())}: the camera mount applies to "
+                          f"stereo images (--source {images}); {what} has none")
 
 
 def stereo_settings(config: Config, default: Any) -> Any:
