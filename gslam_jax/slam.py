@@ -31,7 +31,7 @@ __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "
            "obs_settings", "refine_observations", "map_observations", "map_memory", "RunArrays",
            "run_arrays", "ground_truth_mask",
            "require_ground_truth", "SlamResult", "run_slam", "ExtentWarning", "WeightError",
-           "PriorMap", "check_prior", "rebase", "prior_summary", "START_STREAM"]
+           "PriorMap", "check_prior", "rebase", "prior_summary", "START_STREAM", "ChunkReport"]
 
 START_STREAM = 0x57A7  # folded into the filter's key for the start poses drawn around a prior
 
@@ -471,6 +471,20 @@ class SlamResult(NamedTuple):
                        tuple(self.map_origin), float(self.resolution))
 
 
+class ChunkReport(NamedTuple):
+    """What ``run_slam`` hands its ``on_chunk`` callback after each chunk of frames: host
+    values, except ``state``, which is donated to the next chunk's scan (use it within the
+    call, e.g. ``rbpf.particle_map(state, int(state.best), cfg)`` for the best map so far)."""
+
+    run: Run                 # the run being filtered (rebased onto a prior map's start)
+    start: int               # the chunk's first frame
+    info: rbpf.StepInfo      # per frame of the chunk: particle poses [n, J, 3], ess [n], ...
+    best_pose: np.ndarray    # [n, 3] highest-weight particle per frame
+    mean_pose: np.ndarray    # [n, 3] weighted mean per frame
+    state: rbpf.FilterState  # after the chunk's last frame
+    cfg: rbpf.FilterConfig
+
+
 def _prior_state(prior: PriorMap, cfg: rbpf.FilterConfig, key: jax.Array) -> rbpf.FilterState:
     """The filter's start with a prior map: the prior placed on the filter's grid in every
     particle's map, the particles at ``prior.start`` spread by ``prior.start_sigma`` (drawn
@@ -505,11 +519,13 @@ def prior_summary(prior: PriorMap, result: SlamResult) -> dict:
 
 def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | None = None,
              chunk: int = 512, key: jax.Array | None = None,
-             prior: PriorMap | None = None) -> SlamResult:
+             prior: PriorMap | None = None,
+             on_chunk: Callable[[ChunkReport], None] | None = None) -> SlamResult:
     """Run the filter over a whole Run in chunks of frames (same numbers as one scan).
 
     Chunking bounds the per-frame outputs held on device and lets ``progress(done, total)``
-    report; the per-frame PRNG keys are fixed up front, so results do not depend on ``chunk``.
+    and ``on_chunk(ChunkReport)`` (e.g. ``app.viewer``) report; the per-frame PRNG keys are
+    fixed up front, so results do not depend on ``chunk``.
     Raises ConfigError when the particle maps would not fit in memory (before allocating
     them), RunError when a local map's observation is not finite in float32
     (``local_observations``) and WeightError, naming the first frame and its local map, when
@@ -541,7 +557,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         state = _prior_state(prior, cfg, key)
     outputs = []
     t0 = time.perf_counter()
-    compile_s = 0.0
+    compile_s = hook_s = 0.0
     for start in range(0, T + pad, chunk):
         sl = slice(start, start + chunk)
         c0 = time.perf_counter()
@@ -553,9 +569,14 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         _check_weights(out[0], start, min(chunk, T - start), obs_index)
         _check_map_status(out[0], start, cfg)
         outputs.append(out)
+        if on_chunk is not None:  # its time (e.g. a viewer's logging) is not the filter's
+            h0, n = time.perf_counter(), min(chunk, T - start)
+            on_chunk(ChunkReport(run, start, jax.tree.map(lambda x: x[:n], out[0]),
+                                 out[1][:n], out[2][:n], state, cfg))
+            hook_s += time.perf_counter() - h0
         if progress is not None:
             progress(min(start + chunk, T), T)
-    seconds = time.perf_counter() - t0 - compile_s
+    seconds = time.perf_counter() - t0 - compile_s - hook_s
     infos = jax.tree.map(lambda *xs: np.concatenate(xs)[:T], *[o[0] for o in outputs])
     best = np.concatenate([o[1] for o in outputs])[:T]
     mean = np.concatenate([o[2] for o in outputs])[:T]

@@ -141,13 +141,17 @@ def load_prior(path: Path, start, start_sigma, config: Config):
 
 def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
                  overwrite: bool = False, gps: str | None = None, save_run: Path | None = None,
-                 progress: ProgressFactory | None = None, prior=None) -> tuple[Path, dict]:
+                 progress: ProgressFactory | None = None, prior=None,
+                 on_chunk: Callable | None = None, chunk: int | None = None
+                 ) -> tuple[Path, dict]:
     """``gslam run``: check every input, load the source, run Gamma-SLAM, write the results.
 
     Everything that can be checked before the work is (source options, local-map size, the
     results folder and ``save_run`` being writable, the GPS log); the results appear under
     ``out`` only when complete (``results.results_folder``). Returns (folder, summary). With a
     ``prior`` map (``load_prior``) the run starts in it and the results are in its frame.
+    ``on_chunk`` and ``chunk`` go to ``slam.run_slam`` (e.g. ``app.viewer``: a callback after
+    every ``chunk`` frames; the results do not depend on ``chunk``).
     """
     from gslam_jax import slam
 
@@ -173,7 +177,8 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
                   f"the first {found['frames']} frames, z {found['z']:.1f} against runner-up "
                   f"{found['runner_up_z']:.1f}); particles spread by "
                   f"{[round(float(v), 3) for v in prior.start_sigma]}")
-        result = slam.run_slam(run, config, progress=bar("gamma-slam"), prior=prior)
+        result = slam.run_slam(run, config, progress=bar("gamma-slam"), prior=prior,
+                               on_chunk=on_chunk, **({"chunk": chunk} if chunk else {}))
         if prior is not None:  # the VO-only map and the figures in the prior's frame too
             loaded = loaded._replace(run=slam.rebase(run, prior.start))
         try:

@@ -1,0 +1,194 @@
+"""``gslam view RESULTS_DIR`` and ``gslam run --viewer``: runs shown in the Rerun viewer.
+
+``gslam view`` reads a finished results folder (:func:`read_results`: map.npz, the TUM paths,
+trace.npz) and logs it (``app.viewer``): the paths and the map as they ended, the per-frame
+best and mean poses and ESS on the timelines. ``gslam run --viewer`` / ``--viewer-save`` log
+the run as it goes (:class:`RunWatch`: ``slam.run_slam``'s ``on_chunk``, every
+``--viewer-every`` frames) and, once the results are written, the reported path and the final
+map from the results folder. The particle clouds exist only while the filter runs: ``gslam
+view`` has none.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from gslam_jax.app.viewer import RunViewer, ViewerError, check_viewer, open_viewer
+
+__all__ = ["add_parser", "add_run_arguments", "cmd_view", "ResultsRecord", "read_results",
+           "log_results", "RunWatch", "VIEWER_EVERY"]
+
+VIEWER_EVERY = 50  # frames between the live viewer's path and map updates (filter chunks)
+
+
+class ResultsRecord(NamedTuple):
+    """What ``gslam view`` shows of a results folder (NumPy, the map frame)."""
+
+    name: str
+    times: np.ndarray                  # [T] seconds from the first frame
+    reported: np.ndarray               # [T, 3] trajectory_tum.txt ([filter] estimate)
+    vo: np.ndarray | None              # [T, 3] vo_tum.txt
+    ground_truth: np.ndarray | None    # [T, 3] ground_truth_tum.txt on the frames' times (NaN
+                                       # where unknown)
+    best_pose: np.ndarray | None       # [T, 3] trace.npz
+    mean_pose: np.ndarray | None       # [T, 3] trace.npz
+    ess: np.ndarray | None             # [T] trace.npz
+    std: np.ndarray                    # [nx, ny] the map's expected std (NaN: unobserved)
+    origin: tuple[float, float]
+    resolution: float
+
+
+def _tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    from gslam_jax.gridmap import MapFileError
+    from gslam_jax.io import read_tum
+
+    try:
+        return read_tum(path)
+    except (ValueError, IndexError) as err:
+        raise MapFileError(f"{path}: not a TUM trajectory ({err})") from err
+
+
+def read_results(folder: str | Path) -> ResultsRecord:
+    """The results folder of a ``gslam run``: map.npz and trajectory_tum.txt (required),
+    vo_tum.txt, ground_truth_tum.txt and trace.npz (when present). A MapFileError names a
+    missing or unreadable file; the truth is placed on the frames by its times."""
+    from gslam_jax.gridmap import MapFileError, load_map
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise MapFileError(f"{folder}: not a folder; give a gslam run results folder")
+    grid = load_map(folder)
+    tum = folder / "trajectory_tum.txt"
+    if not tum.is_file():
+        raise MapFileError(f"{folder} has no trajectory_tum.txt: give a gslam run results "
+                           "folder")
+    stamps, reported = _tum(tum)
+    T = len(stamps)
+    vo = gt = best = mean = ess = None
+    if (folder / "vo_tum.txt").is_file():
+        vo = _tum(folder / "vo_tum.txt")[1]
+        if len(vo) != T:
+            raise MapFileError(f"{folder / 'vo_tum.txt'}: {len(vo)} poses, trajectory_tum.txt "
+                               f"has {T}")
+    if (folder / "ground_truth_tum.txt").is_file():
+        gt_t, gt_p = _tum(folder / "ground_truth_tum.txt")
+        gt = np.full((T, 3), np.nan)
+        at = np.searchsorted(stamps, gt_t)
+        ok = (at < T) & (np.abs(stamps[np.minimum(at, T - 1)] - gt_t) < 1e-6)
+        gt[at[ok]] = gt_p[ok]
+    trace = folder / "trace.npz"
+    if trace.is_file():
+        try:
+            with np.load(trace, allow_pickle=False) as data:
+                fields = {k: np.asarray(data[k]) for k in ("best_pose", "mean_pose", "ess")
+                          if k in data.files}
+        except Exception as err:  # zip or format errors: an unreadable file
+            raise MapFileError(f"{trace}: not a readable .npz archive ({err})") from err
+        for key, value in fields.items():
+            if len(value) != T:
+                raise MapFileError(f"{trace}: field '{key}' has {len(value)} frames, "
+                                   f"trajectory_tum.txt has {T}")
+        best, mean, ess = (fields.get(k) for k in ("best_pose", "mean_pose", "ess"))
+    return ResultsRecord(folder.name, stamps - stamps[0], reported, vo, gt, best, mean, ess,
+                         grid.expected_std(), tuple(grid.origin), float(grid.resolution))
+
+
+def log_results(viewer: RunViewer, record: ResultsRecord, live: bool = False) -> None:
+    """Log a finished run: the per-frame poses and ESS (unless ``live``: the run logged them),
+    the paths and the map. Static for ``gslam view``; after a live run at its last frame."""
+    last = len(record.times) - 1
+    frame, time_s = (last, float(record.times[last])) if live else (None, None)
+    if not live and record.best_pose is not None and record.mean_pose is not None:
+        viewer.frames(0, record.times, record.best_pose, record.mean_pose, record.ess)
+    paths = {"reported": record.reported}
+    if not live:
+        paths.update({k: v for k, v in (("vo", record.vo), ("ground_truth", record.ground_truth))
+                      if v is not None})
+    viewer.paths(paths, frame, time_s)
+    viewer.map(record.std, record.origin, record.resolution, frame, time_s)
+
+
+class RunWatch:
+    """The viewer of ``gslam run --viewer / --viewer-save``, or nothing without them: a
+    context manager with ``on_chunk`` and ``chunk`` for ``pipeline.run_pipeline``, then
+    :meth:`finish` with the results folder."""
+
+    def __init__(self, viewer: RunViewer | None = None, every: int = VIEWER_EVERY):
+        self.viewer = viewer
+        self.on_chunk: Callable | None = None if viewer is None else viewer.chunk
+        self.chunk: int | None = None if viewer is None else every
+
+    @classmethod
+    def open(cls, spawn: bool, save: Path | None, every: int | None = None,
+             name: str = "gslam run") -> RunWatch:
+        """Checked before any work (``viewer.check_viewer``), then opened; a RunWatch that
+        does nothing without ``spawn`` or ``save``."""
+        if not spawn and save is None:
+            if every is not None:
+                raise ViewerError("--viewer-every sets the live viewer's updates: give "
+                                  "--viewer or --viewer-save too")
+            return cls()
+        check_viewer(spawn, save)
+        return cls(open_viewer(name, spawn, save), every or VIEWER_EVERY)
+
+    def finish(self, folder: Path) -> None:
+        """The results folder's reported path and map at the last frame, then close."""
+        if self.viewer is not None:
+            log_results(self.viewer, read_results(folder), live=True)
+        self.close()
+
+    def close(self) -> None:
+        """Flush and close the recording (what was logged stays); idempotent."""
+        if self.viewer is not None:
+            self.viewer.close()
+            self.viewer = None
+
+    def __enter__(self) -> RunWatch:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()  # also when the run failed: the recording keeps what it logged
+
+
+def add_run_arguments(p: argparse.ArgumentParser, positive_int) -> None:
+    """``gslam run``'s viewer options."""
+    p.add_argument("--viewer", action="store_true", help="show the run in the Rerun viewer as "
+                   "it goes (particles, best and mean paths, VO path, ground truth, map); needs "
+                   "a display and the extra 'viewer' (pip install 'gslam-jax[viewer]')")
+    p.add_argument("--viewer-save", type=Path, metavar="FILE.rrd", help="write the viewer's "
+                   "recording to this file (headless; open it with `rerun FILE.rrd`)")
+    p.add_argument("--viewer-every", type=positive_int, metavar="N", help="frames between the "
+                   f"viewer's path and map updates (default {VIEWER_EVERY}; the filter runs in "
+                   "chunks of N frames, with the same results)")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("view", help="show a finished run's results folder in the Rerun viewer")
+    p.add_argument("results", type=Path, metavar="RESULTS_DIR",
+                   help="a gslam run results folder")
+    p.add_argument("--save", type=Path, metavar="FILE.rrd", help="write the recording to this "
+                   "file instead of spawning the viewer (headless)")
+    p.set_defaults(func=cmd_view)
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    spawn = args.save is None
+    check_viewer(spawn, args.save, spawn_option="gslam view", save_option="--save")
+    record = read_results(args.results)
+    # summary.json names the run's source, when it is there
+    source = ""
+    try:
+        source = json.loads((args.results / "summary.json").read_text()).get("source", "")
+    except (OSError, ValueError, AttributeError):
+        pass  # no summary (or not one gslam wrote): the folder's name alone
+    viewer = open_viewer(f"{record.name}" + (f": {source}" if source else ""), spawn, args.save)
+    log_results(viewer, record)
+    viewer.close()
+    print(f"{'recording: ' + str(args.save) if args.save else 'sent to the viewer'}: "
+          f"{len(record.times)} frames of {args.results}")
+    return 0
