@@ -18,7 +18,7 @@ from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still
 from gslam_jax.errors import InputError
 from gslam_jax.app.outputs import json_ready  # light too
 from gslam_jax.app.progress import ProgressBar
-from gslam_jax.app import info, merge
+from gslam_jax.app import info, merge, view
 from gslam_jax.app.results import results_folder, writing
 from gslam_jax.datasets.registry import Source, get_source, source_names
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
@@ -142,9 +142,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     elif args.start is not None or args.start_sigma is not None:
         raise ConfigError("--start and --start-sigma place the run in a prior map: give "
                           "--prior-map RUN_A too")
-    out, _ = run_pipeline(_source(args), config, args.out, overwrite=args.overwrite,
-                          gps=args.gps, save_run=args.save_run, progress=ProgressBar,
-                          prior=prior)
+    with view.RunWatch.open(args.viewer, args.viewer_save, args.viewer_every) as watch:
+        out, _ = run_pipeline(_source(args), config, args.out, overwrite=args.overwrite,
+                              gps=args.gps, save_run=args.save_run, progress=ProgressBar,
+                              prior=prior, on_chunk=watch.on_chunk, chunk=watch.chunk)
+        watch.finish(out)
     print(f"results: {out}")
     return 0
 
@@ -329,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "existing, non-empty folder is refused unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace an existing results "
                    "folder --out as a whole once the new results are complete")
+    view.add_run_arguments(p, _positive_int)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("search", help="batched parameter search (vmapped/sharded over sets)")
@@ -447,6 +450,7 @@ def _build_rest(sub) -> None:
     p.set_defaults(func=cmd_table1)
 
     merge.add_parser(sub)
+    view.add_parser(sub)
 
     p = sub.add_parser("compare", help="dense JAX filter vs the tiled copy-on-write reference")
     p.add_argument("run_file", nargs="?", type=Path, help="Run file (default: a simulated course)")
