@@ -56,6 +56,15 @@ def _seed(text: str) -> int:
     return _integer(text, 0, 2 ** 32, "an integer seed", "a seed must be in [0, 2^32)")
 
 
+def _topic(text: str) -> tuple[str, str]:
+    """argparse type: ROLE=NAME (NAME may be empty: none) for --topic."""
+    role, eq, name = text.partition("=")
+    if not eq or not role.strip():
+        raise argparse.ArgumentTypeError(f"expected ROLE=NAME (e.g. left=/cam0/image_raw), "
+                                         f"got {text!r}")
+    return role.strip(), name.strip()
+
+
 def _positive_float(text: str) -> float:
     """argparse type: a finite number > 0 (else a usage error; float() accepts 'nan', 'inf')."""
     try:
@@ -120,7 +129,7 @@ def _source(args: argparse.Namespace) -> Source:
     return Source(run_file=args.run_file, source=args.source, course=args.course,
                   path=args.path, sequence=args.sequence, seed=args.seed,
                   max_frames=args.max_frames, on_bad_frame=args.on_bad_frame,
-                  noise_seed=args.noise_seed)
+                  noise_seed=args.noise_seed, topics=tuple(args.topic or ()))
 
 
 def _load_config(args: argparse.Namespace):
@@ -403,6 +412,12 @@ def _add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-seed", type=_seed, help="draw the VO and sensor noise from this seed "
                    "while the world and path stay those of --seed: the same terrain driven "
                    "again (--source sim; default: --seed)")
+    p.add_argument("--topic", action="append", type=_topic, metavar="ROLE=NAME",
+                   help="the bag topic of a role (--source "
+                   + "/".join(n for n in names if get_source(n).topics)
+                   + "; repeatable): left, right, left_info, right_info, wheel, imu, "
+                   "ground_truth; ROLE= for none (optional roles); default: picked when one "
+                   "topic fits (docs/formats.md)")
     p.add_argument("--max-frames", type=_positive_int, metavar="N",
                    help="use only the first N frames of the source (not with a Run file)")
     p.add_argument("--on-bad-frame", choices=choices.BAD_FRAME_POLICIES, default="error",

@@ -40,7 +40,8 @@ class Source:
     ``--gps sim``. ``noise_seed`` (sources that declare ``noise_seed``) draws the VO and sensor
     noise from another seed than the world and path: the same terrain driven again.
     ``max_frames`` cuts the sources that declare ``cuts_frames``. A Run file is
-    ``Source(run_file=path)`` (its source is ``RUN_FILE``).
+    ``Source(run_file=path)`` (its source is ``RUN_FILE``). ``topics``: (role, topic name)
+    pairs for the sources that declare ``topics`` (``--topic ROLE=NAME``; name '' for none).
     """
 
     run_file: Path | None = None
@@ -52,6 +53,7 @@ class Source:
     max_frames: int | None = None
     on_bad_frame: str = "error"
     noise_seed: int | None = None
+    topics: tuple[tuple[str, str], ...] = ()
 
     @property
     def name(self) -> str:
@@ -97,7 +99,7 @@ class DataSource:
     ``path``: what ``--path`` names for this source (e.g. "KITTI odometry folder"), None when
     it takes no path; ``path_required``: it cannot load without one. ``sequence``: it takes
     ``--sequence``. ``cuts_frames``: ``--max-frames`` applies. ``noise_seed``: it takes
-    ``--noise-seed``. ``load(request, config,
+    ``--noise-seed``. ``topics``: it takes ``--topic ROLE=NAME``. ``load(request, config,
     progress)`` returns the Run (after the front-end for image sources).
     """
 
@@ -111,6 +113,7 @@ class DataSource:
     sequence: bool = False
     cuts_frames: bool = True
     noise_seed: bool = False
+    topics: bool = False
 
 
 def discover(package: ModuleType) -> dict[str, DataSource]:
@@ -168,7 +171,8 @@ def check_source(src: Source, config: Config | None = None, gps: str | None = No
                                         ("--sequence", src.sequence is not None),
                                         ("--course", src.course != Source.course),
                                         ("--max-frames", src.max_frames is not None),
-                                        ("--noise-seed", src.noise_seed is not None)) if given]
+                                        ("--noise-seed", src.noise_seed is not None),
+                                        ("--topic", bool(src.topics))) if given]
         if extra:
             raise ConfigError(f"{src.run_file}: a Run file is used as it is; {', '.join(extra)} "
                               "only apply without one (drop them, or re-create the Run with "
@@ -183,6 +187,9 @@ def check_source(src: Source, config: Config | None = None, gps: str | None = No
         if src.noise_seed is not None and not spec.noise_seed:
             raise ConfigError(f"--noise-seed is for --source {_names(lambda s: s.noise_seed)}, "
                               f"not --source {src.source}")
+        if src.topics and not spec.topics:
+            raise ConfigError(f"--topic is for --source {_names(lambda s: s.topics)}, not "
+                              f"--source {src.source}")
         if src.max_frames is not None and not spec.cuts_frames:
             raise ConfigError(f"--max-frames does not apply to --source {src.source}")
         if src.path is None and spec.path is not None and spec.path_required:
