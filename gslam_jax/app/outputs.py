@@ -147,7 +147,9 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     ground-truth pose, beside the estimate, for evo. ``trajectory_robot_kitti.txt`` is the path
     in KITTI's file layout and this project's robot frame; on KITTI runs
     (``loaded.kitti_frame``) ``trajectory_kitti.txt`` is the path in KITTI's camera frame, that
-    of ``poses/NN.txt`` (``datasets.kitti.camera_poses``). ``summary.json`` is written last."""
+    of ``poses/NN.txt`` (``datasets.kitti.camera_poses``). With GPS, the georeferenced outputs
+    (``georeference.write_gps_outputs``) and ``map_utm.tif`` (``geotiff``, when rasterio is
+    installed). ``summary.json`` is written last."""
     from gslam_jax.config import config_to_toml
     from gslam_jax.io import save_map, write_kitti, write_tum
 
@@ -182,8 +184,11 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
         from gslam_jax.slam import prior_summary
         summary["prior_map"] = prior_summary(prior, result)
     if gps_input is not None:
+        from gslam_jax.app.geotiff import write_run_geotiff
         from gslam_jax.gps import georeference
         summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result, slam_std)
+        summary["gps"].update(write_run_geotiff(out, slam_std, result.kmap, result.map_origin,
+                                                result.resolution))
     _write_json(out / "summary.json", summary)
     return summary
 

@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 __all__ = ["ViewerError", "RunViewer", "require_rerun", "has_display", "check_viewer",
            "open_viewer", "map_rgba", "finite_strips", "STD_RANGE", "INSTALL_HINT"]
 
-INSTALL_HINT = "pip install 'gslam-jax[viewer]' (rerun-sdk)"
+INSTALL_HINT = "pip install 'gslam-jax[viewer]' (rerun-sdk >= 0.41)"
 STD_RANGE = (0.01, 1.0)  # metres: the map figures' colour scale (app.plots), log scale
 MAP_Z = -0.02            # the map lies just below the paths and particles
 _COLOURS = {"best": (230, 60, 60), "mean": (255, 165, 0), "vo": (150, 150, 150),
@@ -61,6 +61,9 @@ def require_rerun(option: str = "--viewer") -> Any:
     except ImportError as err:
         raise ViewerError(f"{option} needs the optional extra 'viewer': {INSTALL_HINT} "
                           f"({err})") from None
+    if not hasattr(rerun, "GridMap"):  # the map's archetype; the rest is older
+        raise ViewerError(f"{option}: rerun-sdk {getattr(rerun, '__version__', '?')} is too "
+                          f"old: {INSTALL_HINT}")
     return rerun
 
 
