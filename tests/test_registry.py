@@ -15,11 +15,12 @@ from gslam_jax.datasets.registry import RUN_FILE, Source, check_source, get_sour
 
 def test_every_dataset_module_with_a_source_is_registered():
     names = set(registry.sources())
-    assert names == {"sim", "sim-path", "sim-stereo", "kitti", "euroc", RUN_FILE}
+    assert names == {"sim", "sim-path", "sim-stereo", "kitti", "euroc", "stereo", RUN_FILE}
     assert RUN_FILE not in registry.source_names()  # the positional argument, not --source
     flags = {n: (s.simulated, s.images) for n, s in registry.sources().items()}
     assert flags == {"sim": (True, False), "sim-path": (True, False), "sim-stereo": (True, True),
-                     "kitti": (False, True), "euroc": (False, True), RUN_FILE: (False, False)}
+                     "kitti": (False, True), "euroc": (False, True), "stereo": (False, True),
+                     RUN_FILE: (False, False)}
 
 
 def test_a_new_module_with_a_source_is_found_without_touching_another_file(tmp_path,

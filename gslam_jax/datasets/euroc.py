@@ -5,7 +5,9 @@ The raw images are distorted (radial-tangential) and unrectified; rectification 
 two ``sensor.yaml`` files (intrinsics, distortion, T_BS). The robot frame is fixed to the body at
 frame 0: z up along the mean accelerometer reading (gravity), x forward along the cam0 optical
 axis made horizontal, origin ``height`` metres below the body (ground-truth z at the first frame
-with ground truth when there is any, else 0). The IMU supplies the gravity vector for tilt
+with ground truth when there is any, else 0). That makes cam0's default mount; the config's
+[rig] changes it (``datasets.mount.camera_mount``, ``EurocParams.mount``), and the robot frame
+(ground truth, IMU axes) follows the mount given. The IMU supplies the gravity vector for tilt
 correction and gyro yaw increments for the VO fallback; the robot must stand still for
 ``gravity_window`` seconds from the first frame, where "up" (mean accelerometer) and the gyro bias
 (mean gyro, subtracted before integrating yaw) are estimated. The bias is only removed when the
@@ -21,17 +23,17 @@ frames the first min(n0, n1) pairs are used (a warning names both counts).
 
 from __future__ import annotations
 
-import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-import cv2
 import numpy as np
 
 from gslam_jax.config import Config
+from gslam_jax.datasets.calib_yaml import numbers, open_yaml
 from gslam_jax.datasets.kitti import first_not_increasing, read_image, read_table
+from gslam_jax.datasets.mount import camera_mount
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.errors import DatasetError
 from gslam_jax.run import Run
@@ -56,7 +58,11 @@ class EurocParams:
     the norm of its per-axis standard deviation below ``gyro_still`` (rad/s) and the norm of the
     mean itself below ``max_gyro_bias`` (rad/s; the EuRoC ADIS16448 bias is about 0.08). A steady
     rotation at the start passes the accelerometer test but not these; then no bias is removed
-    and a warning names ``imu0/data.csv``."""
+    and a warning names ``imu0/data.csv``.
+
+    mount: None, or a function of the default mount of raw cam0 (4x4, camera to robot, as
+    computed above) returning the one to use instead (``gslam run``: the config's [rig]
+    through ``datasets.mount.camera_mount``)."""
 
     max_frames: int | None = None
     height: float | None = None
@@ -64,6 +70,7 @@ class EurocParams:
     gyro_still: float = 0.02
     max_gyro_bias: float = 0.12
     frontend: FrontEndParams = field(default_factory=FrontEndParams)
+    mount: Callable[[np.ndarray], np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -75,51 +82,20 @@ class CameraYaml:
     source: str = "<sensor.yaml>"  # the file it was read from, for error messages
 
 
-def _numbers(fs: cv2.FileStorage, key: str, count: int, path: Path) -> np.ndarray:
-    node = fs.getNode(key)
-    if node.empty() or node.isNone():
-        raise CalibrationError(f"{path}: missing field '{key}'")
-    if key == "T_BS":
-        node = node.getNode("data")
-        if node.empty():
-            raise CalibrationError(f"{path}: missing field 'T_BS.data'")
-    items = [node.at(i) for i in range(node.size())] if node.isSeq() else []
-    if len(items) != count:
-        raise CalibrationError(f"{path}: field '{key}' has {len(items)} numbers, expected {count}")
-    for i, item in enumerate(items):
-        if not (item.isReal() or item.isInt()):
-            text = f"{item.string()!r} " if item.isString() else ""
-            raise CalibrationError(f"{path}: field '{key}' entry {i}: {text}is not a number")
-    vals = np.array([item.real() for item in items], dtype=np.float64)
-    if not np.all(np.isfinite(vals)):
-        raise CalibrationError(f"{path}: field '{key}' has a non-finite number: {vals.tolist()}")
-    return vals
-
-
 def read_sensor_yaml(path: Path) -> CameraYaml:
     """Intrinsics (fu, fv, cu, cv), radial-tangential distortion, T_BS and resolution.
 
     CalibrationError naming the file and field for a missing or non-numeric entry, fu/fv or a
     resolution that is not positive, or a T_BS that is not a rigid transform.
     """
-    if not path.is_file():
-        raise CalibrationError(f"{path}: calibration file is missing")
-    try:  # OpenCV raises (cv2.error, or SystemError from its bindings) on text it cannot parse
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError) as err:
-        text = str(err.__cause__ if err.__cause__ is not None else err)
-        found = re.search(r"\((\d+)\): ([^'\n]*)", text)
-        detail = f"line {found[1]}: {found[2]}" if found else text.strip().splitlines()[-1]
-        raise CalibrationError(f"{path}: not a readable YAML file ({detail})") from err
-    if not fs.isOpened():
-        raise CalibrationError(f"{path}: not a readable YAML file")
+    fs = open_yaml(path)
     model = fs.getNode("distortion_model").string()
     if model and model != "radial-tangential":
         raise CalibrationError(f"{path}: field 'distortion_model': {model!r} is not supported")
-    fu, fv, cu, cv = _numbers(fs, "intrinsics", 4, path)
-    dist = _numbers(fs, "distortion_coefficients", 4, path)
-    t_bs = _numbers(fs, "T_BS", 16, path).reshape(4, 4)
-    w, h = _numbers(fs, "resolution", 2, path)
+    fu, fv, cu, cv = numbers(fs.getNode("intrinsics"), "intrinsics", 4, path)
+    dist = numbers(fs.getNode("distortion_coefficients"), "distortion_coefficients", 4, path)
+    t_bs = numbers(fs.getNode("T_BS"), "T_BS", 16, path).reshape(4, 4)
+    w, h = numbers(fs.getNode("resolution"), "resolution", 2, path)
     fs.release()
     if not (fu > 0 and fv > 0):
         raise CalibrationError(f"{path}: field 'intrinsics': fu and fv must be positive, "
@@ -183,7 +159,8 @@ def _frames(cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
 
 
 def _robot_from_body(up_b: np.ndarray, fwd_b: np.ndarray, height: float) -> np.ndarray:
-    """T_body_robot: robot axes (x forward, y left, z up) in the body frame, origin on the ground."""
+    """T_body_robot: robot axes (x forward, y left, z up) in the body frame, origin on the
+    ground."""
     up = up_b / np.linalg.norm(up_b)
     fwd = fwd_b - up * (fwd_b @ up)
     fwd /= np.linalg.norm(fwd)
@@ -355,8 +332,12 @@ def euroc_frontend(root: str | Path, params: EurocParams = EurocParams(), *,
     height = params.height if params.height is not None else (
         gt_body[first_gt][2, 3] if gt_body is not None else 0.0)
     t_body_robot = _robot_from_body(up_b, cam0.t_bs[:3, 2], height)
+    default = invert(t_body_robot) @ cam0.t_bs  # raw cam0 to robot
+    mount = default if params.mount is None else params.mount(default)
+    if not np.array_equal(mount, default):
+        t_body_robot = cam0.t_bs @ invert(mount)
     t_raw_rect = make_transform(rig.r_left.T, np.zeros(3))
-    t_robot_cam = invert(t_body_robot) @ cam0.t_bs @ t_raw_rect
+    t_robot_cam = mount @ t_raw_rect
     gt = None if gt_body is None else np.stack([
         pose_to_2d(b @ t_body_robot) if np.isfinite(b).all() else np.full(3, np.nan)
         for b in gt_body])
@@ -396,6 +377,7 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
     default = FrontEndParams()
     result = euroc_frontend(src.path, EurocParams(
         max_frames=src.max_frames,
+        mount=lambda default: camera_mount(config, default, f"--source euroc {src.path}"),
         frontend=FrontEndParams(local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
                                 stereo=stereo_settings(config, default.stereo))),
         progress=progress)

@@ -1,11 +1,13 @@
 """KITTI odometry adapter: ``sequences/NN/{image_0,image_1,calib.txt,times.txt}``, ``poses/NN.txt``.
 
 Images are already rectified (``P0``/``P1`` in calib.txt). The camera (x right, y down,
-z forward) is mounted ``camera_height`` metres above the ground and assumed level; ground truth
-(camera-0-to-world 3x4 per frame, world = camera 0 at frame 0) is moved into the robot frame
-and projected to (x, y, yaw) like the VO path. Without ``times.txt`` frames are 0.1 s apart.
-Image ``NNNNNN.png`` is frame NNNNNN and takes line NNNNNN (from 0) of times.txt and the poses
-file; frames must be consecutive, a gap is an error naming the missing image.
+z forward) is mounted ``camera_height`` metres above the ground and level by default (KITTI's
+car, 1.65 m); the config's [rig] changes the mount (``datasets.mount.camera_mount``). Ground
+truth (camera-0-to-world 3x4 per frame, world = camera 0 at frame 0) is moved into the robot
+frame through the same mount and projected to (x, y, yaw) like the VO path. Without
+``times.txt`` frames are 0.1 s apart. Image ``NNNNNN.png`` is frame NNNNNN and takes line
+NNNNNN (from 0) of times.txt and the poses file; frames must be consecutive, a gap is an error
+naming the missing image.
 
 The way back, for KITTI's evaluation tools: :func:`camera_poses` turns a planar robot path into
 camera-0-to-world poses in the frame of ``poses/NN.txt`` (:class:`KittiFrame`).
@@ -21,6 +23,7 @@ import cv2
 import numpy as np
 
 from gslam_jax.config import Config
+from gslam_jax.datasets.mount import camera_mount
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.errors import DatasetError
 from gslam_jax.run import Run
@@ -41,10 +44,12 @@ class KittiParams:
     only one. max_frames: process at most this many frames (None: all). The dense stereo searches
     128 disparities: KITTI's fx * baseline is 380 px m, so the default 64 would cover depths
     from 5.9 m only, and nearer surfaces (parked cars) would be matched wrongly as far points;
-    128 covers from 3 m, at some extra stereo time per frame."""
+    128 covers from 3 m, at some extra stereo time per frame. mount: the 4x4 camera-0-to-robot
+    transform (None: level, ``camera_height`` above the ground; see :func:`robot_from_camera`)."""
 
     sequence: str | None = None
     camera_height: float = 1.65
+    mount: np.ndarray | None = None
     frame_period: float = 0.1
     max_frames: int | None = None
     frontend: FrontEndParams = field(default_factory=lambda: FrontEndParams(
@@ -161,8 +166,11 @@ class KittiFrame(NamedTuple):
 
 
 def robot_from_camera(params: KittiParams) -> np.ndarray:
-    """4x4 camera-0-to-robot transform: KITTI's camera axes turned into the robot's (x forward,
-    y left, z up), ``params.camera_height`` above the ground, level."""
+    """4x4 camera-0-to-robot transform: ``params.mount``, or by default KITTI's camera axes
+    turned into the robot's (x forward, y left, z up), ``params.camera_height`` above the
+    ground, level."""
+    if params.mount is not None:
+        return np.array(params.mount, np.float64)
     return make_transform(CAM_TO_ROBOT_AXES, [0.0, 0.0, params.camera_height])
 
 
@@ -181,7 +189,7 @@ def camera_poses(path: np.ndarray, start: np.ndarray, frame: KittiFrame) -> np.n
     pose): the inverse of the adapter's change of the ground truth into the robot frame,
     ``C_t = first_camera inv(T_rc) inv(S) P_t T_rc`` with P_t, S the planar poses as 4x4 (z = 0)
     and T_rc = ``t_robot_cam``. What the planar path lacks (height, pitch, roll) stays that
-    of the level mount."""
+    of the mount."""
     path = np.asarray(path, np.float64)
     planar = np.tile(np.eye(4), (len(path), 1, 1))
     c, s = np.cos(path[:, 2]), np.sin(path[:, 2])
@@ -333,8 +341,9 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
           ) -> LoadedSource:
     sequence = find_sequence(Path(src.path), src.sequence).name
     fe = KittiParams().frontend  # KITTI's own front-end defaults, with the config's settings
+    mount = camera_mount(config, robot_from_camera(KittiParams()), f"--source kitti {src.path}")
     params = KittiParams(
-        sequence=sequence, max_frames=src.max_frames,
+        sequence=sequence, max_frames=src.max_frames, mount=mount,
         frontend=replace(fe, local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
                          stereo=stereo_settings(config, fe.stereo)))
     result = kitti_frontend(src.path, params, progress=progress)

@@ -5,6 +5,11 @@ seed, same ground truth); at every ground-truth pose ``sim.render.StereoRenderer
 stereo pairs, and the real OpenCV front-end (``vo.frontend.run_frontend``) does the rest: VO on
 pair 0, dense SGBM disparity on both pairs -> points -> local maps fused at the VO poses. Nothing
 but the images reaches the front-end; ground truth is attached only for scoring.
+
+The config's [rig] ``height`` and ``pitch`` move the rendered cameras (``rig_render_params``):
+the images are drawn from the mount the front-end is then given, so a pitched rig is rendered
+and assumed alike. The renderer draws two pairs yawed +-35 degrees at the robot's centre
+without roll, so the other [rig] keys are refused.
 """
 
 from __future__ import annotations
@@ -14,17 +19,20 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from gslam_jax.config import Config
+from gslam_jax.config import Config, ConfigError
+from gslam_jax.datasets.mount import camera_mount, mount_values
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.datasets.sim import Odometry, ProgressFn, simulate_odometry
 from gslam_jax.run import Run
 from gslam_jax.sim.environments import world_for_course
-from gslam_jax.sim.render import RenderParams, StereoRenderer
+from gslam_jax.sim.render import RenderParams, StereoRenderer, camera_mounts
 from gslam_jax.sim.world import World
 from gslam_jax.vo.frontend import FrontEndParams, FrontEndSummary, run_frontend
 from gslam_jax.vo.localmap import LocalMapParams, localmap_params
 
-__all__ = ["SimStereoParams", "SimStereoInfo", "load_sim_stereo"]
+__all__ = ["SimStereoParams", "SimStereoInfo", "load_sim_stereo", "rig_render_params"]
+
+RENDERED_RIG_KEYS = ("height", "pitch")  # the [rig] keys the renderer can draw
 
 
 @dataclass(frozen=True)
@@ -108,10 +116,29 @@ def load_sim_stereo(course: str, seed: int = 0, local_map_params: LocalMapParams
     return res.run, info
 
 
+def rig_render_params(config: Config, render: RenderParams,
+                      where: str = "--source sim-stereo") -> RenderParams:
+    """``render`` with the cameras' height and pitch of the config's [rig] (the renderer's
+    pair-0 left camera through ``datasets.mount.camera_mount``); ConfigError naming the other
+    [rig] keys, which the renderer cannot draw."""
+    rig = config.rig
+    if rig.is_default():
+        return render
+    refused = [k for k in rig.given() if k not in RENDERED_RIG_KEYS]
+    if refused:
+        raise ConfigError(f"{where}: [rig] {', '.join(refused)}: the renderer draws two pairs "
+                          "yawed +-35 deg at the robot's centre, without roll; only [rig] "
+                          f"{' and '.join(RENDERED_RIG_KEYS)} apply")
+    values = mount_values(camera_mount(config, camera_mounts(render)[0][0], where))
+    return replace(render, camera_height=values["height"],
+                   camera_pitch=float(np.deg2rad(values["pitch"])))
+
+
 def _load(src: Source, config: Config, progress: ProgressFn | None = None) -> LoadedSource:
     sp = SimStereoParams()
-    sp = replace(sp, frontend=replace(sp.frontend,
-                                      stereo=stereo_settings(config, sp.frontend.stereo)))
+    sp = replace(sp, render=rig_render_params(config, sp.render),
+                 frontend=replace(sp.frontend,
+                                  stereo=stereo_settings(config, sp.frontend.stereo)))
     run, info = load_sim_stereo(src.course, src.sim_seed, localmap_params(config),
                                 max_frames=src.max_frames, progress=progress, params=sp)
     print(info.text())
