@@ -15,12 +15,13 @@ from gslam_jax.datasets.registry import RUN_FILE, Source, check_source, get_sour
 
 def test_every_dataset_module_with_a_source_is_registered():
     names = set(registry.sources())
-    assert names == {"sim", "sim-path", "sim-stereo", "kitti", "euroc", "stereo", RUN_FILE}
+    assert names == {"sim", "sim-path", "sim-stereo", "kitti", "euroc", "stereo", "rosbag",
+                     RUN_FILE}
     assert RUN_FILE not in registry.source_names()  # the positional argument, not --source
     flags = {n: (s.simulated, s.images) for n, s in registry.sources().items()}
     assert flags == {"sim": (True, False), "sim-path": (True, False), "sim-stereo": (True, True),
                      "kitti": (False, True), "euroc": (False, True), "stereo": (False, True),
-                     RUN_FILE: (False, False)}
+                     "rosbag": (False, True), RUN_FILE: (False, False)}
 
 
 def test_a_new_module_with_a_source_is_found_without_touching_another_file(tmp_path,
@@ -62,4 +63,4 @@ def test_options_a_source_does_not_take_are_refused():
 
 def test_an_unknown_source_names_the_known_ones():
     with pytest.raises(registry.ConfigError, match="known sources: sim, sim-path, sim-stereo"):
-        get_source("rosbag")
+        get_source("pcap")
