@@ -151,6 +151,53 @@ def test_gslam_view_shows_a_finished_run(runs, capsys):
                                                          "Points3D:positions")
 
 
+def test_live_stream_logs_each_pushed_frame(tmp_path):
+    from gslam_jax.app.viewer import open_viewer
+    from gslam_jax.config import Config, FilterSection, LocalMapSection
+    from gslam_jax.online import Online
+
+    run, _ = make_run(steps=12)
+    config = Config(filter=FilterSection(particles=PARTICLES),
+                    localmap=LocalMapSection(max_range=5.0, travel=1.0))
+    live = Online(config, 30.0, local_size=run.local_maps.shape[1])
+    viewer = open_viewer("live", save=tmp_path / "live.rrd")
+    pushed = []
+    for t in range(run.num_frames):
+        m = run.obs_index[t]
+        frame = live.push(run.controls[t], run.local_maps[m] if m >= 0 else None,
+                          run.timestamps[t])
+        viewer.online(live, frame, run.timestamps[t], map_every=5)
+        pushed.append(frame.pose)
+    viewer.close()
+    ent = _entities(tmp_path / "live.rrd")
+    rows = _temporal(ent["/world/pose/best"], "Points3D:positions")
+    np.testing.assert_allclose([r["Points3D:positions"][0][:2] for r in rows],
+                               np.array(pushed)[:, :2], atol=1e-6)
+    clouds = _temporal(ent["/world/particles"], "Points3D:positions")
+    assert len(clouds) == run.num_frames
+    assert all(len(r["Points3D:positions"]) == PARTICLES for r in clouds)
+    last = live.particles().pose  # the last frame's cloud is the particles Online holds
+    np.testing.assert_allclose(np.array(clouds[-1]["Points3D:positions"])[:, :2], last[:, :2],
+                               atol=1e-6)
+    assert [r["frame"] for r in _temporal(ent["/world/map"], "GridMap:data")] == [0, 5, 10]
+
+
+def test_unknown_frames_split_a_path_and_large_clouds_are_thinned():
+    from gslam_jax.app.viewer import RunViewer, finite_strips
+
+    xy = np.arange(20.0).reshape(10, 2)
+    xy[[0, 4, 5, 9]] = np.nan
+    strips = finite_strips(xy)
+    assert [len(s) for s in strips] == [3, 3]  # frames 1-3 and 6-8
+    np.testing.assert_array_equal(strips[1][:, :2], xy[6:9])
+    assert finite_strips(np.full((3, 3), np.nan)) == []
+    viewer = RunViewer(rr.RecordingStream("thin"), max_particles=4)
+    poses = np.random.default_rng(0).normal(size=(2, 10, 3))
+    thin = viewer._particles(poses)
+    assert thin.shape == (2, 4, 3)
+    np.testing.assert_array_equal(thin, poses[:, [0, 3, 6, 9]])  # evenly strided, both ends
+
+
 def test_view_names_a_folder_that_is_not_a_run(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     assert main(["view", str(tmp_path / "empty"), "--save", str(tmp_path / "x.rrd")]) == 2

@@ -105,7 +105,7 @@ def open_viewer(name: str, spawn: bool = False, save: Path | None = None,
     """A RunViewer on a new recording ``name``: streamed to a spawned viewer (``spawn``),
     written to the file ``save`` (.rrd), or both. Call :func:`check_viewer` first."""
     rr = require_rerun("--viewer" if spawn else "--viewer-save")
-    rec = rr.RecordingStream("gslam", recording_id=None)
+    rec = rr.RecordingStream("gslam")
     rec.send_recording_name(name)
     blueprint = _blueprint(rr)
     if spawn and save is not None:
@@ -167,8 +167,8 @@ class RunViewer:
         rec.log("world/particles", rr.Points3D.from_fields(
             radii=0.04, colors=[_COLOURS["particles"]]), static=True)
 
-    def _at(self, frame: int | None, time_s: float | None) -> None:
-        """The time the next logs are at (None: static)."""
+    def _at(self, frame: int, time_s: float | None) -> None:
+        """The frame (and time, when known) the next logs are at."""
         self.rec.set_time("frame", sequence=int(frame))
         if time_s is not None:
             self.rec.set_time("time", duration=float(time_s))
@@ -273,6 +273,10 @@ class RunViewer:
         self.rec.flush()
 
     def close(self) -> None:
-        """Flush and close the recording's sinks."""
-        self.rec.flush()
+        """Flush and close the recording's sinks. A viewer that cannot be reached (closed,
+        or never started) is a warning: the run and its results stand."""
+        try:
+            self.rec.flush()
+        except RuntimeError as err:  # Rerun's sink errors, e.g. gRPC unable to connect
+            print(f"WARNING: viewer: not everything reached the viewer ({err})", flush=True)
         self.rec.disconnect()
