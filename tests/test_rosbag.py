@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import shlex
 import sys
 from pathlib import Path
 
@@ -175,24 +176,41 @@ def test_euroc_bag_gives_the_folder_run(euroc):
     assert out.result.summary.tilt_corrections == folder.summary.tilt_corrections > 0
 
 
-def test_gslam_run_on_a_bag_gives_the_folder_trajectory(kitti, tmp_path):
-    bag = tmp_path / "drive.mcap.d"
+def _readme_bag_example() -> list[str]:
+    """The README's worked bag example, as arguments after ``gslam``."""
+    readme = Path(__file__).resolve().parents[1] / "README.md"
+    lines = [ln for ln in readme.read_text().splitlines()
+             if ln.startswith("gslam run --source rosbag --path drive.bag --set")]
+    assert len(lines) == 1, "the README's worked bag example"
+    return shlex.split(lines[0])[1:]
+
+
+def test_readme_bag_example_gives_the_folder_trajectory(kitti, tmp_path):
+    """The README's example run on a bag of the KITTI frames, and the KITTI folder with the
+    same [rig] settings: the same trajectory."""
+    bag = tmp_path / "drive_mcap"
     _write_kitti(bag, "mcap", kitti)
-    outs = {}
-    for name, args in (("bag", ["--source", "rosbag", "--path", str(bag)]),
-                       ("folder", ["--source", "kitti", "--path", str(KITTI), "--max-frames",
-                                   str(N_KITTI)])):
-        outs[name] = tmp_path / name
+    example = _readme_bag_example()
+    rig = [a for i, v in enumerate(example[1:]) if example[i] == "--set"
+           and v.startswith("rig.") for a in ("--set", v)]
+    assert rig, "the example sets the mount with [rig]"
+    where = {"drive.bag": str(bag), "results/drive": str(tmp_path / "bag")}
+    runs = {"bag": [where.get(a, a) for a in example],
+            "folder": ["run", "--source", "kitti", "--path", str(KITTI), "--max-frames",
+                       str(N_KITTI), *rig, "--out", str(tmp_path / "folder")]}
+    for name, args in runs.items():
         with contextlib.redirect_stdout(io.StringIO()) as printed:
-            assert main(["run", *args, "--out", str(outs[name]), "--set", "filter.particles=4",
+            assert main([*args, "--set", "filter.particles=4",
                          "--set", "stereo.num_disparities=128"]) == 0
         if name == "bag":
-            assert "stereo pairs: 3, unmatched: 0 left, 0 right" in printed.getvalue()
-    a, b = (np.loadtxt(outs[k] / "trajectory_tum.txt") for k in ("folder", "bag"))
+            text = printed.getvalue()
+            assert "stereo pairs: 3, unmatched: 0 left, 0 right; camera mount: [rig]" in text
+    a, b = (np.loadtxt(tmp_path / k / "trajectory_tum.txt") for k in ("folder", "bag"))
     assert len(a) == len(b) == N_KITTI
     np.testing.assert_allclose(b[:, 0] - b[0, 0], a[:, 0] - a[0, 0], atol=1e-6)  # seconds
     np.testing.assert_allclose(b[:, 1:], a[:, 1:], atol=1e-6)  # x y z qx qy qz qw
     assert b[0, 0] == pytest.approx(T0 * 1e-9)  # the bag's clock
+    assert np.linalg.norm(a[-1, 1:3] - a[0, 1:3]) > 1.0  # the car moved: a check that can fail
 
 
 def test_compressed_images_unmatched_frame_and_wheel_imu_fallback(kitti, tmp_path):
