@@ -115,3 +115,17 @@ def test_rig_is_refused_where_there_are_no_images():
         check_source(Source(source="sim"), _rig(height=1.0, yaw=3))
     check_source(Source(source="sim-stereo"), _rig(height=1.0))
     assert dataclasses.asdict(Config().rig)["matrix"] == ()
+
+
+def test_configuration_reference_lists_every_rig_key_with_its_default():
+    import re
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "configuration.md").read_text()
+    section = doc.split("### `[rig]`", 1)[1].split("\n\n| source |", 1)[0]
+    rows = dict(re.findall(r"^\| `rig\.(\w+)` \| ([^|]+) \|", section, re.MULTILINE))
+    assert set(rows) == set(dataclasses.asdict(Config().rig))
+    for key, text in rows.items():
+        value = tomllib.loads(f"v = {text.strip().strip('`')}")["v"]
+        assert value == list(getattr(Config().rig, key)) if key == "matrix" else \
+            value == getattr(Config().rig, key), key
