@@ -19,10 +19,11 @@ pytest.importorskip("rosbags", reason="the rosbag extra (pip install 'gslam-jax[
 from bagwriter import BagWriter  # noqa: E402
 
 from gslam_jax.app.cli import main  # noqa: E402
-from gslam_jax.config import ConfigError  # noqa: E402
+from gslam_jax.config import Config, ConfigError, apply_overrides  # noqa: E402
 from gslam_jax.datasets.euroc import (EurocParams, euroc_frontend, quat_to_matrix,  # noqa: E402
                                       read_sensor_yaml)
 from gslam_jax.datasets.kitti import KittiParams, kitti_frontend, read_kitti_poses  # noqa: E402
+from gslam_jax.datasets.mount import camera_mount  # noqa: E402
 from gslam_jax.datasets.rosbag import (MissingExtraError, RosbagParams,  # noqa: E402
                                        rosbag_frontend)
 from gslam_jax.datasets.rosbag_msgs import TfTree  # noqa: E402
@@ -58,7 +59,7 @@ def _bag_path(tmp: Path, name: str, fmt: str) -> Path:
 @pytest.fixture(scope="module")
 def kitti() -> dict:
     """The first frames of the KITTI clip, its cameras (rectified: D = 0, R = I, P from
-    P0/P1) and the robot's ground-truth poses (world: the robot at frame 0, z up)."""
+    P0/P1) and camera poses (``poses/seq1.txt``)."""
     seq = KITTI / "sequences" / "seq1"
     if not seq.is_dir():
         pytest.skip(f"real KITTI frames not found at {KITTI} (see shared/data/README.md)")
@@ -72,15 +73,20 @@ def kitti() -> dict:
     size = (imgs[0][0].shape[1], imgs[0][0].shape[0])
     cams = [CameraModel(p[k][:, :3], np.zeros(5), np.eye(3), p[k], size) for k in ("P0", "P1")]
     cam = read_kitti_poses(KITTI / "poses" / "seq1.txt")
-    # x forward, y left, z up from KITTI's camera axes (x right, y down, z forward), level
-    m = make_transform(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), [0.0, 0.0, 1.65])
-    robot = [m @ invert(cam[0]) @ c @ invert(m) for c in cam[:N_KITTI + 1]]
     folder = kitti_frontend(KITTI, KittiParams(max_frames=N_KITTI)).run
-    return {"images": imgs, "cams": cams, "robot": robot, "folder": folder}
+    return {"images": imgs, "cams": cams, "camera": cam[:N_KITTI + 1], "folder": folder}
+
+
+# x forward, y left, z up from KITTI's camera axes (x right, y down, z forward), level, 1.65 m
+LEVEL = make_transform(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), [0.0, 0.0, 1.65])
 
 
 def _write_kitti(path: Path, fmt: str, kitti: dict, encodings=("mono8", "mono8"),
-                 n: int = N_KITTI) -> None:
+                 n: int = N_KITTI, mount: np.ndarray = LEVEL) -> None:
+    """The KITTI frames as a bag; the ground truth is the robot's pose (world: the robot at
+    frame 0, z up) with the camera at ``mount``."""
+    cam = kitti["camera"]
+    robot = [mount @ invert(cam[0]) @ c @ invert(mount) for c in cam]
     with BagWriter(path, fmt) as w:
         for t in range(n):
             ns = T0 + t * 100_000_000
@@ -89,7 +95,7 @@ def _write_kitti(path: Path, fmt: str, kitti: dict, encodings=("mono8", "mono8")
                 w.camera_info(f"/kitti/{side}/camera_info", ns, cam, frame)
                 w.image(f"/kitti/{side}/image_raw", ns, kitti["images"][t][side == "right"],
                         frame, enc)
-            w.pose("/ground_truth/pose", ns, kitti["robot"][t])
+            w.pose("/ground_truth/pose", ns, robot[t])
 
 
 @pytest.mark.parametrize("fmt,encodings", [("ros1", ("rgb8", "bgr8")),
@@ -188,12 +194,14 @@ def _readme_bag_example() -> list[str]:
 def test_readme_bag_example_gives_the_folder_trajectory(kitti, tmp_path):
     """The README's example run on a bag of the KITTI frames, and the KITTI folder with the
     same [rig] settings: the same trajectory."""
-    bag = tmp_path / "drive_mcap"
-    _write_kitti(bag, "mcap", kitti)
     example = _readme_bag_example()
     rig = [a for i, v in enumerate(example[1:]) if example[i] == "--set"
            and v.startswith("rig.") for a in ("--set", v)]
     assert rig, "the example sets the mount with [rig]"
+    # the truth as a robot with that mount sees it (as the KITTI source makes it)
+    mount = camera_mount(apply_overrides(Config(), rig[1::2]), LEVEL, "test")
+    bag = tmp_path / "drive_mcap"
+    _write_kitti(bag, "mcap", kitti, mount=mount)
     where = {"drive.bag": str(bag), "results/drive": str(tmp_path / "bag")}
     runs = {"bag": [where.get(a, a) for a in example],
             "folder": ["run", "--source", "kitti", "--path", str(KITTI), "--max-frames",
@@ -205,12 +213,13 @@ def test_readme_bag_example_gives_the_folder_trajectory(kitti, tmp_path):
         if name == "bag":
             text = printed.getvalue()
             assert "stereo pairs: 3, unmatched: 0 left, 0 right; camera mount: [rig]" in text
-    a, b = (np.loadtxt(tmp_path / k / "trajectory_tum.txt") for k in ("folder", "bag"))
-    assert len(a) == len(b) == N_KITTI
-    np.testing.assert_allclose(b[:, 0] - b[0, 0], a[:, 0] - a[0, 0], atol=1e-6)  # seconds
-    np.testing.assert_allclose(b[:, 1:], a[:, 1:], atol=1e-6)  # x y z qx qy qz qw
-    assert b[0, 0] == pytest.approx(T0 * 1e-9)  # the bag's clock
-    assert np.linalg.norm(a[-1, 1:3] - a[0, 1:3]) > 1.0  # the car moved: a check that can fail
+    for name in ("trajectory_tum.txt", "ground_truth_tum.txt"):
+        a, b = (np.loadtxt(tmp_path / k / name) for k in ("folder", "bag"))
+        assert len(a) == len(b) == N_KITTI
+        np.testing.assert_allclose(b[:, 0] - b[0, 0], a[:, 0] - a[0, 0], atol=1e-6)  # seconds
+        np.testing.assert_allclose(b[:, 1:], a[:, 1:], atol=1e-6)  # x y z qx qy qz qw
+        assert b[0, 0] == pytest.approx(T0 * 1e-9)  # the bag's clock
+        assert np.linalg.norm(a[-1, 1:3] - a[0, 1:3]) > 1.0  # the car moved: a check that fails
 
 
 def test_compressed_images_unmatched_frame_and_wheel_imu_fallback(kitti, tmp_path):
@@ -300,6 +309,10 @@ def test_topics_are_picked_or_listed_in_the_error(tmp_path):
                                             max_frames=2, frontend=FAST.frontend))
     assert out.topics["left_info"] == "/stereo/left/camera_info"
     assert out.result.run.num_frames == 2 and not len(out.pairing.unmatched_right)
+    # the storage file itself, not its folder
+    one = rosbag_frontend(bag / "two_left.db3", RosbagParams(
+        topics={"left": "/stereo/left/image_rect"}, max_frames=2, frontend=FAST.frontend))
+    _same_run(out.result.run, one.result.run, atol=0.0)
     with pytest.raises(DatasetError, match="--topic right=/nope: no such topic.*"
                        "/stereo/right/image_raw"):
         rosbag_frontend(bag, RosbagParams(topics={"right": "/nope"}))
