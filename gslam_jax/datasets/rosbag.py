@@ -41,17 +41,16 @@ import numpy as np
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.datasets.mount import camera_mount
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
-from gslam_jax.datasets.rosbag_msgs import (TF, TfTree, camera_model, decode_image, frame_id,
+from gslam_jax.datasets.rosbag_msgs import (TF, TfTree, camera_model, decode_image,
                                             pose_matrix, stamp_ns)
+from gslam_jax.datasets.rosbag_sensors import Series, imu_aids, planar_poses
 from gslam_jax.datasets.rosbag_topics import (ROLES, Pairing, TopicInfo, check_roles,
                                               pair_stamps, pick_topics, rectified_topic)
 from gslam_jax.errors import DatasetError, InputError
 from gslam_jax.run import Run
 from gslam_jax.vo.calib import CameraModel, RectifiedRig
-from gslam_jax.vo.fallback import GRAVITY
 from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
-from gslam_jax.vo.geometry import (CAM_TO_ROBOT_AXES, increments_2d, invert, make_transform,
-                                   pose_to_2d)
+from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, increments_2d, make_transform
 from gslam_jax.vo.localmap import localmap_params
 
 __all__ = ["RosbagParams", "RosbagFrontEnd", "MissingExtraError", "rosbag_frontend",
@@ -118,32 +117,6 @@ def _rosbags() -> tuple[Any, Any]:
     return AnyReader, get_typestore(Stores.ROS2_HUMBLE)
 
 
-class _Series:
-    """Messages of one topic as read in the first pass."""
-
-    def __init__(self) -> None:
-        self.stamps: list[int] = []
-        self.bag_times: list[int] = []
-        self.frame = ""
-        self.first: Any = None
-        self.values: list[Any] = []
-
-    def add(self, msg: Any, bag_ns: int, value: Any = None) -> None:
-        if self.first is None:
-            self.first, self.frame = msg, frame_id(msg.header.frame_id)
-        self.stamps.append(stamp_ns(msg))
-        self.bag_times.append(bag_ns)
-        self.values.append(value)
-
-    def times(self, where: str) -> np.ndarray:
-        """Header stamps (ns); the bag's record times, with a warning, where all are zero."""
-        if self.stamps and not any(self.stamps):
-            warnings.warn(f"{where}: every header stamp is zero; using the bag's record times",
-                          stacklevel=3)
-            return np.array(self.bag_times, np.int64)
-        return np.array(self.stamps, np.int64)
-
-
 def _open(path: Path) -> Any:
     reader_cls, typestore = _rosbags()
     if not path.exists():
@@ -164,7 +137,7 @@ def _topics(reader: Any) -> dict[str, TopicInfo]:
             for name, info in reader.topics.items()}
 
 
-def _read(reader: Any, picked: dict[str, str | None], bag: Path) -> tuple[dict[str, _Series],
+def _read(reader: Any, picked: dict[str, str | None], bag: Path) -> tuple[dict[str, Series],
                                                                          TfTree]:
     """First pass: stamps of the image topics, every message of the others, /tf_static."""
     roles_of: dict[str, list[str]] = {}
@@ -173,7 +146,7 @@ def _read(reader: Any, picked: dict[str, str | None], bag: Path) -> tuple[dict[s
             roles_of.setdefault(name, []).append(role)
     tf_topics = {n for n, i in _topics(reader).items()
                  if i.msgtype == TF and n.rstrip("/").endswith("tf_static")}
-    series = {role: _Series() for role in ROLES}
+    series = {role: Series() for role in ROLES}
     tree = TfTree()
     conns = [c for c in reader.connections if c.topic in roles_of or c.topic in tf_topics]
     try:
@@ -199,7 +172,7 @@ def _read(reader: Any, picked: dict[str, str | None], bag: Path) -> tuple[dict[s
     return series, tree
 
 
-def _sorted_stamps(s: _Series, where: str) -> np.ndarray:
+def _sorted_stamps(s: Series, where: str) -> np.ndarray:
     """The image stamps, sorted; DatasetError for none, or for a stamp given twice."""
     if not s.stamps:
         raise DatasetError(f"{where}: no images")
@@ -253,7 +226,7 @@ def _mount(tree: TfTree, cam_frame: str, params: RosbagParams,
     return mount, found_in
 
 
-def _camera(info: _Series, image_topic: str, where: str) -> CameraModel:
+def _camera(info: Series, image_topic: str, where: str) -> CameraModel:
     if info.first is None:
         raise DatasetError(f"{where}: no CameraInfo message")
     cam = camera_model(info.first, where)
@@ -263,84 +236,11 @@ def _camera(info: _Series, image_topic: str, where: str) -> CameraModel:
     return cam
 
 
-def _interpolate(t_ns: np.ndarray, poses_2d: np.ndarray, ts: np.ndarray, gap_ns: int,
-                 slack_ns: int) -> np.ndarray:
-    """[T, 3] planar poses at the frame times ``ts`` (linear, the yaw unwrapped); NaN outside
-    the samples' span (beyond ``slack_ns``) and between samples more than ``gap_ns`` apart."""
-    keep = np.all(np.isfinite(poses_2d), axis=1)
-    t_ns, poses_2d = t_ns[keep], poses_2d[keep]
-    out = np.full((len(ts), 3), np.nan)
-    if not len(t_ns):
-        return out
-    order = np.argsort(t_ns, kind="stable")
-    t_ns, poses_2d = t_ns[order], poses_2d[order]
-    first = np.concatenate([[True], np.diff(t_ns) > 0])
-    t_ns, poses_2d = t_ns[first], poses_2d[first]
-    yaw = np.unwrap(poses_2d[:, 2])
-    x = (t_ns - t_ns[0]).astype(np.float64)
-    at = (ts - t_ns[0]).astype(np.float64)
-    cols = [np.interp(at, x, poses_2d[:, 0]), np.interp(at, x, poses_2d[:, 1]),
-            np.interp(at, x, yaw)]
-    hi = np.clip(np.searchsorted(t_ns, ts), 0, len(t_ns) - 1)
-    lo = np.clip(np.searchsorted(t_ns, ts, side="right") - 1, 0, len(t_ns) - 1)
-    ok = ((ts >= t_ns[0] - slack_ns) & (ts <= t_ns[-1] + slack_ns)
-          & ((t_ns[hi] - t_ns[lo]) <= gap_ns))
-    out[ok] = np.stack(cols, axis=1)[ok]
-    out[:, 2] = np.where(ok, np.angle(np.exp(1j * out[:, 2])), np.nan)
-    return out
-
-
 def _to_robot(tree: TfTree, frame: str, cam_frame: str, t_robot_cam: np.ndarray) -> np.ndarray:
     """T_robot_frame: through the camera where /tf_static links ``frame`` to it; the identity
     (the frame's axes taken as the robot's) otherwise."""
     t_cam_frame = tree.lookup(cam_frame, frame) if frame and cam_frame else None
     return np.eye(4) if t_cam_frame is None else t_robot_cam @ t_cam_frame
-
-
-def _planar(s: _Series, to_robot: Callable[[str], np.ndarray], where: str, ts: np.ndarray,
-            params: RosbagParams, slack_ns: int) -> np.ndarray:
-    """[T, 3] planar robot poses of an Odometry / pose series at the frame times."""
-    poses = np.stack([pose_to_2d(m @ invert(to_robot(child))) if np.all(np.isfinite(m))
-                      else np.full(3, np.nan) for m, child in s.values])
-    return _interpolate(s.times(where), poses, ts, int(params.pose_gap * NS), slack_ns)
-
-
-def _imu(s: _Series, r_robot_imu: np.ndarray, ts: np.ndarray, period: int,
-         params: RosbagParams, where: str) -> SensorAids:
-    """Per frame: the mean specific force since the previous frame (robot axes) and the gyro
-    yaw increment, as the EuRoC adapter; NaN for frames the IMU log does not cover."""
-    t_imu = s.times(where)
-    order = np.argsort(t_imu, kind="stable")
-    t_imu = t_imu[order]
-    data = np.asarray(s.values, np.float64)[order]
-    gyro, acc = data[:, :3] @ r_robot_imu.T, data[:, 3:] @ r_robot_imu.T
-    first = (t_imu >= ts[0]) & (t_imu <= ts[0] + int(params.gravity_window * NS))
-    still = first & (np.abs(np.linalg.norm(acc, axis=1) - GRAVITY) < params.frontend.tilt_gate)
-    bias = gyro[still].mean(axis=0) if still.any() else np.full(3, np.nan)
-    spread = float(np.linalg.norm(gyro[still].std(axis=0))) if still.any() else np.nan
-    if spread < params.gyro_still and np.linalg.norm(bias) < params.max_gyro_bias:
-        gyro = gyro - bias
-    else:
-        warnings.warn(f"{where}: the IMU is not still within {params.gravity_window} s of the "
-                      f"first frame (gyro mean {np.linalg.norm(bias):.3f} rad/s, spread "
-                      f"{spread:.3f} rad/s): no gyro bias removed", stacklevel=3)
-    n = len(ts)
-    accel, yaw = np.zeros((n, 3)), np.zeros(n)
-    edges = np.searchsorted(t_imu, ts, side="right")
-    for t in range(n):
-        lo = edges[t - 1] if t else max(edges[0] - 1, 0)
-        near = min(lo, len(t_imu) - 1)
-        accel[t] = acc[near:max(edges[t], near + 1)].mean(axis=0)
-        if t:
-            start = max(lo - 1, 0)
-            dt = np.diff(t_imu[start:edges[t]]) * 1e-9
-            yaw[t] = float(np.sum(gyro[start + 1:edges[t], 2] * dt))
-    outside = (ts < t_imu[0] - period) | (ts > t_imu[-1] + period)
-    gap = np.concatenate([[False], (np.diff(edges) == 0) & (ts[1:] >= t_imu[0])
-                          & (ts[:-1] < t_imu[-1])])
-    accel[outside] = np.nan
-    yaw[outside | gap | np.concatenate([[False], outside[:-1]])] = np.nan
-    return SensorAids(accel=accel, imu_yaw=yaw)
 
 
 class _Pairs:
@@ -410,20 +310,21 @@ def rosbag_frontend(path: str | Path, params: RosbagParams = RosbagParams(), *,
             return frames[frame]
 
         period = int(np.median(np.diff(ts))) if n > 1 else 0
-        slack = max(period // 2, 5_000_000)
+        slack, gap = max(period // 2, 5_000_000), int(params.pose_gap * NS)
         aids = SensorAids()
         if picked["imu"] and series["imu"].values:
-            aids = _imu(series["imu"], to_robot(series["imu"].frame)[:3, :3], ts, period,
-                        params, where["imu"])
+            aids = imu_aids(series["imu"], to_robot(series["imu"].frame)[:3, :3], ts, period,
+                            where["imu"], params.gravity_window, params.gyro_still,
+                            params.max_gyro_bias, params.frontend.tilt_gate)
         if picked["wheel"] and series["wheel"].values:
-            odom = _planar(series["wheel"], to_robot, where["wheel"], ts, params, slack)
+            odom = planar_poses(series["wheel"], to_robot, where["wheel"], ts, gap, slack)
             wheel = increments_2d(odom)
             wheel[1:][~np.isfinite(odom[:-1]).all(axis=1)] = np.nan
             aids = aids._replace(wheel=wheel)
         gt, first_gt = None, 0
         if picked["ground_truth"] and series["ground_truth"].values:
-            gt = _planar(series["ground_truth"], to_robot, where["ground_truth"], ts, params,
-                         slack)
+            gt = planar_poses(series["ground_truth"], to_robot, where["ground_truth"], ts, gap,
+                              slack)
             covered = np.flatnonzero(np.isfinite(gt).all(axis=1))
             if not covered.size:
                 warnings.warn(f"{where['ground_truth']}: the ground truth covers none of the "
