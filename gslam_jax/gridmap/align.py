@@ -219,9 +219,10 @@ def _level(a: GridMap, factor: int, pad: int, max_dof: int, log_v_range: tuple[f
     mean = np.zeros((max_dof + 1, points))
     var = np.zeros((max_dof + 1, points))
     mean[1:], var[1:] = np.asarray(lam_mean), np.asarray(lam_var)
-    # padded by ``pad`` cells before, and after up to a shape bucket (jit reuse)
+    # padded by ``pad`` cells before, and after up to a shape bucket (jit reuse; fine, as the
+    # coarse search's shifts, and so its cost, grow with the padded shape)
     H, W = k.shape
-    after = (_bucket(H + 2 * pad, 64) - H - pad, _bucket(W + 2 * pad, 64) - W - pad)
+    after = (_bucket(H + 2 * pad, 16) - H - pad, _bucket(W + 2 * pad, 16) - W - pad)
     kp = np.pad(k, ((pad, after[0]), (pad, after[1])))
     Sp = np.pad(S, ((pad, after[0]), (pad, after[1])))
     r = pooled.resolution
@@ -262,7 +263,9 @@ def _moving(b: GridMap, factor: int, max_dof: int) -> _Moving:
     pooled = pool(b, factor)
     centres, k, S = known_cells(pooled)
     kt, St = temper(k, S, max_dof)
-    n = _bucket(len(k), 1024)
+    # the coarse search costs in proportion to n, padding included: a coarse level's few
+    # hundred cells are padded to multiples of 128, a fine level's thousands to 1024
+    n = _bucket(len(k), 128 if len(k) <= 1024 else 1024)
     pad = ((0, n - len(k)),)
     return _Moving(jnp.asarray(np.pad(centres, pad + ((0, 0),)), jnp.float32),
                    jnp.asarray(np.pad(kt, pad), jnp.float32),
@@ -380,7 +383,7 @@ def _coarse_search(a: GridMap, b: GridMap, factor: int, params: AlignParams,
     Hd = len(headings)
     rows = np.minimum(np.arange(_bucket(Hd, 16)), Hd - 1)
     scores = np.asarray(_shift_scores(jnp.asarray(bi_s[rows]), jnp.asarray(bj_s[rows]),
-                                      moving.k, moving.S, lvl, _bucket(nx, 32), _bucket(ny, 32)),
+                                      moving.k, moving.S, lvl, _bucket(nx, 8), _bucket(ny, 8)),
                         np.float64)[:Hd, :nx, :ny]
     # Shift index sx is n = sx - i_min whole cells: B's frame origin at lattice origin + n r.
     sx = np.arange(nx) - i_min
