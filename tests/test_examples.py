@@ -35,7 +35,7 @@ def test_live_example(monkeypatch, capsys):
 
 
 def test_merge_example(monkeypatch, capsys):
-    out = _run("merge.py", 80, monkeypatch, capsys)
+    out = _run("merge.py", 50, monkeypatch, capsys)
     metres, degrees = map(float, re.search(r"alignment error: ([\d.]+) m, ([\d.]+) deg",
                                            out).groups())
     assert metres < 0.3 and degrees < 2.0

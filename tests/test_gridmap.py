@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -16,6 +18,8 @@ from gslam_jax.gridmap import (GridMap, MapFileError, add, compose, invert_pose,
                                load_map, place, save_map, transform)
 from gslam_jax.gridmap import align as align_mod
 from gslam_jax.gridmap.align import AlignmentRefused, align_maps, score_poses
+from gslam_jax.gridmap import merge as merge_mod
+from gslam_jax.gridmap.align import AlignParams, PosePrior
 from gslam_jax.gridmap.merge import merge_maps
 
 RES = 0.16
@@ -165,11 +169,73 @@ def test_whole_cell_shift_search_equals_the_pose_scorer() -> None:
 
 # --- alignment and merging on terrain with a known placement --------------------------------
 
-def test_align_refuses_unrelated_or_featureless_maps() -> None:
-    a = _observe(6, np.zeros(3), 4.0, 1)
-    other = _observe(7, np.zeros(3), 2.5, 2)  # another terrain
+TRUTH = np.array([1.3, -0.9, 2.4])  # B's frame in A's (the world is A's frame here)
+
+
+class _Maps(NamedTuple):
+    """Terrain 5 seen twice (A in the world frame, B from ``TRUTH``) and terrain 7 (C), each
+    saved as a run folder and read back: the float32 maps ``gslam merge`` reads."""
+
+    folder: Path
+    a: GridMap
+    b: GridMap
+    c: GridMap
+
+
+def _map_key(grid: GridMap) -> tuple:
+    return (grid.k.tobytes(), grid.S.tobytes(), grid.k.shape,
+            np.asarray(grid.origin, np.float64).tobytes(), float(grid.resolution))
+
+
+class _AlignOnce:
+    """``align_maps`` remembered by its exact inputs (the maps' bytes and every setting): it is
+    a pure function, so a second call with the same maps (``gslam merge`` on the folders of
+    maps the API tests aligned) gets the same Alignment, or the same refusal, without the
+    minute of search again. Any other input is aligned for real."""
+
+    def __init__(self, align):
+        self.align, self.seen = align, {}
+
+    def __call__(self, a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
+                 prior: PosePrior | None = None, refuse: bool = True) -> align_mod.Alignment:
+        key = (_map_key(a), _map_key(b), params, refuse, None if prior is None else
+               (np.asarray(prior.mean).tobytes(), np.asarray(prior.cov).tobytes()))
+        if key not in self.seen:
+            try:
+                self.seen[key] = (self.align(a, b, params, prior=prior, refuse=refuse), None)
+            except AlignmentRefused as err:
+                self.seen[key] = (None, (str(err), err.alignment))
+        result, refused = self.seen[key]
+        if refused is not None:
+            raise AlignmentRefused(*refused)
+        return result
+
+
+@pytest.fixture(scope="module")
+def maps(tmp_path_factory) -> _Maps:
+    folder = tmp_path_factory.mktemp("runs")
+    grids = {}
+    for name, grid in (("a", _observe(5, np.zeros(3), 4.0, 1)), ("b", _observe(5, TRUTH, 2.5, 2)),
+                       ("c", _observe(7, np.zeros(3), 2.5, 3))):
+        (folder / name).mkdir()
+        save_map(folder / name / "map.npz", grid)
+        grids[name] = load_map(folder / name)
+    return _Maps(folder, **grids)
+
+
+@pytest.fixture(scope="module")
+def align(maps):
+    """The alignment every test of this section makes, merge_maps and ``gslam merge`` included
+    (``_AlignOnce``): each pair of maps is searched once per module."""
+    once = _AlignOnce(merge_mod.align_maps)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(merge_mod, "align_maps", once)
+        yield once
+
+def test_align_refuses_unrelated_or_featureless_maps(maps, align) -> None:
+    a, other = maps.a, maps.c  # another terrain
     with pytest.raises(AlignmentRefused, match="cannot align the maps") as err:
-        align_maps(a, other)
+        align(a, other)
     assert err.value.alignment.overlap > 0
     flat = GridMap(np.full((40, 40), 30.0), np.full((40, 40), 0.03), (0.0, 0.0), RES)
     with pytest.raises(AlignmentRefused):
@@ -178,10 +244,8 @@ def test_align_refuses_unrelated_or_featureless_maps() -> None:
         align_maps(a, GridMap(other.k, other.S, other.origin, 0.2))
 
 
-def test_merge_recovers_an_unknown_placement_and_sums_the_statistics() -> None:
-    a = _observe(5, np.zeros(3), 4.0, 1)
-    truth = np.array([1.3, -0.9, 2.4])  # B's frame in A's (the world is A's frame here)
-    b = _observe(5, truth, 2.5, 2)
+def test_merge_recovers_an_unknown_placement_and_sums_the_statistics(maps, align) -> None:
+    a, b, truth = maps.a, maps.b, TRUTH
     merged = merge_maps([a, b])
     al = merged.alignments[1]
     dist, deg = _pose_error(al.pose, truth)
@@ -208,21 +272,17 @@ def test_merge_recovers_an_unknown_placement_and_sums_the_statistics() -> None:
     assert agreement(merged.poses[1] + np.array([3.0, 0.0, 0.0])) < 0.5 * good
 
 
-def test_gslam_merge_writes_the_merge_or_refuses_it(tmp_path, capsys) -> None:
+def test_gslam_merge_writes_the_merge_or_refuses_it(maps, align, tmp_path, capsys) -> None:
     from gslam_jax.app.cli import main
 
-    truth = np.array([1.3, -0.9, 2.4])
-    for name, grid in (("a", _observe(5, np.zeros(3), 4.0, 1)), ("b", _observe(5, truth, 2.5, 2)),
-                       ("c", _observe(7, np.zeros(3), 2.5, 3))):
-        (tmp_path / name).mkdir()
-        save_map(tmp_path / name / "map.npz", grid)
+    runs = maps.folder
     out = tmp_path / "merged"
-    assert main(["merge", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(out)]) == 0
+    assert main(["merge", str(runs / "a"), str(runs / "b"), "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     pose = np.array(summary["runs"][1]["pose_in_merged_frame"])
-    assert _pose_error(pose, truth)[0] < 0.5 * RES
+    assert _pose_error(pose, TRUTH)[0] < 0.5 * RES
     assert (out / "map.png").is_file() and load_map(out).known.sum() > 0
     refused = tmp_path / "refused"
-    assert main(["merge", str(tmp_path / "a"), str(tmp_path / "c"), "--out", str(refused)]) == 2
+    assert main(["merge", str(runs / "a"), str(runs / "c"), "--out", str(refused)]) == 2
     assert "cannot align the maps" in capsys.readouterr().err
     assert not refused.exists()
