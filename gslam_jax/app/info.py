@@ -44,6 +44,9 @@ EXAMPLES = {
     "merge": """\
   gslam merge results/A results/B --out results/merged
   gslam merge results/A/map.npz results/B/map.npz --no-gps""",
+    "view": """\
+  gslam view results/run                   # the finished run in the Rerun viewer
+  gslam view results/run --save run.rrd    # ... written to a recording instead""",
     "compare": """\
   gslam compare --exact                    # both filters round identically
   gslam compare log.npz --store shared --out results/compare""",
