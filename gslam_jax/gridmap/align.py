@@ -22,7 +22,10 @@ distinct peaks are refined level by level on local grids, and at A's own lattice
 fitted to the score around the best pose (the Laplace approximation, as the observation-informed
 proposal fits its Gaussian: ``rbpf.proposal``) gives the pose and its covariance. The
 covariance is that of the tempered score: large where the score is flat (a straight road's
-along-track direction).
+along-track direction); to it is added the delete-one-block jackknife's (the fit repeated with
+each of 8 contiguous stretches of B's map left out), which counts what the curvature cannot:
+neighbouring cells err together, and a map bent by its own run's drift places differently
+stretch by stretch.
 
 Decisions use a standardised score: z = score / sqrt(sum of the terms' variances under chance).
 An alignment is refused (``AlignmentRefused``, carrying the best and the runner-up) when B
@@ -47,7 +50,7 @@ from gslam_jax.rbpf import cells
 from gslam_jax.rbpf.proposal import candidate_grid, quadratic_design, quadratic_hessian
 
 __all__ = ["AlignParams", "PosePrior", "Alignment", "AlignmentRefused", "align_maps",
-           "check_alignment", "score_poses", "pool", "temper", "FLAT_VARIANCE"]
+           "check_alignment", "score_poses", "map_blocks", "pool", "temper", "FLAT_VARIANCE"]
 
 
 # variance, in squared grid steps, of a direction along which the score does not curve down
@@ -74,6 +77,8 @@ class AlignParams(NamedTuple):
         ``max_cycle_m`` and ``max_cycle_rad``). A map broken by its own run (walls doubled by a
         diverged filter) can score best at a wrong placement in a repetitive scene; the reverse
         search then finds another, and the merge is refused instead of made wrong.
+    jackknife: add the delete-one-block jackknife covariance (``map_blocks``) to the
+        curvature's: the reported uncertainty then counts cells that err together.
     """
 
     max_dof: int = 8
@@ -90,6 +95,7 @@ class AlignParams(NamedTuple):
     mutual: bool = True
     max_cycle_m: float = 0.5
     max_cycle_rad: float = math.radians(2.0)
+    jackknife: bool = True
 
 
 class PosePrior(NamedTuple):
@@ -442,15 +448,16 @@ def _refine(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
 
 
 def _laplace(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
-             prior: PosePrior | None) -> tuple[np.ndarray, np.ndarray]:
+             prior: PosePrior | None, centre: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """Mode and covariance of the quadratic fitted to the score on a 5 x 5 x 5 grid of
-    ``step`` around ``pose``, in the coordinates (centroid of B's cells in A's frame, heading):
-    turning about B's frame origin far from its cells would couple heading and shift into a
-    narrow diagonal ridge that a quadratic on a grid fits badly. The mode stays within the
-    grid; a direction where the fitted score does not curve down gets the variance
-    ``FLAT_VARIANCE`` (in grid steps^2). The covariance is carried back to the pose."""
-    known = np.asarray(moving.k) > 0
-    c_b = np.asarray(moving.centres, np.float64)[known].mean(axis=0)
+    ``step`` around ``pose``, in the coordinates (``centre``, by default the centroid of B's
+    cells, placed in A's frame; heading): turning about B's frame origin far from its cells
+    would couple heading and shift into a narrow diagonal ridge that a quadratic on a grid fits
+    badly. The mode stays within the grid; a direction where the fitted score does not curve
+    down gets the variance ``FLAT_VARIANCE`` (in grid steps^2). The covariance is carried back
+    to the pose."""
+    c_b = _centroid(moving) if centre is None else centre
 
     def to_pose(u: np.ndarray) -> np.ndarray:
         c, s = np.cos(u[..., 2]), np.sin(u[..., 2])
@@ -480,6 +487,53 @@ def _laplace(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
                   [0.0, 1.0, -c * c_b[0] + s_ * c_b[1]],
                   [0.0, 0.0, 1.0]])
     return to_pose(u), J @ cov_u @ J.T
+
+
+def _centroid(moving: _Moving) -> np.ndarray:
+    known = np.asarray(moving.k) > 0
+    return np.asarray(moving.centres, np.float64)[known].mean(axis=0)
+
+
+def map_blocks(centres: np.ndarray, along: int = 4, across: int = 2) -> np.ndarray:
+    """Block index [N] of each of ``centres`` [N, 2]: ``along`` slabs of equal count along the
+    cells' principal axis, each cut into ``across`` parts of equal count across it, so every
+    block is one contiguous stretch of the map (of a path's map: a stretch of the drive)."""
+    d = centres - centres.mean(axis=0)
+    _, vecs = np.linalg.eigh(d.T @ d)
+    u, v = d @ vecs[:, 1], d @ vecs[:, 0]  # principal axis first
+    slab = np.minimum((np.argsort(np.argsort(u, kind="stable"), kind="stable") * along)
+                      // len(u), along - 1)
+    block = np.empty(len(u), np.int64)
+    for a in range(along):
+        sel = np.flatnonzero(slab == a)
+        rank = np.argsort(np.argsort(v[sel], kind="stable"), kind="stable")
+        block[sel] = a * across + np.minimum(rank * across // max(len(sel), 1), across - 1)
+    return block
+
+
+def _jackknife(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
+               prior: PosePrior | None) -> np.ndarray:
+    """Delete-one-block jackknife covariance [3, 3] of the fitted pose over ``map_blocks`` of
+    B's cells: (n - 1) / n sum_i (T_i - T)(T_i - T)^T over the n fits without block i. It
+    measures what the curvature of a score summed over cells as if independent cannot: cells
+    that err together (neighbouring cells of one patch of terrain, a stretch of B's map bent by
+    its own run's drift) move the pose together."""
+    k = np.asarray(moving.k)
+    known = np.flatnonzero(k > 0)
+    block = np.full(len(k), -1)
+    block[known] = map_blocks(np.asarray(moving.centres, np.float64)[known])
+    centre = _centroid(moving)
+    fits = []
+    for i in np.unique(block[known]):
+        keep = jnp.asarray(block != i)
+        held = moving._replace(k=jnp.where(keep, moving.k, 0.0), S=jnp.where(keep, moving.S, 0.0))
+        fits.append(_laplace(held, lvl, pose, step, prior, centre)[0])
+    fits = np.asarray(fits)
+    d = fits - fits.mean(axis=0)
+    d[:, 2] = np.remainder(fits[:, 2] - fits[0, 2] + math.pi, 2 * math.pi) - math.pi
+    d[:, 2] -= d[:, 2].mean()
+    n = len(fits)
+    return (n - 1) / n * d.T @ d
 
 
 def _choose_coarse(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrior | None) -> int:
@@ -521,7 +575,7 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
     poses, _ = _coarse_search(a, b, factor, params, prior)
     radius = _radius(b)
     levels = {}
-    f = factor // 2
+    f = max(factor // 2, 1)  # a search already at A's lattice is still refined there
     while f >= 1:
         levels[f] = _prepare(a, b, f, params.max_dof)
         f //= 2
@@ -540,6 +594,8 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
     # grid would fit its steps rather than its shape
     step = np.array([a.resolution, a.resolution, 2 * _heading_step(radius, a.resolution)])
     best_pose, cov = _laplace(moving, lvl, refined[0][1], step, prior)
+    if params.jackknife:
+        cov = cov + _jackknife(moving, lvl, best_pose, step, prior)
     others = [p for _, p in refined[1:] if _distinct(p, best_pose, params)]
     test = np.vstack([best_pose[None]] + [p[None] for p in others])
     score, var, overlap = (np.asarray(v, np.float64) for v in

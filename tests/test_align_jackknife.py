@@ -1,0 +1,98 @@
+"""The alignment's uncertainty counts cells that err together: the delete-one-block jackknife
+of ``gridmap.align`` against a brute force (each block removed from B and the whole alignment
+run again), on a consistent map and on one bent by its own run's drift."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gslam_jax.gridmap import GridMap
+from gslam_jax.gridmap.align import AlignParams, align_maps, map_blocks
+
+RES = 0.16
+
+
+def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Height variance at world points: smooth ground plus scattered rocks."""
+    rng = np.random.default_rng(3)
+    rocks = rng.uniform(-7, 7, (60, 2))
+    size = rng.uniform(0.2, 0.5, 60)
+    v = np.full(x.shape, 1e-3)
+    for (cx, cy), s in zip(rocks, size):
+        v += 0.05 * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * s ** 2))
+    return v
+
+
+def _strip(pose: np.ndarray, half: tuple[float, float], noise: int, bend: float = 0.0,
+           k: int = 30) -> GridMap:
+    """A map of the terrain over a 2 half[0] x 2 half[1] strip in a frame at ``pose``; with
+    ``bend`` the strip's far half (frame x > 0) is drawn ``bend`` metres off across it, as a
+    run whose heading drifted halfway would lay it."""
+    nx, ny = int(2 * half[0] / RES), int(2 * half[1] / RES)
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    fx = -half[0] + (i + 0.5) * RES
+    fy = -half[1] + (j + 0.5) * RES + np.where(-half[0] + (i + 0.5) * RES > 0, bend, 0.0)
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    v = _terrain(pose[0] + c * fx - s * fy, pose[1] + s * fx + c * fy)
+    S = v * np.random.default_rng(noise).chisquare(k, v.shape)
+    return GridMap(np.full(v.shape, float(k)), S, (-half[0], -half[1]), RES)
+
+
+def test_map_blocks_are_equal_contiguous_stretches() -> None:
+    # a 40 x 10 lattice along x: 4 slabs of 10 columns, each cut in two along y
+    i, j = np.meshgrid(np.arange(40), np.arange(10), indexing="ij")
+    centres = np.column_stack([i.ravel() + 0.5, j.ravel() + 0.5]) * RES
+    block = map_blocks(centres)
+    slab = i.ravel() // 10
+    side = j.ravel() >= 5
+    # blocks are labelled by slab then side; the principal axis's sign is arbitrary
+    for b in range(8):
+        members = block == b
+        assert members.sum() == 50
+        assert len(set(slab[members])) == 1 and len(set(side[members])) == 1
+
+
+def _brute_jackknife(a: GridMap, b: GridMap, best: np.ndarray) -> np.ndarray:
+    centres = np.column_stack([b.origin[0] + (np.nonzero(b.known)[0] + 0.5) * RES,
+                               b.origin[1] + (np.nonzero(b.known)[1] + 0.5) * RES])
+    block = map_blocks(centres)
+    rows, cols = np.nonzero(b.known)
+    params = AlignParams(mutual=False, jackknife=False)
+    fits = []
+    for n in range(block.max() + 1):
+        k, S = b.k.copy(), b.S.copy()
+        k[rows[block == n], cols[block == n]] = 0.0
+        S[rows[block == n], cols[block == n]] = 0.0
+        fits.append(align_maps(a, GridMap(k, S, b.origin, RES), params, refuse=False).pose)
+    fits = np.asarray(fits)
+    fits[:, 2] = best[2] + np.remainder(fits[:, 2] - best[2] + math.pi, 2 * math.pi) - math.pi
+    d = fits - fits.mean(axis=0)
+    return (len(fits) - 1) / len(fits) * d.T @ d
+
+
+def test_jackknife_matches_the_brute_force_and_widens_a_bent_map() -> None:
+    a = _strip(np.zeros(3), (6.0, 2.5), noise=1)
+    truth = np.array([0.7, -0.4, 0.3])
+    curvature_only = AlignParams(mutual=False, jackknife=False)
+    with_blocks = AlignParams(mutual=False)
+
+    # a consistent map: with the jackknife its error is within 2 standard deviations per axis
+    straight = _strip(truth, (4.0, 1.5), noise=2)
+    full = align_maps(a, straight, with_blocks, refuse=False)
+    assert np.all(np.abs(full.pose - truth) < 2 * np.sqrt(np.diag(full.covariance)))
+
+    # a map whose far half is laid 0.35 m across: the halves place differently, which the
+    # curvature (as sharp as the straight map's) cannot see and the jackknife does
+    bent = _strip(truth, (4.0, 1.5), noise=2, bend=0.35)
+    plain = align_maps(a, bent, curvature_only, refuse=False)
+    full = align_maps(a, bent, with_blocks, refuse=False)
+    np.testing.assert_allclose(full.pose, plain.pose)  # the pose itself is unchanged
+    jack = full.covariance - plain.covariance
+    # the one-fit-per-block jackknife against whole alignments without each block
+    np.testing.assert_allclose(np.sqrt(np.diag(jack)),
+                               np.sqrt(np.diag(_brute_jackknife(a, bent, full.pose))),
+                               rtol=0.35, atol=0.01)
+    across = np.array([-math.sin(truth[2]), math.cos(truth[2]), 0.0])
+    assert across @ full.covariance @ across > 9 * across @ plain.covariance @ across
