@@ -73,19 +73,19 @@ def _brute_jackknife(a: GridMap, b: GridMap, best: np.ndarray) -> np.ndarray:
 
 
 def test_jackknife_matches_the_brute_force_and_widens_a_bent_map() -> None:
-    a = _strip(np.zeros(3), (6.0, 2.5), noise=1)
+    a = _strip(np.zeros(3), (4.5, 2.0), noise=1)
     truth = np.array([0.7, -0.4, 0.3])
     curvature_only = AlignParams(mutual=False, jackknife=False)
     with_blocks = AlignParams(mutual=False)
 
     # a consistent map: with the jackknife its error is within 2 standard deviations per axis
-    straight = _strip(truth, (4.0, 1.5), noise=2)
+    straight = _strip(truth, (3.0, 1.2), noise=2)
     full = align_maps(a, straight, with_blocks, refuse=False)
     assert np.all(np.abs(full.pose - truth) < 2 * np.sqrt(np.diag(full.covariance)))
 
     # a map whose far half is laid 0.35 m across: the halves place differently, which the
     # curvature (as sharp as the straight map's) cannot see and the jackknife does
-    bent = _strip(truth, (4.0, 1.5), noise=2, bend=0.35)
+    bent = _strip(truth, (3.0, 1.2), noise=2, bend=0.35)
     plain = align_maps(a, bent, curvature_only, refuse=False)
     full = align_maps(a, bent, with_blocks, refuse=False)
     np.testing.assert_allclose(full.pose, plain.pose)  # the pose itself is unchanged
