@@ -6,33 +6,46 @@ import sys
 
 import numpy as np
 import pytest
-from synthetic import make_run
+from cached_runs import FRAMES, run_file
 
 from gslam_jax.app.cli import main
-from gslam_jax.run import save_run
+
+# One filter setting for every `gslam run` here (the tuned config's too): the filter compiles
+# once per process and the later runs reuse it.
+RUN_SETTINGS = ["--set", "filter.particles=8", "--set", "map.margin=1.0"]
+
+
+@pytest.fixture(scope="module")
+def mean_run(tmp_path_factory):
+    """One `gslam run` with [filter] estimate = "mean" on the shared Run; the tests below read
+    different files of its results folder."""
+    tmp = tmp_path_factory.mktemp("mean_run")
+    run, path = run_file(tmp / "r.npz")
+    out = tmp / "out"
+    assert main(["run", str(path), *RUN_SETTINGS, "--set", "filter.estimate=mean",
+                 "--out", str(out)]) == 0
+    return run, out
 
 
 def test_help_lists_subcommands():
-    out = subprocess.run([sys.executable, "-m", "gslam_jax.app.cli", "--help"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "gslam_jax.app.cli", "--help"],
+                         capture_output=True, text=True)
     assert out.returncode == 0
     for cmd in ("run", "bench"):
         assert cmd in out.stdout
 
 
-def test_run_on_npz_writes_results(tmp_path, capsys):
-    run, _ = make_run(steps=25)
-    save_run(tmp_path / "r.npz", run)
-    rc = main(["run", str(tmp_path / "r.npz"), "--set", "filter.particles=8", "--out", str(tmp_path / "out")])
-    assert rc == 0
-    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert summary["frames"] == 25 and summary["particles"] == 8
+def test_run_on_npz_writes_results(mean_run):
+    _, out = mean_run
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == FRAMES and summary["particles"] == 8
     assert summary["gt_distance_m"] > 0 and summary["slam_drift_pct"] >= 0
     assert summary["vo_drift_pct"] >= 0
     for name in ("trajectory_tum.txt", "trajectory_robot_kitti.txt", "map.npz", "config.toml",
                  "ground_truth.png"):
-        assert (tmp_path / "out" / name).exists()
-    assert len((tmp_path / "out" / "trajectory_robot_kitti.txt").read_text().splitlines()) == 25
-    assert not (tmp_path / "out" / "trajectory_kitti.txt").exists()  # KITTI's frame: KITTI runs
+        assert (out / name).exists()
+    assert len((out / "trajectory_robot_kitti.txt").read_text().splitlines()) == FRAMES
+    assert not (out / "trajectory_kitti.txt").exists()  # KITTI's frame: KITTI runs
 
 
 def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
@@ -40,8 +53,7 @@ def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
     assert "missing.npz: no such file" in capsys.readouterr().err
     bad = tmp_path / "bad.toml"
     bad.write_text("[filter]\nparticls = 2\n")
-    run, _ = make_run(steps=10)
-    save_run(tmp_path / "r.npz", run)
+    run_file(tmp_path / "r.npz")
     assert main(["run", str(tmp_path / "r.npz"), "--config", str(bad)]) == 2
     assert "unknown key 'particls'" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_:  # argparse's usage error, before any JAX work
@@ -58,7 +70,8 @@ def test_bench_writes_every_figure(tmp_path, capsys):
     rows = json.loads(out.read_text())["results"]
     assert [(r["particles"], r["particle_block"]) for r in rows] == [(4, 4), (4, 3), (8, 8), (8, 3)]
     for r in rows:
-        for key in ("ms_per_update", "us_per_particle", "predict_us_per_particle", "mb_per_particle"):
+        for key in ("ms_per_update", "us_per_particle", "predict_us_per_particle",
+                    "mb_per_particle"):
             assert r[key] > 0, (key, r)
         assert r["resample_ms"] >= 0
     assert "us/particle" in capsys.readouterr().out
@@ -85,7 +98,8 @@ def test_run_config_applies_the_course_section_of_a_table1_config(tmp_path):
         return argparse.Namespace(**{**base, **kw})
 
     maze = _load_config(ns(course="maze"))
-    assert (maze.filter.beta_prev, maze.motion.alpha_d, maze.motion.alpha_theta) == (0.2, 0.04, 0.07)
+    assert (maze.filter.beta_prev, maze.motion.alpha_d, maze.motion.alpha_theta) == \
+        (0.2, 0.04, 0.07)
     other = _load_config(ns())
     assert (other.filter.beta_prev, other.motion.alpha_d) == (0.05, 0.04)
     from_file = _load_config(ns(course="maze", run_file=tmp_path / "log.npz"))
@@ -95,11 +109,11 @@ def test_run_config_applies_the_course_section_of_a_table1_config(tmp_path):
 def test_search_prints_the_best_score_and_writes_a_config(tmp_path, capsys):
     from gslam_jax.config import load_config
 
-    run, _ = make_run(steps=20)
-    save_run(tmp_path / "r.npz", run)
-    (tmp_path / "space.toml").write_text("[space]\nalpha_d = [0.01, 0.1]\nobs_weight = [0.3, 1.0]\n")
-    rc = main(["search", str(tmp_path / "r.npz"), "--space", str(tmp_path / "space.toml"), "--n", "4",
-               "--set", "filter.particles=8", "--set", "map.margin=1.0", "--out", str(tmp_path / "s")])
+    run_file(tmp_path / "r.npz")
+    (tmp_path / "space.toml").write_text(
+        "[space]\nalpha_d = [0.01, 0.1]\nobs_weight = [0.3, 1.0]\n")
+    rc = main(["search", str(tmp_path / "r.npz"), "--space", str(tmp_path / "space.toml"),
+               "--n", "4", *RUN_SETTINGS, "--out", str(tmp_path / "s")])
     assert rc == 0
     doc = json.loads((tmp_path / "s" / "results.json").read_text())
     top = doc["results"][0]
@@ -113,11 +127,10 @@ def test_search_prints_the_best_score_and_writes_a_config(tmp_path, capsys):
 def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
     from gslam_jax.config import load_config
 
-    run, _ = make_run(steps=20)
-    save_run(tmp_path / "r.npz", run)
+    run_file(tmp_path / "r.npz")
     rc = main(["tune", str(tmp_path / "r.npz"), "--objective", "supervised", "--steps", "2",
                "--params", "alpha_d,beta_new,min_variance", "--runs-per-step", "1",
-               "--set", "filter.particles=8", "--set", "map.margin=1.0", "--out", str(tmp_path / "t")])
+               *RUN_SETTINGS, "--out", str(tmp_path / "t")])
     assert rc == 0
     tuned = json.loads((tmp_path / "t" / "tuned.json").read_text())
     printed = capsys.readouterr().out
@@ -130,19 +143,16 @@ def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
     rc = main(["run", str(tmp_path / "r.npz"), "--config", str(tmp_path / "t" / "tuned.toml"),
                "--out", str(tmp_path / "run")])
     assert rc == 0
-    assert (tmp_path / "run" / "config.toml").read_text() == (tmp_path / "t" / "tuned.toml").read_text()
+    assert (tmp_path / "run" / "config.toml").read_text() == \
+        (tmp_path / "t" / "tuned.toml").read_text()
 
 
-def test_run_reports_the_configured_estimate(tmp_path):
+def test_run_reports_the_configured_estimate(mean_run):
     """[filter] estimate = "mean": the trajectory files and the RMS are the weighted mean poses."""
     from gslam_jax.io import read_tum
     from gslam_jax.metrics import rms_after_fit
 
-    run, _ = make_run(steps=25)
-    save_run(tmp_path / "r.npz", run)
-    out = tmp_path / "out"
-    assert main(["run", str(tmp_path / "r.npz"), "--set", "filter.particles=8",
-                 "--set", "filter.estimate=mean", "--out", str(out)]) == 0
+    run, out = mean_run
     mean = np.load(out / "trace.npz")["mean_pose"]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["estimate"] == "mean"

@@ -5,13 +5,17 @@ import json
 
 import numpy as np
 import pytest
-from synthetic import make_run
+from cached_runs import FRAMES, run_file, shared_run
 
 from gslam_jax import gps
 from gslam_jax.app.cli import ProgressBar, main
-from gslam_jax.run import RunError, save_run
+from gslam_jax.run import RunError
 
 SITE = np.array([394000.0, 3783000.0])  # UTM zone 11N, like the simulated receiver's site
+# One filter setting for every `gslam run` here, so the filter compiles once per process;
+# resample_ratio 0.3 (not the default 0.5) is what test_ess_plot_threshold_is_the_resample_ratio
+# looks for.
+RUN_SETTINGS = ["--set", "filter.particles=8", "--set", "filter.resample_ratio=0.3"]
 
 
 def _strict_json(path):
@@ -21,11 +25,9 @@ def _strict_json(path):
     return json.loads(path.read_text(), parse_constant=bad)
 
 
-def _run_file(tmp_path, steps=25, **changes):
-    run, _ = make_run(steps=steps)
-    run = run._replace(**changes)
-    save_run(tmp_path / "r.npz", run)
-    return run, tmp_path / "r.npz"
+def _run_file(tmp_path, **changes):
+    """The shared Run of ``FRAMES`` frames (``cached_runs``), with ``changes``, in r.npz."""
+    return run_file(tmp_path / "r.npz", **changes)
 
 
 def _gps_log(path, run, times):
@@ -57,8 +59,7 @@ def test_gps_log_is_checked_before_the_filter(tmp_path, capsys, no_filter):
     err = capsys.readouterr().err
     assert "late.csv: 0 of 20 GPS readings fall inside the run's time span" in err
     assert "seconds on the run's clock" in err
-    no_truth, _ = make_run(steps=25)
-    save_run(tmp_path / "no_truth.npz", no_truth._replace(ground_truth=None))
+    run_file(tmp_path / "no_truth.npz", ground_truth=None)
     assert main(["run", str(tmp_path / "no_truth.npz"), "--gps", "sim", "--out", str(out)]) == 2
     assert "--gps sim needs a run with ground truth" in capsys.readouterr().err
 
@@ -78,8 +79,7 @@ def test_gps_report_counts_the_readings_used_and_warns(tmp_path, capsys):
     times = np.r_[np.arange(10) * 0.5, 10.0 + np.arange(15)]
     log = _gps_log(tmp_path / "gps.csv", run, times)
     out = tmp_path / "out"
-    assert main(["run", str(path), "--set", "filter.particles=8", "--gps", str(log),
-                 "--out", str(out)]) == 0
+    assert main(["run", str(path), *RUN_SETTINGS, "--gps", str(log), "--out", str(out)]) == 0
     stdout = capsys.readouterr().out
     assert "WARNING" in stdout and "only 10 of 25 GPS readings fall inside" in stdout
     assert "GPS: 10 of 25 readings used (15 outside the run's time span)" in stdout
@@ -90,37 +90,47 @@ def test_gps_report_counts_the_readings_used_and_warns(tmp_path, capsys):
     assert (out / "trajectory_utm.txt").exists()
 
 
-def test_partial_ground_truth_is_scored_over_its_finite_frames(tmp_path, capsys):
-    run, _ = make_run(steps=25)
-    gt = np.array(run.ground_truth, np.float64)
-    gt[5:10] = np.nan
-    _, path = _run_file(tmp_path, ground_truth=gt)
-    out = tmp_path / "out"
-    assert main(["run", str(path), "--set", "filter.particles=8", "--out", str(out)]) == 0
-    stdout = capsys.readouterr().out
-    summary = _strict_json(out / "summary.json")
-    assert summary["gt_frames_scored"] == 20
-    for key in ("vo_rms_m", "slam_rms_m", "vo_final_error_m", "slam_final_error_m"):
-        assert np.isfinite(summary[key]) and summary[key] >= 0, key
-    assert "VO-only RMS: nan" not in stdout
-    assert "(over the 20 of 25 frames with ground truth)" in stdout
+@pytest.fixture(scope="module")
+def partial_truth_run(tmp_path_factory):
+    """One `gslam run` on the shared Run with frames 5-9 of its ground truth unknown and
+    filter.resample_ratio = 0.3 (not the default 0.5), recording the threshold each ESS plot
+    was drawn with. Returns (results folder, stdout, thresholds); the tests below check
+    different parts of it."""
+    import contextlib
 
-
-def test_ess_plot_threshold_is_the_resample_ratio(tmp_path, capsys, monkeypatch):
     from gslam_jax.app import plots
 
-    _, path = _run_file(tmp_path, steps=10)
+    tmp = tmp_path_factory.mktemp("partial_truth")
+    gt = np.array(shared_run().ground_truth, np.float64)
+    gt[5:10] = np.nan
+    _, path = _run_file(tmp, ground_truth=gt)
     thresholds = []
     save_ess_png = plots.save_ess_png
 
     def spy(*args, **kwargs):
         thresholds.append(kwargs.get("threshold", "default"))
         return save_ess_png(*args, **kwargs)
-    monkeypatch.setattr(plots, "save_ess_png", spy)
-    assert main(["run", str(path), "--set", "filter.particles=8",
-                 "--set", "filter.resample_ratio=0.3", "--out", str(tmp_path / "out")]) == 0
+    stdout = io.StringIO()
+    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(stdout):
+        patch.setattr(plots, "save_ess_png", spy)
+        assert main(["run", str(path), *RUN_SETTINGS, "--out", str(tmp / "out")]) == 0
+    return tmp / "out", stdout.getvalue(), thresholds
+
+
+def test_partial_ground_truth_is_scored_over_its_finite_frames(partial_truth_run):
+    out, stdout, _ = partial_truth_run
+    summary = _strict_json(out / "summary.json")
+    assert summary["gt_frames_scored"] == FRAMES - 5
+    for key in ("vo_rms_m", "slam_rms_m", "vo_final_error_m", "slam_final_error_m"):
+        assert np.isfinite(summary[key]) and summary[key] >= 0, key
+    assert "VO-only RMS: nan" not in stdout
+    assert f"(over the {FRAMES - 5} of {FRAMES} frames with ground truth)" in stdout
+
+
+def test_ess_plot_threshold_is_the_resample_ratio(partial_truth_run):
+    out, _, thresholds = partial_truth_run
     assert thresholds == [0.3]
-    assert (tmp_path / "out" / "ess.png").exists()
+    assert (out / "ess.png").exists()
 
 
 def test_progress_bar_is_one_final_line_when_not_a_terminal():
@@ -156,7 +166,7 @@ def test_max_frames_must_be_a_positive_integer(capsys, monkeypatch):
                                          (["--sequence", "00"], "--sequence"),
                                          (["--source", "kitti"], "--source")])
 def test_run_file_rejects_source_options(tmp_path, capsys, no_filter, extra, name):
-    _, path = _run_file(tmp_path, steps=10)
+    _, path = _run_file(tmp_path)
     assert main(["run", str(path), *extra, "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert f"{path}: a Run file is used as it is; {name}" in err
@@ -243,11 +253,11 @@ def test_trajectory_errors_match_the_metrics_on_full_ground_truth():
     from gslam_jax import metrics
     from gslam_jax.metrics import errors_over_known_frames
 
-    run, _ = make_run(steps=30)
+    run = shared_run()
     gt, vo = np.asarray(run.ground_truth), run.vo_poses()
     slam = gt + 0.01 * np.random.default_rng(0).standard_normal(gt.shape)
     got = errors_over_known_frames({"vo": vo, "slam": slam}, gt)
-    assert got == {"gt_frames_scored": 30,
+    assert got == {"gt_frames_scored": FRAMES,
                    "vo_rms_m": metrics.rms_after_fit(vo, gt),
                    "vo_final_error_m": metrics.final_position_error(vo, gt),
                    "slam_rms_m": metrics.rms_after_fit(slam, gt),
@@ -298,7 +308,7 @@ def test_course_path_is_the_sim_path_source(tmp_path, capsys, monkeypatch):
                      "--out", out]) == 2
         assert f"{poses}: stop here" in capsys.readouterr().err
     assert seen == [(poses, "arroyo-a")] * 2
-    _, run_file = _run_file(tmp_path, steps=10)
+    _, run_file = _run_file(tmp_path)
     for extra, message in [
             ([str(run_file)], f"{run_file}: a Run file is used as it is; --course-path {poses}"),
             (["--source", "sim"], f"--course-path {poses} is --source sim-path --path FILE; it "
