@@ -1,6 +1,7 @@
 """The dense filter on a small hand-built world with known truth."""
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -19,6 +20,13 @@ from gslam_jax.vo.localmap import LocalMapParams, points_to_stats
 
 RES = 0.16
 LM = LocalMapParams(resolution=RES, max_range=5.0, cells=64)
+
+
+# Compilation, not running, is what these tests spend: runs are built once per module and
+# shared, the eager updates are jitted (one compile per config instead of one per primitive)
+# and tests that check different properties of the same filter run share that run.
+_make_run = functools.lru_cache(make_run)
+_observe = jax.jit(rbpf.observe, static_argnames=("cfg",))
 
 
 def _cfg(J, mode="ignore", **kw):
@@ -44,11 +52,11 @@ def test_particle_nearest_truth_gains_weight(mode):
     params = rbpf.FilterParams()
     state = rbpf.init(cfg, jnp.asarray(truth, jnp.float32))
     noise = rbpf.update_noise(jax.random.key(0), cfg)
-    state, _ = rbpf.observe(state, _local_obs(world, truth, 1), noise, params, cfg)
+    state, _ = _observe(state, _local_obs(world, truth, 1), noise, params, cfg)
     offsets = np.array([[0, 0, 0], [0.5, 0, 0], [-0.5, 0, 0], [0, 0.5, 0], [0, -0.5, 0],
                         [0.3, 0.3, 0.05], [0, 0, 0.1], [0, 0, -0.1], [1.0, 0.0, 0.0]])
     state = state._replace(pose=jnp.asarray(truth + offsets, jnp.float32))
-    state, info = rbpf.observe(state, _local_obs(world, truth, 2), noise, params, cfg)
+    state, info = _observe(state, _local_obs(world, truth, 2), noise, params, cfg)
     w = np.exp(np.asarray(info.log_w))
     assert int(np.argmax(w)) == 0
     assert w[0] > 0.5
@@ -66,13 +74,13 @@ def test_best_particle_survives_resampling():
     keep_cfg, resample_cfg = _cfg(J, resample_ratio=0.0), _cfg(J, resample_ratio=2.0)
     state = rbpf.init(keep_cfg, jnp.asarray(truth, jnp.float32))
     noise = rbpf.update_noise(jax.random.key(0), keep_cfg)
-    state, _ = rbpf.observe(state, _local_obs(world, truth, 1), noise, params, keep_cfg)
+    state, _ = _observe(state, _local_obs(world, truth, 1), noise, params, keep_cfg)
     offsets = np.array([[1.0, 0, 0], [0.5, 0, 0], [-0.5, 0, 0], [0, 0.5, 0], [0, -0.5, 0],
                         [0.3, 0.3, 0.05], [0, 0, 0.1], [0, 0, 0], [0, 0, -0.1]])
     state = state._replace(pose=jnp.asarray(truth + offsets, jnp.float32))
     obs = _local_obs(world, truth, 2)
-    kept, kept_info = rbpf.observe(jax.tree.map(jnp.copy, state), obs, noise, params, keep_cfg)
-    resampled, info = rbpf.observe(state, obs, noise, params, resample_cfg)
+    kept, kept_info = _observe(jax.tree.map(jnp.copy, state), obs, noise, params, keep_cfg)
+    resampled, info = _observe(state, obs, noise, params, resample_cfg)
     assert bool(info.resampled) and not bool(kept_info.resampled)
     assert np.ptp(np.asarray(info.log_w)) == 0.0  # equal weights: argmax would say slot 0
     assert int(np.argmax(kept_info.log_w)) == 7 == int(kept.best)
@@ -84,24 +92,27 @@ def test_best_particle_survives_resampling():
 
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_without_map_updates_the_weights_stay_uniform(mode):
-    run, _ = make_run(seed=1, steps=30)
+    run, _ = _make_run(seed=1, steps=30)
     cfg = _cfg(16, mode, update_map=False)
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
-    out = rbpf.run_filter(jax.random.key(0), rbpf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
-                          jnp.asarray(run.obs_index), obs, cfg)
+    out = rbpf.run_filter(jax.random.key(0), rbpf.FilterParams(),
+                          jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index),
+                          obs, cfg)
     np.testing.assert_allclose(np.exp(np.asarray(out.infos.log_w)), 1 / 16, rtol=1e-5)
     assert not np.asarray(out.infos.resampled).any()
 
 
 def _config(J=32, mode="sample", seed=0):
-    return dataclasses.replace(Config(), filter=FilterSection(particles=J, unknown_cells=mode, seed=seed),
+    return dataclasses.replace(Config(),
+                               filter=FilterSection(particles=J, unknown_cells=mode, seed=seed),
                                motion=MotionSection(alpha_theta_d=0.02))
 
 
 def test_same_seed_is_bit_identical_and_seeds_differ():
-    run, _ = make_run(seed=2, steps=40)
+    run, _ = _make_run(seed=2, steps=30)
     a = slam.run_slam(run, _config(seed=5))
-    b = slam.run_slam(run, _config(seed=5), chunk=7)  # chunking must not change anything
+    b = slam.run_slam(run, _config(seed=5), chunk=7)  # chunking (and padding 30 to 35) must
+    # not change anything
     c = slam.run_slam(run, _config(seed=6))
     np.testing.assert_array_equal(a.best_path, b.best_path)
     np.testing.assert_array_equal(a.ess, b.ess)
@@ -122,12 +133,13 @@ def test_slam_corrects_vo_heading_drift_on_a_loop():
 
 
 def test_footprints_leaving_the_map_are_counted_not_wrapped():
-    run, _ = make_run(seed=1, steps=20)
+    run, _ = _make_run(seed=1, steps=30)
     cfg = rbpf.FilterConfig(num_particles=4, map_shape=(112, 112), map_origin=(-2.0, -9.0),
                             resolution=RES, local_size=64, unknown_cells="ignore")
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
-    out = rbpf.run_filter(jax.random.key(0), rbpf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
-                          jnp.asarray(run.obs_index), obs, cfg)
+    out = rbpf.run_filter(jax.random.key(0), rbpf.FilterParams(),
+                          jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index),
+                          obs, cfg)
     assert int(np.sum(out.infos.extent_violations)) > 0
 
 
@@ -141,7 +153,8 @@ def test_observation_cells_match_float64_geometry():
     a, b = np.meshgrid(centre, centre, indexing="ij")
     mismatches = 0
     for _ in range(50):
-        pose = np.array([rng.uniform(-3.5, 3.5), rng.uniform(-2.5, 6.0), rng.uniform(-np.pi, np.pi)])
+        pose = np.array([rng.uniform(-3.5, 3.5), rng.uniform(-2.5, 6.0),
+                         rng.uniform(-np.pi, np.pi)])
         flat, on_map = map(np.asarray, observation_cells(
             jnp.asarray(pose, jnp.float32), jnp.arange(L * L, dtype=jnp.int32), cfg))
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -166,7 +179,7 @@ def test_update_adds_every_on_map_cell_once():
     for pose in ([3.2, 3.2, 0.7], [0.3, 3.2, 2.0]):  # inside; half off the map's top edge
         state = rbpf.init(cfg)._replace(pose=jnp.asarray([pose], jnp.float32))
         noise = rbpf.update_noise(jax.random.key(0), cfg)
-        new, info = rbpf.observe(state, local, noise, rbpf.FilterParams(), cfg)
+        new, info = _observe(state, local, noise, rbpf.FilterParams(), cfg)
         _, on_map = observation_cells(state.pose[0], jnp.arange(L * L, dtype=jnp.int32), cfg)
         expected = float(np.sum(k.ravel()[np.asarray(on_map)]))
         assert float(jnp.sum(new.maps.k)) == expected
@@ -175,7 +188,7 @@ def test_update_adds_every_on_map_cell_once():
 
 
 def test_empty_local_maps_leave_weights_unchanged_and_are_counted():
-    run, _ = make_run(seed=1, steps=20)
+    run, _ = _make_run(seed=1, steps=30)
     run = run._replace(local_maps=np.zeros_like(run.local_maps))
     res = slam.run_slam(run, _config(J=8))
     assert res.empty_observations == run.num_local_maps
@@ -183,31 +196,47 @@ def test_empty_local_maps_leave_weights_unchanged_and_are_counted():
     np.testing.assert_allclose(res.ess, 8.0, rtol=1e-5)
 
 
+J_SHARED = 11  # the CPU default's block shape below: blocks of 3, 3, 3 and a tail of 2
+
+
+def _shared_base(mode: str) -> rbpf.FilterConfig:
+    """The filter of the compaction, particle-block and written-rows tests, on one run."""
+    run, _ = _make_run(seed=2, steps=30)
+    return rbpf.FilterConfig(J_SHARED, (160, 160), (-8.0, -12.8), RES, run.local_maps.shape[1],
+                             unknown_cells=mode, unknown_samples=64, resample_ratio=0.9)
+
+
+@functools.lru_cache
+def _shared_run(mode: str, observed_cells: int, particle_block: int) -> rbpf.RunOutput:
+    """One run_filter of the seed-2 run per (mode, M, block), compiled and run once per module;
+    the tests read different properties of the same runs."""
+    run, _ = _make_run(seed=2, steps=30)
+    cfg = _shared_base(mode)._replace(observed_cells=observed_cells,
+                                      particle_block=particle_block)
+    return rbpf.run_filter(jax.random.key(4), rbpf.FilterParams(),
+                           jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index),
+                           jnp.asarray(slam.local_observations(run, 1e-6)), cfg)
+
+
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_compacted_update_equals_full_and_reports_overflow(mode):
     """Evaluating only the observed cells (observed_cells = M) gives the same weights and maps
     as evaluating all L*L; a cap below the observed count is reported, not silent."""
-    run, _ = make_run(seed=2, steps=30)
+    run, _ = _make_run(seed=2, steps=30)
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
     L = obs.shape[1]
     M = slam.observed_cells(run)
     assert M < L * L
-    base = rbpf.FilterConfig(8, (160, 160), (-8.0, -12.8), RES, L, unknown_cells=mode,
-                             unknown_samples=64)
-    outs = []
-    for cap in (0, M):
-        cfg = base._replace(observed_cells=cap)
-        outs.append(rbpf.run_filter(jax.random.key(1), rbpf.FilterParams(),
-                                    jnp.asarray(run.controls, jnp.float32),
-                                    jnp.asarray(run.obs_index), obs, cfg))
-    full, compact = outs
+    base = _shared_base(mode)
+    full, compact = (_shared_run(mode, cap, J_SHARED) for cap in (0, M))
+    assert int(np.sum(full.infos.resampled)) >= 1  # the maps were copied too
     np.testing.assert_allclose(compact.infos.log_w, full.infos.log_w, atol=1e-5)
     np.testing.assert_array_equal(compact.final_state.maps.k, full.final_state.maps.k)
     assert int(np.sum(compact.infos.dropped_cells)) == 0
     small = base._replace(observed_cells=8)
     state = rbpf.init(small)
-    _, info = rbpf.observe(state, obs[0], rbpf.update_noise(jax.random.key(0), small),
-                           rbpf.FilterParams(), small)
+    _, info = _observe(state, obs[0], rbpf.update_noise(jax.random.key(0), small),
+                       rbpf.FilterParams(), small)
     assert int(info.dropped_cells) == int(np.sum(np.asarray(obs[0, ..., 0]) > 0)) - 8 > 0
 
 
@@ -216,15 +245,9 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
     """Reading, weighing and writing the particles in blocks (3 of 3 and a tail of 2, the CPU
     default's shape) gives the same weights, resampling and maps as one pass over all of them,
     and the auto choice is one pass on accelerators, cache-sized blocks on a CPU."""
-    run, _ = make_run(seed=2, steps=30)
-    obs = jnp.asarray(slam.local_observations(run, 1e-6))
-    L = obs.shape[1]
-    base = rbpf.FilterConfig(11, (160, 160), (-8.0, -12.8), RES, L, unknown_cells=mode,
-                             unknown_samples=64, observed_cells=slam.observed_cells(run))
-    outs = [rbpf.run_filter(jax.random.key(4), rbpf.FilterParams(),
-                            jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs,
-                            base._replace(particle_block=block)) for block in (11, 3)]
-    one, blocks = outs
+    run, _ = _make_run(seed=2, steps=30)
+    M = slam.observed_cells(run)
+    one, blocks = (_shared_run(mode, M, block) for block in (J_SHARED, 3))
     assert int(np.sum(one.infos.resampled)) >= 1
     np.testing.assert_array_equal(blocks.infos.resampled, one.infos.resampled)
     np.testing.assert_array_equal(blocks.infos.ancestors, one.infos.ancestors)
@@ -236,7 +259,7 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
                                   one.final_state.maps.known_bits)
 
     auto = CPU_BLOCK_CELLS // 4096 if jax.default_backend() == "cpu" else 200
-    big = base._replace(num_particles=200, observed_cells=4096)
+    big = _shared_base(mode)._replace(num_particles=200, observed_cells=4096)
     assert big.update_block == auto
     assert big._replace(particle_block=7).update_block == 7
     with pytest.raises(ValueError, match="particle_block"):
@@ -246,7 +269,7 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
 def test_filter_config_resolves_the_automatic_particle_block_on_the_host():
     """``[filter] particle_block = 0`` becomes the default backend's block size when the config
     is built, so the static config the update is traced with carries it; a set size is kept."""
-    run, _ = make_run(seed=2, steps=30)
+    run, _ = _make_run(seed=2, steps=30)
     cfg = slam.filter_config(_config(J=200, mode="ignore"), run)
     auto = CPU_BLOCK_CELLS // cfg.max_observed if jax.default_backend() == "cpu" else 200
     assert cfg.particle_block == min(auto, 200) > 0
@@ -269,12 +292,15 @@ def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
     kd = np.where(rng.uniform(size=D) < 0.8, rng.integers(1, 400, D), 0).astype(np.float32)
     Sd = (kd * rng.gamma(2.0, 0.02, D)).astype(np.float32)
     params = rbpf.FilterParams(beta_prev=0.3, beta_new=0.7)
-    spelled = log_importance(k, S, kp, Sp, kd[np.arange(M) % D], Sd[np.arange(M) % D],
-                             jnp.bool_(True), params, "sample")
+    # jitted, as the update runs them: one compile each instead of one per eager primitive
+    spelled = jax.jit(log_importance, static_argnums=8)(
+        k, S, kp, Sp, kd[np.arange(M) % D], Sd[np.arange(M) % D], jnp.bool_(True), params,
+        "sample")
     from gslam_jax.rbpf.cells import log_v_obs
-    drawn = _log_importance(jnp.asarray(k), jnp.asarray(S), jnp.asarray(kp), jnp.asarray(Sp),
-                               jnp.asarray(kd), jnp.asarray(Sd), jnp.bool_(True), params,
-                               "sample", log_v_obs(jnp.asarray(k), jnp.asarray(S)))
+    drawn = jax.jit(_log_importance, static_argnums=8)(
+        jnp.asarray(k), jnp.asarray(S), jnp.asarray(kp), jnp.asarray(Sp), jnp.asarray(kd),
+        jnp.asarray(Sd), jnp.bool_(True), params, "sample",
+        log_v_obs(jnp.asarray(k), jnp.asarray(S)))
     np.testing.assert_allclose(float(drawn), float(spelled), rtol=1e-5)
     assert float(spelled) != 0.0
 
@@ -282,13 +308,8 @@ def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_written_rows_cover_every_written_cell(mode):
     """DenseMaps.rows, which bounds what resampling copies, holds every map row with data
-    after a run with resampling."""
-    run, _ = make_run(seed=3, steps=40)
-    obs = jnp.asarray(slam.local_observations(run, 1e-6))
-    cfg = rbpf.FilterConfig(10, (160, 160), (-8.0, -12.8), RES, obs.shape[1], unknown_cells=mode,
-                            unknown_samples=64, resample_ratio=0.9)
-    out = rbpf.run_filter(jax.random.key(2), rbpf.FilterParams(),
-                          jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs, cfg)
+    after a run with resampling (the compaction test's full run)."""
+    out = _shared_run(mode, 0, J_SHARED)
     assert int(np.sum(out.infos.resampled)) >= 2
     lo, hi = (int(v) for v in out.final_state.maps.rows)
     written = np.nonzero(np.asarray(out.final_state.maps.k).any(axis=(0, 2)))[0]
