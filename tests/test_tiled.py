@@ -1,6 +1,8 @@
 """Tiled copy-on-write reference: tile storage, the known-cell order, and equivalence with the
 dense filter (same draws -> same weights, poses and maps, in both unknown-cell modes)."""
 
+import contextlib
+import io
 import json
 import os
 import subprocess
@@ -17,7 +19,8 @@ from gslam_jax.tiled import Ledger, TileMap, tile_cells
 def test_tile_size_must_be_whole_cells():
     assert tile_cells(10.0, 0.2) == 50
     assert tile_cells(10.24, 0.16) == 64
-    with pytest.raises(ValueError, match=r"10.0 m is 62.5 cells at resolution 0.16 m.*9.92 m \(62 cells\)"):
+    with pytest.raises(ValueError,
+                       match=r"10.0 m is 62.5 cells at resolution 0.16 m.*9.92 m \(62 cells\)"):
         tile_cells(10.0, 0.16)
 
 
@@ -133,8 +136,11 @@ def _follow_cases(dense, run, obs, cfg, key, params) -> dict:
 def test_tiled_reference_reproduces_dense_filter():
     # the package this test imports, not whichever one is installed (a worktree beside main)
     root = str(Path(gslam_jax.__file__).parent.parent)
-    env = dict(os.environ, XLA_FLAGS="--xla_cpu_max_isa=AVX", JAX_PLATFORMS="cpu",
-               PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
+    # No FMA contraction (AVX only). LLVM optimisation level 0: IEEE semantics either way (no
+    # fast-math), the same numbers as the default level, in about 60% of the compile time.
+    path = os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=path,
+               XLA_FLAGS="--xla_cpu_max_isa=AVX --xla_backend_optimization_level=0")
     proc = subprocess.run([sys.executable, __file__], env=env, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -158,32 +164,15 @@ def test_tiled_reference_reproduces_dense_filter():
     assert res["ignore-adaptive"]["tempered_updates"] >= 3  # the tempering rule is exercised
 
 
-def test_dense_update_timing_replays_the_run():
+def test_dense_update_timing_replays_the_run(compared):
     """`gslam compare` times the dense updates by replaying the run frame by frame: the replay
-    must make the same resampling decisions as the scanned run (same draws), one time each."""
-    import jax
-    import jax.numpy as jnp
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    from synthetic import make_run
-
-    from gslam_jax import rbpf
-    from gslam_jax.slam import local_observations, map_extent
-    from gslam_jax.app.compare import time_dense_updates
-
-    run, _ = make_run(seed=1, steps=40)
-    obs = local_observations(run, 1e-4)
-    L = obs.shape[1]
-    probe = rbpf.FilterConfig(12, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells="ignore")
-    ext = map_extent(run.vo_poses(), L, 0.16, 1.0, probe.window)
-    cfg = rbpf.FilterConfig(12, ext.shape, ext.origin, 0.16, L, unknown_cells="ignore",
-                            resample_ratio=0.9).validate()
-    key, params = jax.random.key(5), rbpf.FilterParams()
-    scanned = rbpf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
-                              jnp.asarray(run.obs_index), jnp.asarray(obs), cfg,
-                              jnp.asarray(run.start_pose(), jnp.float32))
-    seconds, resampled = time_dense_updates(key, params, run, obs, cfg)
-    at_updates = np.asarray(scanned.infos.resampled)[np.asarray(run.obs_index) >= 0]
+    must make the same resampling decisions as the scanned run (same draws), one time each.
+    (The fixture's ``compare`` kept its dense output: the scanned run's decisions and the
+    replay's, from ``time_dense_updates``.)"""
+    run, _, _, seen = compared
+    dense = seen["dense"]
+    seconds, resampled = dense.run_update_seconds, dense.run_resampled
+    at_updates = np.asarray(dense.resampled)[np.asarray(run.obs_index) >= 0]
     assert seconds.shape == (run.num_local_maps,) and np.all(seconds > 0)
     assert at_updates.sum() >= 2
     np.testing.assert_array_equal(resampled, at_updates)
@@ -219,13 +208,12 @@ def test_ledger_counts_known_cell_caches():
 def _small_setup(mode: str, J: int = 8):
     import jax
 
-    sys.path.insert(0, str(Path(__file__).parent))
-    from synthetic import make_run
+    from cached_runs import shared_run
 
     from gslam_jax import rbpf
     from gslam_jax.slam import local_observations, map_extent
 
-    run, _ = make_run(seed=1, steps=24)
+    run = shared_run(24, seed=1)  # also compare's run (the ``compared`` fixture)
     obs = local_observations(run, 1e-4)
     L = obs.shape[1]
     probe = rbpf.FilterConfig(J, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
@@ -261,33 +249,53 @@ def test_tiled_run_is_numpy_only_and_its_ledger_holds_everything():
     assert out.peak_bytes >= out.memory_bytes.max()
 
 
-def test_compare_times_fairly_and_names_its_figures(monkeypatch, capsys):
-    """The timed tiled run gets its draws made beforehand (no JAX copy inside); the dense
-    memory is named for what it is (fixed state arrays); the update-alone ratio divides the
-    tiled updates that did not resample by the dense update alone; an ISA cap in XLA_FLAGS
-    labels the dense column."""
+@pytest.fixture(scope="module")
+def compared():
+    """One ``compare`` of the small run (8 particles, "ignore"), made once for the two tests
+    that read it: with the tiled run wrapped (it must get its draws made beforehand and copy
+    nothing from JAX), the dense run's output kept, XLA_FLAGS capped at AVX (set after the
+    backend started, so only the labels change) and the printout captured."""
     import jax
 
     from gslam_jax.config import Config, FilterSection, MapSection
     from gslam_jax.app import compare as C
 
     jax.devices()  # the backend starts here, before XLA_FLAGS changes (XLA reads it at start)
-    assert C.dense_label("") == "dense (JAX)"
-    assert C.dense_label("--xla_cpu_max_isa=AVX --xla_foo=1") == "dense (JAX, AVX only)"
-    real = C.run_tiled
+    real_tiled, real_dense = C.run_tiled, C.run_dense
+    seen: dict = {"draws": []}
 
     def timed_tiled(*args, **kwargs):
-        assert kwargs.get("draws") is not None
+        seen["draws"].append(kwargs.get("draws") is not None)
         with jax.transfer_guard("disallow"):
-            return real(*args, **kwargs)
+            return real_tiled(*args, **kwargs)
 
-    monkeypatch.setattr(C, "run_tiled", timed_tiled)
-    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX")
-    run, *_ = _small_setup("ignore")
-    config = Config(filter=FilterSection(resample_ratio=0.9, unknown_cells="ignore"),
-                    map=MapSection(margin=1.0))
-    res = C.compare(run, config, particles=8)
-    text = capsys.readouterr().out
+    def kept_dense(*args, **kwargs):
+        seen["dense"] = real_dense(*args, **kwargs)
+        return seen["dense"]
+
+    text = io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(text):
+        mp.setattr(C, "run_tiled", timed_tiled)
+        mp.setattr(C, "run_dense", kept_dense)
+        mp.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX")
+        run, *_ = _small_setup("ignore")
+        config = Config(filter=FilterSection(resample_ratio=0.9, unknown_cells="ignore"),
+                        map=MapSection(margin=1.0))
+        res = C.compare(run, config, particles=8)
+    return run, res, text.getvalue(), seen
+
+
+def test_compare_times_fairly_and_names_its_figures(compared):
+    """The timed tiled run gets its draws made beforehand (no JAX copy inside); the dense
+    memory is named for what it is (fixed state arrays); the update-alone ratio divides the
+    tiled updates that did not resample by the dense update alone; an ISA cap in XLA_FLAGS
+    labels the dense column."""
+    from gslam_jax.app import compare as C
+
+    assert C.dense_label("") == "dense (JAX)"
+    assert C.dense_label("--xla_cpu_max_isa=AVX --xla_foo=1") == "dense (JAX, AVX only)"
+    _, res, text, seen = compared
+    assert seen["draws"] == [True]  # one tiled run, given its draws
     assert "dense (JAX, AVX only)" in text and "XLA_FLAGS: --xla_cpu_max_isa=AVX" in text
     d, t = res["dense"], res["tiled"]
     assert "peak_MB" not in d and d["state_MB"] > 0 and t["draw_seconds"] > 0

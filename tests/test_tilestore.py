@@ -1,7 +1,5 @@
 """Shared-tile map store against a brute-force NumPy model of dense per-particle maps."""
 
-from functools import partial
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -103,16 +101,20 @@ def test_writes_and_resampling_match_dense_model(bits):
     assert int(ts.live_tiles(store)) < int(np.sum(np.asarray(store.page) < P))
 
 
+def _write_one(store: ts.TileStore, j: int, cell: int, v: float) -> ts.TileStore:
+    """Add (k, S) = (v, v) to one cell of particle j's map."""
+    return write(store, jnp.array([j], jnp.int32), jnp.array([[cell]], jnp.int32),
+                 jnp.array([[True]]), jnp.array([v], jnp.float32), jnp.array([v], jnp.float32),
+                 width=W, window=WINDOW)
+
+
 def test_copy_on_write_leaves_siblings_untouched_and_frees_dead_tiles():
     store = ts.init(3, (H, W), T, 20, False)
-    one = lambda s, j, cell, v: write(
-        s, jnp.array([j], jnp.int32), jnp.array([[cell]], jnp.int32), jnp.array([[True]]),
-        jnp.array([v], jnp.float32), jnp.array([v], jnp.float32), width=W, window=WINDOW)
-    store = one(store, 0, 5, 1.0)
+    store = _write_one(store, 0, 5, 1.0)
     assert int(ts.live_tiles(store)) == 1
     store = resample(store, jnp.array([0, 0, 0], jnp.int32))  # one tile, three holders
     assert int(ts.live_tiles(store)) == 1 and int(store.refcount.max()) == 3
-    store = one(store, 1, 5, 2.0)                             # copy-on-write
+    store = _write_one(store, 1, 5, 2.0)                      # copy-on-write
     k, _, _ = to_dense(store, (H, W))
     assert np.asarray(k[:, 0, 5]).tolist() == [1.0, 3.0, 1.0]
     assert int(ts.live_tiles(store)) == 2
@@ -122,17 +124,21 @@ def test_copy_on_write_leaves_siblings_untouched_and_frees_dead_tiles():
 
 
 def test_every_holder_writing_in_one_block_keeps_one_tile():
-    store = ts.init(2, (H, W), T, 3, False)
-    parts = jnp.array([0, 1], jnp.int32)
-    cells = jnp.array([[7], [7]], jnp.int32)
-    args = dict(width=W, window=WINDOW)
+    """Two holders of one tile write it in one block: one copy is made, not two. (The store
+    has the previous test's shape, so its compiled single-particle write is reused; the third
+    particle holds nothing.)"""
+    store = ts.init(3, (H, W), T, 20, False)
+    store = _write_one(store, 0, 7, 1.0)
+    store = resample(store, jnp.array([0, 0, 1], jnp.int32))  # particles 0 and 1 hold it
+    assert int(ts.live_tiles(store)) == 1 and int(store.refcount.max()) == 2
     ones = jnp.ones((1,), jnp.float32)
-    store = write(store, parts[:1], cells[:1], jnp.ones((1, 1), bool), ones, ones, **args)
-    store = resample(store, jnp.array([0, 0], jnp.int32))
-    store = write(store, parts, cells, jnp.ones((2, 1), bool), ones, ones, **args)
+    store = write(store, jnp.array([0, 1], jnp.int32), jnp.array([[7], [7]], jnp.int32),
+                  jnp.ones((2, 1), bool), ones, ones, width=W, window=WINDOW)
     assert int(ts.live_tiles(store)) == 2  # one copy, not two
     k, _, _ = to_dense(store, (H, W))
-    assert np.asarray(k[:, 0, 7]).tolist() == [2.0, 2.0]
+    assert np.asarray(k[:, 0, 7]).tolist() == [2.0, 2.0, 0.0]
+    assert int(store.status) == 0
+    check_invariants(store)
 
 
 def test_pool_exhaustion_is_flagged_and_changes_nothing():
@@ -153,18 +159,20 @@ def test_pool_exhaustion_is_flagged_and_changes_nothing():
 
 
 def test_store_vmaps_over_independent_filters():
-    """Two filters' stores stacked and written in one vmapped call agree with two calls."""
+    """Two filters' stores stacked and written in one vmapped call agree with two calls.
+    (Shapes as in test_writes_and_resampling_match_dense_model[True]: its compiled write of
+    a block of 3 particles serves the two single calls.)"""
     rng = np.random.default_rng(4)
-    parts = jnp.arange(2, dtype=jnp.int32)
-    fp = [footprints(rng, 2, 30) for _ in range(2)]
-    stores = [ts.init(2, (H, W), T, 40, True) for _ in range(2)]
-    f = jax.jit(partial(ts.write, particles=parts, width=W, window=WINDOW))
-    one = [f(s, cells=jnp.asarray(c), on_map=jnp.asarray(o), k=jnp.asarray(k), S=jnp.asarray(S))
-           for s, (c, o, k, S) in zip(stores, fp)]
+    parts = jnp.arange(3, dtype=jnp.int32)
+    fp = [footprints(rng, 3, 60) for _ in range(2)]
+    stores = [ts.init(7, (H, W), T, 300, True) for _ in range(2)]
+    args = [[jnp.asarray(x) for x in f] for f in fp]
+    one = [write(s, parts, *a, width=W, window=WINDOW) for s, a in zip(stores, args)]
     stacked = jax.tree.map(lambda *x: jnp.stack(x), *stores)
-    args = [jnp.stack([jnp.asarray(x[i]) for x in fp]) for i in range(4)]
-    both = jax.jit(jax.vmap(lambda s, c, o, k, S: f(s, cells=c, on_map=o, k=k, S=S)))(stacked, *args)
+    both = jax.jit(jax.vmap(lambda s, c, o, k, S: ts.write(s, parts, c, o, k, S, W, WINDOW)))(
+        stacked, *[jnp.stack(x) for x in zip(*args)])
     for i in range(2):
+        assert int(ts.live_tiles(one[i])) > 0
         for a, b in zip(to_dense(one[i], (H, W)),
                         to_dense(jax.tree.map(lambda x: x[i], both), (H, W))):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -175,12 +183,12 @@ def test_filter_on_shared_store_equals_dense(mode):
     """The whole filter on the shared store (small tiles, blocks of 3 and a tail, resampling
     events) gives the dense store's maps bit for bit, its known-cell bits, resampling choices
     and log weights (within 1e-5), on the same draws."""
-    from synthetic import make_run
+    from cached_runs import shared_run
 
     from gslam_jax import rbpf as gf
     from gslam_jax import slam
 
-    run, _ = make_run(seed=2, steps=30)
+    run = shared_run(30, seed=2)  # both modes share the course
     obs = jnp.asarray(slam.local_observations(run, 1e-6))
     base = gf.FilterConfig(11, (160, 160), (-8.0, -12.8), 0.16, obs.shape[1], unknown_cells=mode,
                            unknown_samples=64, observed_cells=slam.observed_cells(run),
@@ -207,37 +215,45 @@ def test_filter_on_shared_store_equals_dense(mode):
     assert int(tiles.peak) < 11 * int(np.prod(tiles.page.shape[1:]))
 
 
-def test_filter_reports_pool_exhaustion_per_frame():
-    from synthetic import make_run
+def _pool_run_and_config():
+    """A 12-frame course and a config whose 30-tile pool (5 particles) runs out on it."""
+    import dataclasses
 
+    from cached_runs import shared_run
+
+    from gslam_jax.config import Config
+
+    c = Config()
+    config = dataclasses.replace(
+        c, filter=dataclasses.replace(c.filter, particles=5),
+        map=dataclasses.replace(c.map, store="shared", tile=16, pool_tiles=30))
+    return shared_run(12, seed=2), config
+
+
+def test_filter_reports_pool_exhaustion_per_frame():
+    """The scan reports the status per frame. Fed as ``slam.run_slam`` feeds it (one chunk),
+    so the next test reuses this compilation."""
     from gslam_jax import rbpf as gf
     from gslam_jax import slam
 
-    run, _ = make_run(seed=2, steps=12)
-    obs = jnp.asarray(slam.local_observations(run, 1e-6))
-    cfg = gf.FilterConfig(5, (160, 160), (-8.0, -12.8), 0.16, obs.shape[1],
-                          observed_cells=slam.observed_cells(run), store="shared", tile=16,
-                          pool_tiles=30)
-    out = gf.run_filter(jax.random.key(0), gf.FilterParams(), jnp.asarray(run.controls, jnp.float32),
-                        jnp.asarray(run.obs_index), obs, cfg)
-    status = np.asarray(out.infos.map_status)
+    run, config = _pool_run_and_config()
+    cfg = slam.filter_config(config, run)
+    assert cfg.store == "shared" and cfg.pool_tiles == 30
+    state = gf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
+    keys = gf.frame_keys(jax.random.key(config.filter.seed), run.num_frames)
+    _, (infos, _, _) = gf.scan_frames(
+        state, keys, jnp.asarray(np.asarray(run.controls, np.float32)),
+        jnp.asarray(np.asarray(run.obs_index, np.int32)), slam.map_observations(run, config),
+        slam.filter_params(config), cfg)
+    status = np.asarray(infos.map_status)
     assert status[-1] & ts.POOL_EXHAUSTED
     assert np.all(np.diff(status) >= 0)  # sticky: the frame it first happened stays findable
 
 
 def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
-    import dataclasses
-
-    from synthetic import make_run
-
     from gslam_jax import slam
-    from gslam_jax.config import Config
 
-    run, _ = make_run(seed=2, steps=12)
-    c = Config()
-    config = dataclasses.replace(
-        c, filter=dataclasses.replace(c.filter, particles=5),
-        map=dataclasses.replace(c.map, store="shared", tile=16, pool_tiles=30))
+    run, config = _pool_run_and_config()
     with pytest.raises(ts.PoolExhaustedError, match=r"^frame \d+: .*\[map\] pool_tiles = 30"):
         slam.run_slam(run, config)
 
@@ -277,20 +293,11 @@ def test_map_bytes_are_what_each_store_allocates(mode):
 def test_search_and_tune_do_not_score_a_run_whose_pool_ran_out():
     """A search scores such a run NaN (never best, with a warning naming the setting); a tuning
     step stops with the store's error."""
-    import dataclasses
-
-    from synthetic import make_run
-
     from gslam_jax.tuning import search
     from gslam_jax.tuning.space import SearchError, parse_space
     from gslam_jax.tuning import gradient as tuning
-    from gslam_jax.config import Config
 
-    run, _ = make_run(seed=2, steps=12)
-    c = Config()
-    config = dataclasses.replace(
-        c, filter=dataclasses.replace(c.filter, particles=5),
-        map=dataclasses.replace(c.map, store="shared", tile=16, pool_tiles=30))
+    run, config = _pool_run_and_config()
     space = parse_space({"alpha_d": [0.05, 0.2]})
     with pytest.raises(SearchError, match=r"\[map\] pool_tiles"):
         search.search(run, config, space, design="sobol", n=2)
