@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import rbpf, slam
+from gslam_jax import choices, rbpf, slam
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap
@@ -111,14 +111,16 @@ class Online:
     seed: the filter's seed (None: [filter] seed); the batch run with that seed draws the same.
     local_size: side L of the local maps pushed (None: from [localmap], ``localmap_params``).
     observed_cells: the cap M on informative cells per local map (0: L*L, no cap).
-    filter_config: a ready ``rbpf.FilterConfig`` instead of the four above (e.g. a batch run's
+    sensor: how the pushed local maps are made, one of ``choices.SENSORS`` ("stereo" for a
+        stereo rig's dense points), for the automatic ``[filter] ess_target``; None: "points".
+    filter_config: a ready ``rbpf.FilterConfig`` instead of the five above (e.g. a batch run's
         ``slam.filter_config``, to reproduce it).
     """
 
     def __init__(self, config: Config, map_extent: slam.MapExtent | tuple | float | None = None,
                  *, start_pose: np.ndarray | None = None, seed: int | None = None,
                  local_size: int | None = None, observed_cells: int = 0,
-                 filter_config: rbpf.FilterConfig | None = None):
+                 sensor: str | None = None, filter_config: rbpf.FilterConfig | None = None):
         self.config = config
         self.start = np.zeros(3) if start_pose is None else np.asarray(start_pose, np.float64)
         if self.start.shape != (3,) or not np.isfinite(self.start).all():
@@ -132,10 +134,14 @@ class Online:
                 extent = _extent(config, size, self.start, L)
             else:
                 extent = slam.MapExtent(*map_extent)
-            filter_config = slam.extent_filter_config(config, extent, L, observed_cells)
-        elif map_extent is not None or local_size is not None or observed_cells:
-            raise ConfigError("Online: give either filter_config or map_extent, local_size and "
-                              "observed_cells, not both")
+            if sensor is not None and sensor not in choices.SENSORS:
+                raise ConfigError(f"Online: sensor must be one of {', '.join(choices.SENSORS)}, "
+                                  f"got {sensor!r}")
+            filter_config = slam.extent_filter_config(config, extent, L, observed_cells, sensor)
+        elif (map_extent is not None or local_size is not None or observed_cells
+              or sensor is not None):
+            raise ConfigError("Online: give either filter_config or map_extent, local_size, "
+                              "observed_cells and sensor, not both")
         cfg = filter_config.validate()
         available, what = slam.map_memory()
         H, W = cfg.map_shape

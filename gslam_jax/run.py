@@ -14,6 +14,7 @@ from typing import BinaryIO, NamedTuple
 
 import numpy as np
 
+from gslam_jax import choices
 from gslam_jax.errors import InputError
 
 __all__ = ["COORDINATE_FRACTION", "HEADING_LIMIT", "HEADING_STEP", "MAX_SPEED", "MAX_TURN", "Run",
@@ -50,6 +51,9 @@ class Run(NamedTuple):
         time_origin_ns: the dataset's own clock at timestamp 0, integer nanoseconds (EuRoC:
             its first frame's stamp), or None (the timestamps are the dataset's clock). The
             TUM outputs add it back; the filter and GPS use ``timestamps``.
+        sensor: how the local maps were made, one of ``choices.SENSORS`` ("stereo": the
+            stereo front-end; "points": the simulator's point sensor), or None (unknown,
+            treated as "points"). It picks the automatic ``[filter] ess_target``.
     """
 
     controls: np.ndarray
@@ -61,6 +65,7 @@ class Run(NamedTuple):
     vo_failed: np.ndarray | None = None
     initial_pose: np.ndarray | None = None
     time_origin_ns: int | None = None
+    sensor: str | None = None
 
     @property
     def num_frames(self) -> int:
@@ -257,6 +262,11 @@ def _check_types(fields: dict, fail) -> None:
     if kind.kind in "iu":  # whole metres and radians only: surely truncated on the way
         fail("controls", f"stored as integers ({kind}), so only whole metres and radians; "
              "store the increments as floating point")
+    sensor = fields.get("sensor")
+    if sensor is not None and (np.asarray(sensor).shape != () or
+                               str(np.asarray(sensor)) not in choices.SENSORS):
+        fail("sensor", f"expected one of {', '.join(choices.SENSORS)}, "
+             f"got {np.asarray(sensor)!s:.40}")
     origin = fields.get("time_origin_ns")
     if origin is not None and (np.asarray(origin).shape != () or
                                np.asarray(origin).dtype.kind not in "iu"):
@@ -303,7 +313,8 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
         fail("obs_index", f"value below -1 at frame {int(np.argmax(obs_index < -1))}")
     if used.size and used.max() >= M:
         frame = int(np.argmax(obs_index >= M))
-        fail("obs_index", f"frame {frame} refers to local map {obs_index[frame]} but only {M} exist")
+        fail("obs_index",
+             f"frame {frame} refers to local map {obs_index[frame]} but only {M} exist")
 
     def first_map(bad_cells: np.ndarray) -> str:
         return describe_cells(bad_cells, obs_index)
@@ -350,7 +361,7 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
 
 
 _REQUIRED = ("controls", "obs_index", "local_maps", "resolution", "timestamps")
-_OPTIONAL = ("ground_truth", "vo_failed", "initial_pose", "time_origin_ns")
+_OPTIONAL = ("ground_truth", "vo_failed", "initial_pose", "time_origin_ns", "sensor")
 
 
 def save_run(path: str | Path | BinaryIO, run: Run) -> None:
@@ -413,5 +424,6 @@ def load_run(path: str | Path) -> Run:
         vo_failed=fields.get("vo_failed"),
         initial_pose=fields.get("initial_pose"),
         time_origin_ns=(int(fields["time_origin_ns"]) if "time_origin_ns" in fields else None),
+        sensor=str(fields["sensor"]) if "sensor" in fields else None,
     )
     return validate_run(run, str(path), stats_dtype=stats_dtype)

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import rbpf
+from gslam_jax import choices, rbpf
 from gslam_jax.rbpf import cells, maps, tilestore
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
@@ -26,7 +26,7 @@ from gslam_jax.run import (Run, RunError, check_start_pose, coordinate_limit, de
                            float32_spacing, known_positions)
 
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "filter_config",
-           "extent_filter_config",
+           "extent_filter_config", "resolve_ess_target",
            "filter_params", "local_observations", "raw_observations", "ObsSettings",
            "obs_settings", "refine_observations", "map_observations", "map_memory", "RunArrays",
            "run_arrays", "ground_truth_mask",
@@ -224,7 +224,7 @@ def filter_config(config: Config, run: Run, prior: PriorMap | None = None
         lattice, cover = prior.grid.origin, _prior_cover(prior.grid)
     extent = map_extent(run.vo_poses(), L, config.map.resolution, margin, probe.window,
                         lattice, cover)
-    cfg = extent_filter_config(config, extent, L, observed_cells(run))
+    cfg = extent_filter_config(config, extent, L, observed_cells(run), run.sensor)
     available, what = map_memory()
     if prior is not None and cfg.store == "shared" and not cfg.pool_tiles:
         cfg = _prior_pool(cfg, prior)
@@ -238,24 +238,37 @@ def filter_config(config: Config, run: Run, prior: PriorMap | None = None
 
 
 def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
-                         observed: int = 0) -> rbpf.FilterConfig:
+                         observed: int = 0, sensor: str | None = None) -> rbpf.FilterConfig:
     """Static filter settings on a given map ``extent`` with local maps of side ``local_size``
     and at most ``observed`` informative cells each (0: L*L): the config's [filter] and [map]
-    settings, ``store = "auto"`` resolved for this machine's memory (``maps.choose_store``)
-    and ``particle_block = 0`` for the default backend. The memory check is the caller's."""
+    settings, ``store = "auto"`` resolved for this machine's memory (``maps.choose_store``),
+    ``particle_block = 0`` for the default backend and ``ess_target = 0`` for the local maps'
+    ``sensor`` (``resolve_ess_target``). The memory check is the caller's."""
     f = config.filter
     cfg = rbpf.FilterConfig(
         num_particles=f.particles, map_shape=tuple(extent.shape), map_origin=tuple(extent.origin),
         resolution=config.map.resolution, local_size=local_size, resampler=f.resampler,
         resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
         unknown_samples=f.unknown_samples, observed_cells=observed,
-        particle_block=f.particle_block, tempering=f.tempering, ess_target=f.ess_target,
+        particle_block=f.particle_block, tempering=f.tempering,
+        ess_target=resolve_ess_target(f.ess_target, sensor),
         store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles,
         proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
         proposal_stages=f.proposal_stages)
     available, what = map_memory()
     cfg = maps.choose_store(cfg, available, what).validate()
     return cfg._replace(particle_block=cfg.update_block)
+
+
+def resolve_ess_target(ess_target: float, sensor: str | None) -> float:
+    """``[filter] ess_target``, or for 0 (automatic) ``choices.AUTO_ESS_TARGET`` of the local
+    maps' ``sensor`` (None: "points"). ValueError naming an unknown sensor."""
+    if ess_target:
+        return ess_target
+    name = "points" if sensor is None else sensor
+    if name not in choices.AUTO_ESS_TARGET:
+        raise ValueError(f"sensor {sensor!r} unknown; choose one of {list(choices.SENSORS)}")
+    return choices.AUTO_ESS_TARGET[name]
 
 
 def _prior_pool(cfg: rbpf.FilterConfig, prior: PriorMap) -> rbpf.FilterConfig:

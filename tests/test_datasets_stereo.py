@@ -224,6 +224,7 @@ def test_wheel_odometry_is_the_fallback_and_times_keep_their_clock(tmp_path):
     assert res.summary.sources["wheel"] == 3
     assert run.timestamps == pytest.approx([0.0, 0.1, 0.2, 0.3], abs=1e-6)
     assert run.time_origin_ns == 1_700_000_000_000_000_000
+    assert run.sensor == "stereo"  # the front-end marks its local maps (automatic ess_target)
     at = odo[::2][:4]  # the frames' rows
     for t in range(1, 4):
         dx, dy = at[t, :2] - at[t - 1, :2]

@@ -127,7 +127,8 @@ def _numeric_keys() -> list[tuple[str, str]]:
 # unbounded or "none"; heights below the ground; a margin of 0; no motion noise.
 CONFIG_VALID = {
     ("filter", "resample_ratio"): {"0"}, ("filter", "seed"): {"0"},
-    ("filter", "particle_block"): {"0"}, ("map", "margin"): {"0"}, ("map", "pool_tiles"): {"0"},
+    ("filter", "particle_block"): {"0"}, ("filter", "ess_target"): {"0"},
+    ("map", "margin"): {"0"}, ("map", "pool_tiles"): {"0"},
     ("motion", "alpha_d"): {"0"}, ("motion", "alpha_theta_d"): {"0"},
     ("motion", "alpha_theta"): {"0"}, ("localmap", "min_height"): {"-1", "0"},
     ("localmap", "max_height"): {"-1", "0"}, ("localmap", "cells"): {"0"},

@@ -115,6 +115,8 @@ def test_bad_tempering_settings_are_named():
     with pytest.raises(ConfigError, match=r"\[filter\] tempering"):
         apply_overrides(Config(), ["filter.tempering=sometimes"])
     with pytest.raises(ConfigError, match=r"\[filter\] ess_target"):
-        apply_overrides(Config(), ["filter.ess_target=0"])
+        apply_overrides(Config(), ["filter.ess_target=-0.1"])
+    with pytest.raises(ConfigError, match=r"\[filter\] ess_target"):
+        apply_overrides(Config(), ["filter.ess_target=1.5"])
     with pytest.raises(ValueError, match="tempering"):
         gf.FilterConfig(4, (64, 64), (0.0, 0.0), 0.16, 16, tempering="auto").validate()

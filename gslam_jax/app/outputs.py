@@ -85,7 +85,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
     """The figures of ``summary.json`` (without the GPS figures). With ground truth that moved
     less than MIN_DRIFT_DISTANCE there is no drift percentage and no ``motion_fit``; a
     ``drift_note`` says why."""
-    from gslam_jax import metrics
+    from gslam_jax import metrics, slam
 
     summary = {
         "source": description,
@@ -95,6 +95,8 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "distance_m": run.distance(),
         "particles": config.filter.particles,
         "estimate": config.filter.estimate,
+        "sensor": run.sensor,
+        "ess_target": slam.resolve_ess_target(config.filter.ess_target, run.sensor),
         "resampling_events": int(np.sum(result.resampled)),
         "extent_violations": result.extent_violations,
         "empty_observations": result.empty_observations,

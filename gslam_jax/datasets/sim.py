@@ -156,8 +156,8 @@ def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = Non
                             max_frames=max_frames, noise_seed=noise_seed)
     world = world_for_course(odo.course, seed)
     timings = {"world_s": time.perf_counter() - t0}
-    return sense_run(odo, world, seed if noise_seed is None else noise_seed, params, sensor, progress=progress, timings=timings,
-                     t0=t0)
+    return sense_run(odo, world, seed if noise_seed is None else noise_seed, params, sensor,
+                     progress=progress, timings=timings, t0=t0)
 
 
 def sense_run(odo: Odometry, world: World, seed: int, params: LocalMapParams,
@@ -197,7 +197,7 @@ def sense_run(odo: Odometry, world: World, seed: int, params: LocalMapParams,
     run = Run(controls=controls, obs_index=obs_index, local_maps=local_maps,
               resolution=float(params.resolution), timestamps=traj.timestamps.copy(),
               ground_truth=gt.copy(), vo_failed=draw.vo_failed.copy(),
-              initial_pose=gt[0].copy())
+              initial_pose=gt[0].copy(), sensor="points")
     info = SimInfo(course=crs, world=world, trajectory=traj, vo_noise=noise, vo_draw=draw,
                    sensor=sensor_params, localmap=params, survey_frames=traj.survey_frames,
                    survey_points=gt[traj.survey_frames, :2].copy(),

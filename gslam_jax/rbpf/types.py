@@ -46,7 +46,9 @@ class FilterConfig(NamedTuple):
     observed_cells: int = 0    # M, observed local cells one update evaluates (0: L*L)
     particle_block: int = FilterSection.particle_block
     tempering: str = FilterSection.tempering  # "fixed": the paper's beta; "adaptive": ``tempering``
-    ess_target: float = FilterSection.ess_target  # "adaptive": conditional ESS fraction kept
+    # "adaptive": conditional ESS fraction kept (``[filter] ess_target = 0`` is resolved by the
+    # run's sensor before, ``slam.extent_filter_config``; this default is a sensorless run's)
+    ess_target: float = choices.AUTO_ESS_TARGET["points"]
     store: str = MapSection.store  # "dense" or "shared" (``rbpf.maps``; "auto" resolved before)
     tile: int = MapSection.tile
     pool_tiles: int = MapSection.pool_tiles

@@ -19,10 +19,12 @@ from gslam_jax.vo.localmap import LocalMapBuilder, LocalMapParams
 from gslam_jax.run import Run, validate_run
 from gslam_jax.vo.calib import ImageError, RectifiedRig
 from gslam_jax.vo.estimate import Camera
-from gslam_jax.vo.fallback import correct_tilt, fallback_increment, level_rotation, planar_transform, slip_ratio
+from gslam_jax.vo.fallback import (correct_tilt, fallback_increment, level_rotation,
+                                   planar_transform, slip_ratio)
 from gslam_jax.vo.geometry import increments_2d, invert, pose_to_2d
 from gslam_jax.vo.odometry import StereoVO, VOParams, VOResult
-from gslam_jax.vo.stereo import DenseStereoParams, dense_disparity, disparity_to_points, to_robot_frame
+from gslam_jax.vo.stereo import (DenseStereoParams, dense_disparity, disparity_to_points,
+                                 to_robot_frame)
 
 __all__ = ["FrontEndParams", "FrontEndSummary", "FrontEndResult", "SensorAids", "run_frontend"]
 
@@ -212,5 +214,5 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
               resolution=params.local_map.resolution,
               timestamps=np.asarray(timestamps, np.float64), ground_truth=ground_truth,
               vo_failed=np.asarray(failed, bool), initial_pose=start,
-              time_origin_ns=time_origin_ns)
+              time_origin_ns=time_origin_ns, sensor="stereo")
     return FrontEndResult(validate_run(run, source), summary, np.stack(poses), results, slip)
