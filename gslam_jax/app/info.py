@@ -24,7 +24,7 @@ _PACKAGES = (("jax", ("jax",)), ("jaxlib", ("jaxlib",)), ("numpy", ("numpy",)),
 EXAMPLES = {
     "run": """\
   gslam run                                        # the simulated Mars Yard A course
-  gslam run --source kitti --path DIR --sequence 00 --config configs/kitti.toml
+  gslam run --source kitti --path DIR --sequence 00
   gslam run log.npz --out results/log --overwrite  # a Run file, into a chosen folder""",
     "search": """\
   gslam search --space configs/search_example.toml --n 64 --objective rms
