@@ -210,7 +210,7 @@ class Config:
              f"must be one of {', '.join(choices.TEMPERING)} (the paper's beta, or an "
              "ESS-targeted exponent on it)"),
             (0.0 <= f.ess_target <= 1.0, "filter", "ess_target",
-             "must be in (0, 1], or 0: automatic by the run's sensor"),
+             "must be in [0, 1] (0: automatic by the run's sensor)"),
             (f.estimate in choices.ESTIMATES, "filter", "estimate",
              f"must be one of {', '.join(choices.ESTIMATES)} (final best particle's path, "
              "each frame's weighted mean pose, or the smoother's mean path)"),

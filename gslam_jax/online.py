@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import choices, rbpf, slam
+from gslam_jax import rbpf, slam
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap
@@ -134,9 +134,6 @@ class Online:
                 extent = _extent(config, size, self.start, L)
             else:
                 extent = slam.MapExtent(*map_extent)
-            if sensor is not None and sensor not in choices.SENSORS:
-                raise ConfigError(f"Online: sensor must be one of {', '.join(choices.SENSORS)}, "
-                                  f"got {sensor!r}")
             filter_config = slam.extent_filter_config(config, extent, L, observed_cells, sensor)
         elif (map_extent is not None or local_size is not None or observed_cells
               or sensor is not None):

@@ -262,13 +262,10 @@ def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
 
 def resolve_ess_target(ess_target: float, sensor: str | None) -> float:
     """``[filter] ess_target``, or for 0 (automatic) ``choices.AUTO_ESS_TARGET`` of the local
-    maps' ``sensor`` (None: "points"). ValueError naming an unknown sensor."""
-    if ess_target:
-        return ess_target
-    name = "points" if sensor is None else sensor
-    if name not in choices.AUTO_ESS_TARGET:
-        raise ValueError(f"sensor {sensor!r} unknown; choose one of {list(choices.SENSORS)}")
-    return choices.AUTO_ESS_TARGET[name]
+    maps' ``sensor`` (None: "points"). ConfigError naming an unknown sensor."""
+    if sensor is not None and sensor not in choices.SENSORS:
+        raise ConfigError(f"sensor must be one of {', '.join(choices.SENSORS)}, got {sensor!r}")
+    return ess_target or choices.AUTO_ESS_TARGET["points" if sensor is None else sensor]
 
 
 def _prior_pool(cfg: rbpf.FilterConfig, prior: PriorMap) -> rbpf.FilterConfig:
