@@ -217,3 +217,49 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction():
     want = unnorm - np.logaddexp.reduce(unnorm)
     np.testing.assert_allclose(new.log_w, want, atol=2e-3)
     assert float(info.exponent) == 1.0  # fixed tempering: the paper's beta alone
+
+
+@pytest.mark.parametrize("store,prior_std", [
+    ("shared", 0.1),  # every candidate inside its particle's window
+    ("dense", 1.5),   # a prior wider than the window: read from the maps instead
+])
+def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std):
+    """score_candidates reads each particle's map once (a window and eq. 31's draws) for all
+    its candidates; its scores are those of the update's own footprint reads
+    (``read_footprints``) at each candidate pose, inside the window or not ("dense" with
+    "ignore" inside it: ``test_candidate_scores_match_brute_force_eq_26``)."""
+    from gslam_jax.rbpf import cells, maps
+    from gslam_jax.rbpf.footprint import compact_observation, read_footprints
+    from gslam_jax.rbpf.importance import log_lambda
+    from gslam_jax.rbpf.types import FilterParams
+
+    cfg, state, local, (k, S) = _small_case(J=3)
+    cfg = cfg._replace(store=store, tile=16, pool_tiles=64, unknown_cells="sample",
+                       unknown_samples=32).validate()
+    store_ = maps.init(cfg, (jnp.asarray(k), jnp.asarray(S)))
+    J = cfg.num_particles
+    var = jnp.asarray([prior_std ** 2, prior_std ** 2, 0.002], jnp.float32)
+    chol = proposal._factor(jnp.broadcast_to(jnp.diag(var), (J, 3, 3)))
+    grid, _ = proposal.candidate_grid(3, 2.0)
+    g = jnp.broadcast_to(grid, (J,) + grid.shape)
+    u = jax.random.uniform(jax.random.key(5), (J, cfg.unknown_samples))
+    obs = compact_observation(local, cfg)
+    params = FilterParams()
+    got = np.asarray(jax.jit(proposal.score_candidates, static_argnums=7)(
+        store_, state.pose, chol, g, u, obs, params, cfg))
+
+    @jax.jit
+    def per_candidate(store_, pose, u):
+        bits = maps.known_bits(store_, jnp.int32(0), J, cfg)
+        rows = jnp.arange(J, dtype=jnp.int32)
+        log_v = cells.log_v_obs(obs.k, obs.S)
+        return jax.lax.map(lambda t: log_lambda(read_footprints(
+            store_, bits, pose + jnp.einsum("jab,b->ja", chol, t), rows, u, obs, cfg),
+            log_v, params, cfg), grid).T
+
+    want = np.asarray(per_candidate(store_, state.pose, u))
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+    # the wide prior's outer candidates do leave the window (the fallback path is exercised)
+    reach = prior_std * 2.0 / cfg.resolution
+    assert (reach > cfg.reach // 2 + 1) == (prior_std > 1.0)
+

@@ -3,7 +3,7 @@ translate the observation"), the compacted observation, and what an update reads
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +13,8 @@ from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.types import FilterConfig, Observation
 
-__all__ = ["Footprint", "compact_observation", "observation_cells", "read_footprints"]
+__all__ = ["Footprint", "Borrowed", "compact_observation", "observation_cells", "read_borrowed",
+           "footprint_at", "read_footprints"]
 
 
 def compact_observation(local_obs: Array, cfg: FilterConfig) -> Observation:
@@ -67,25 +68,48 @@ class Footprint(NamedTuple):
     can_borrow: Array  # [n]
 
 
+class Borrowed(NamedTuple):
+    """Eq. 31's known cells drawn for unknown cells, for a block of n particles."""
+
+    k: Array           # [n, unknown_samples] ([n, 0] in "ignore" mode)
+    S: Array
+    can_borrow: Array  # [n] the particle's map has a known cell
+
+
+def read_borrowed(store: maps.Maps, bits: Array, rows: Array, unknown_u: Array,
+                  cfg: FilterConfig) -> Borrowed:
+    """The known cells that the unknown cells of particles ``rows`` borrow (eq. 31, "sample"
+    mode; empty otherwise). They depend on the particle's map and uniforms only, not on its
+    pose, so every candidate pose of the informed proposal shares them."""
+    n = rows.shape[0]
+    if cfg.unknown_cells != "sample":
+        empty = jnp.zeros((n, 0), jnp.float32)
+        return Borrowed(empty, empty, jnp.zeros((n,), bool))
+    # unknown_samples uniform known cells; observed cell c borrows draw c mod unknown_samples
+    # (see importance.log_lambda), so every unknown cell borrows a uniformly random known
+    # cell (draws are shared between cells unknown_samples apart, which keeps the search
+    # cost independent of the local map). Only the draws are read from the big map.
+    idx, total = jax.vmap(unknown.sample_known_cells)(bits, unknown_u)
+    kb, Sb = maps.read(store, rows, idx, jnp.ones(idx.shape, bool), cfg)
+    return Borrowed(kb, Sb, total > 0)
+
+
+def footprint_at(pose: Array, obs: Observation, borrowed: Borrowed,
+                 read_cells: Callable[[Array, Array], tuple[Array, Array]],
+                 cfg: FilterConfig) -> Footprint:
+    """The footprint of poses [n, 3], the map statistics under it read by ``read_cells``
+    (flat cells [n, M], on_map [n, M] -> (k, S) [n, M], 0 off the map)."""
+    flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(pose)
+    return Footprint(flat, jnp.any(~on_map & (obs.k > 0), axis=1),
+                     jnp.where(on_map, obs.k, 0.0), jnp.where(on_map, obs.S, 0.0),
+                     *read_cells(flat, on_map), borrowed.k, borrowed.S, borrowed.can_borrow)
+
+
 def read_footprints(store: maps.Maps, bits: Array, pose: Array, rows: Array,
                     unknown_u: Array, obs: Observation, cfg: FilterConfig) -> Footprint:
     """Everything the update reads from the maps of particles ``rows`` ([n]; ``pose``, ``bits``
     and ``unknown_u`` are theirs). store: the maps of all particles (``FilterState.maps``),
     read through ``maps.read``."""
-    flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(pose)
-    k_obs = jnp.where(on_map, obs.k, 0.0)
-    S_obs = jnp.where(on_map, obs.S, 0.0)
-    if cfg.unknown_cells == "sample":
-        # unknown_samples uniform known cells; observed cell c borrows draw c mod unknown_samples
-        # (see importance.log_lambda), so every unknown cell borrows a uniformly random known
-        # cell (draws are shared between cells unknown_samples apart, which keeps the search
-        # cost independent of the local map). Only the draws are read from the big map.
-        idx, total = jax.vmap(unknown.sample_known_cells)(bits, unknown_u)
-        drawn = jnp.ones(idx.shape, bool)
-        kb, Sb = maps.read(store, rows, idx, drawn, cfg)
-        can_borrow = total > 0
-    else:
-        kb = Sb = jnp.zeros((pose.shape[0], 0), jnp.float32)
-        can_borrow = jnp.zeros((pose.shape[0],), bool)
-    return Footprint(flat, jnp.any(~on_map & (obs.k > 0), axis=1), k_obs, S_obs,
-                     *maps.read(store, rows, flat, on_map, cfg), kb, Sb, can_borrow)
+    borrowed = read_borrowed(store, bits, rows, unknown_u, cfg)
+    return footprint_at(pose, obs, borrowed,
+                        lambda flat, on_map: maps.read(store, rows, flat, on_map, cfg), cfg)

@@ -29,13 +29,15 @@ adaptive rule of ``tempering`` applied to the cloud of every particle's candidat
 their prior density: the spread the motion proposal's particles would have, which the
 particles themselves, all at their prior means, do not show; or 1) and used by both the fit
 and the weights. The candidates
-are scored for all particles at once, one candidate after another (``lax.map``), through the
-same footprint reads and eq. 26 kernel as the update.
+are scored for all particles at once, one candidate after another (``lax.map``), by the update's
+eq. 26 kernel on footprints gathered from one read of each particle's map around its prior mean
+(``score_candidates``).
 """
 
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Callable, NamedTuple
 
 import jax
@@ -43,14 +45,14 @@ import jax.numpy as jnp
 from jax import Array, lax
 
 from gslam_jax.rbpf import cells, maps
-from gslam_jax.rbpf.footprint import read_footprints
+from gslam_jax.rbpf.footprint import footprint_at, read_borrowed
 from gslam_jax.rbpf.importance import log_lambda
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
-           "score_candidates", "fit_proposal", "draw", "quadratic_design", "quadratic_hessian",
-           "JITTER"]
+           "candidate_window", "score_candidates", "fit_proposal", "draw", "quadratic_design",
+           "quadratic_hessian", "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
 # moves the position along-track only, so the covariance is singular until the heading noise
@@ -100,19 +102,58 @@ def _factor(cov: Array) -> Array:
     return jnp.linalg.cholesky(cov + jnp.diag(jnp.asarray(JITTER, cov.dtype)))
 
 
+def candidate_window(cfg: FilterConfig) -> int:
+    """Side (cells) of the square of each particle's map that ``score_candidates`` reads once
+    for all its candidates: a rotated local map (``FilterConfig.reach``) anywhere within
+    ``reach / 2`` cells of the particle's prior mean."""
+    return 2 * (cfg.reach + cfg.reach // 2) + 1
+
+
 def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unknown_u: Array,
                      obs: Observation, params: FilterParams, cfg: FilterConfig) -> Array:
     """log lambda [J, K] (eq. 26 with eq. 30 / 31) of the local map at every particle's
-    candidate poses m_j + C_j g_jk (``g`` [J, K, 3]), against the maps before this update."""
+    candidate poses m_j + C_j g_jk (``g`` [J, K, 3]), against the maps before this update.
+
+    Each particle's map is read once for all its candidates: eq. 31's borrowed known cells
+    (they do not depend on the pose) and the square of ``candidate_window`` cells around its
+    prior mean; each candidate's footprint is then gathered from that small window. A
+    candidate batch with a footprint cell outside its particle's window (a prior wider than
+    the window) is read from the maps instead, so the scores are exactly those of
+    ``read_footprints`` at every candidate, whichever path is taken."""
     J = cfg.num_particles
+    H, W = cfg.map_shape
+    side = candidate_window(cfg)
     rows = jnp.arange(J, dtype=jnp.int32)
-    bits = maps.known_bits(store, jnp.int32(0), J, cfg)
+    borrowed = read_borrowed(store, maps.known_bits(store, jnp.int32(0), J, cfg), rows,
+                             unknown_u, cfg)
     log_v = cells.log_v_obs(obs.k, obs.S)
+    # the window: cells (i0 + a, j0 + b), a, b in [0, side), centred on the prior mean's cell
+    i0 = jnp.floor((mean[:, 0] - cfg.map_origin[0]) / cfg.resolution).astype(jnp.int32)
+    j0 = jnp.floor((mean[:, 1] - cfg.map_origin[1]) / cfg.resolution).astype(jnp.int32)
+    i0, j0 = i0 - side // 2, j0 - side // 2
+    a = jnp.arange(side, dtype=jnp.int32)
+    wi = i0[:, None, None] + a[None, :, None]
+    wj = j0[:, None, None] + a[None, None, :]
+    on = ((wi >= 0) & (wi < H) & (wj >= 0) & (wj < W)).reshape(J, -1)
+    k_win, S_win = maps.read(store, rows, jnp.where(on, (wi * W + wj).reshape(J, -1), H * W),
+                             on, cfg)
+
+    def read_cells(flat: Array, on_map: Array) -> tuple[Array, Array]:
+        ri, rj = flat // W - i0[:, None], flat % W - j0[:, None]
+        inside = (ri >= 0) & (ri < side) & (rj >= 0) & (rj < side)
+        at = jnp.where(inside, ri * side + rj, 0)
+
+        def from_window() -> tuple[Array, Array]:
+            take = partial(jnp.take_along_axis, indices=at, axis=1)
+            return (jnp.where(on_map, take(k_win), 0.0), jnp.where(on_map, take(S_win), 0.0))
+
+        return lax.cond(jnp.all(inside | ~on_map), from_window,
+                        lambda: maps.read(store, rows, flat, on_map, cfg))
 
     def one(g_k: Array) -> Array:
         pose = mean + jnp.einsum("jab,jb->ja", chol, g_k)
-        f = read_footprints(store, bits, pose, rows, unknown_u, obs, cfg)
-        return log_lambda(f, log_v, params, cfg)
+        return log_lambda(footprint_at(pose, obs, borrowed, read_cells, cfg), log_v, params,
+                          cfg)
 
     return lax.map(one, jnp.swapaxes(g, 0, 1)).T
 

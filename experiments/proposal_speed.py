@@ -1,0 +1,124 @@
+"""What the informed proposal's scoring costs: one read of each particle's map window for all
+its candidates (``proposal.score_candidates``) against reading every candidate's footprint from
+the maps (``read_footprints`` per candidate, as before), and the whole informed update against
+the motion proposal's, in one process on synthetic maps (``gslam bench``'s state: particles
+scattered 1 m around the map centre, maps filled by a few updates first).
+
+    python -m experiments.proposal_speed --particles 200 --local 64 --map 640
+
+Prints the machine and versions, milliseconds per call (best of --repeats) and the ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from gslam_jax import choices, rbpf
+from gslam_jax.app.bench import _synthetic_state
+from gslam_jax.machine import environment
+from gslam_jax.rbpf import cells, maps, proposal
+from gslam_jax.rbpf.footprint import compact_observation, read_footprints
+from gslam_jax.rbpf.importance import log_lambda
+
+
+def score_per_candidate(store, mean, chol, g, unknown_u, obs, params, cfg):
+    """The reference: every candidate's footprint and eq. 31 draws read from the maps."""
+    J = cfg.num_particles
+    rows = jnp.arange(J, dtype=jnp.int32)
+    bits = maps.known_bits(store, jnp.int32(0), J, cfg)
+    log_v = cells.log_v_obs(obs.k, obs.S)
+
+    def one(g_k):
+        pose = mean + jnp.einsum("jab,jb->ja", chol, g_k)
+        return log_lambda(read_footprints(store, bits, pose, rows, unknown_u, obs, cfg), log_v,
+                          params, cfg)
+
+    return lax.map(one, jnp.swapaxes(g, 0, 1)).T
+
+
+def best_seconds(fn, *args, repeats: int):
+    """Best wall time of ``repeats`` calls of fn(*args) after one warm-up call, and its output."""
+    out = jax.block_until_ready(fn(*args))
+    best = math.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--particles", type=int, default=200)
+    ap.add_argument("--local", type=int, default=64)
+    ap.add_argument("--map", type=int, default=640)
+    ap.add_argument("--mode", default="sample", choices=choices.UNKNOWN_CELLS)
+    ap.add_argument("--store", default="dense", choices=("dense", "shared"))
+    ap.add_argument("--prior-std", type=float, default=0.2,
+                    help="position std (m) of the particles' accumulated prior")
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args(argv)
+
+    J, L, side = args.particles, args.local, args.map
+    rng = np.random.default_rng(0)
+    cfg = rbpf.FilterConfig(num_particles=J, map_shape=(side, side),
+                            map_origin=(-0.08 * side, -0.08 * side), resolution=0.16,
+                            local_size=L, unknown_cells=args.mode, store=args.store,
+                            proposal="informed").validate()
+    k = rng.integers(0, 30, (L, L)).astype(np.float32)
+    local = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
+    params = rbpf.FilterParams()
+    noise = rbpf.update_noise(jax.random.key(0), cfg)
+    state = _synthetic_state(cfg._replace(proposal="motion"), rng)
+    warm = jax.jit(lambda s: rbpf.update(s, local, noise.unknown_u, params,
+                                         cfg._replace(proposal="motion"))[0])
+    for _ in range(3):  # some known cells under every footprint
+        state = warm(state._replace(pose=state.pose + 0.3))
+    var = jnp.asarray([args.prior_std ** 2, args.prior_std ** 2, 1e-3], jnp.float32)
+    cov = jnp.broadcast_to(jnp.diag(var), (J, 3, 3))
+    state = state._replace(prior_cov=cov)
+    obs = compact_observation(local, cfg)
+    chol = proposal._factor(cov)
+    grid, _ = proposal.candidate_grid(cfg.proposal_points, cfg.proposal_span)
+    g = jnp.broadcast_to(grid, (J,) + grid.shape)
+
+    def timed(score):
+        fn = jax.jit(lambda s: score(s.maps, s.pose, chol, g, noise.unknown_u, obs, params, cfg))
+        sec, out = best_seconds(fn, state, repeats=args.repeats)
+        return sec, np.asarray(out)
+
+    sec_window, windowed = timed(proposal.score_candidates)
+    sec_each, each = timed(score_per_candidate)
+    z = jax.random.normal(jax.random.key(1), (J, 3))
+    informed = jax.jit(lambda s: rbpf.update(s, local, noise.unknown_u, params, cfg, z)[0])
+    motion = jax.jit(lambda s: rbpf.update(s._replace(prior_cov=None), local, noise.unknown_u,
+                                           params, cfg._replace(proposal="motion"))[0])
+    sec_informed, _ = best_seconds(informed, state, repeats=args.repeats)
+    sec_motion, _ = best_seconds(motion, state, repeats=args.repeats)
+    K = grid.shape[0]
+    result = {
+        "environment": environment(), "particles": J, "local": L, "map": side,
+        "mode": args.mode, "store": args.store, "candidates_per_stage": K,
+        "stages": cfg.proposal_stages, "window": proposal.candidate_window(cfg),
+        # footprint cells on a cell border may round to either side in different XLA fusions
+        "candidates_differing": int(np.sum(~np.isclose(windowed, each, rtol=1e-5, atol=1e-4))),
+        "candidates": int(windowed.size),
+        "ms_score_windowed": 1e3 * sec_window, "ms_score_per_candidate": 1e3 * sec_each,
+        "speedup_windowed": sec_each / sec_window,
+        "ms_update_informed": 1e3 * sec_informed, "ms_update_motion": 1e3 * sec_motion,
+        "informed_over_motion": sec_informed / sec_motion,
+    }
+    print(json.dumps(result, indent=2))
+    return result
+
+
+if __name__ == "__main__":
+    main()
