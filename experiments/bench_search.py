@@ -17,18 +17,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-
-from gslam_jax import rbpf  # noqa: E402
+from experiments.common import report  # noqa: E402
+from gslam_jax import (  # noqa: E402
+    observations,
+    rbpf,  # noqa: E402
+    sizing,
+)
+from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
+from gslam_jax.datasets.sim import simulate_run  # noqa: E402
+from gslam_jax.machine import environment  # noqa: E402
 from gslam_jax.tuning import designs as D  # noqa: E402
 from gslam_jax.tuning import evaluation as E  # noqa: E402
 from gslam_jax.tuning import search as S  # noqa: E402
 from gslam_jax.tuning import space as SP  # noqa: E402
-from gslam_jax import slam  # noqa: E402
-from gslam_jax.machine import environment  # noqa: E402
-from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
-from gslam_jax.datasets.sim import simulate_run  # noqa: E402
 from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
-from experiments.common import report  # noqa: E402
 
 
 def objective_in_design_order(values: np.ndarray, result: S.SearchResult) -> np.ndarray:
@@ -67,7 +69,7 @@ def main(argv: list[str] | None = None) -> dict:
     run, _ = simulate_run(args.course, 0, lm, max_frames=args.frames)
     config = Config(filter=FilterSection(particles=args.particles, unknown_cells="ignore"),
                     map=MapSection(margin=2.0))
-    cfg = slam.filter_config(config, run)
+    cfg = sizing.filter_config(config, run)
     space = SP.parse_space({"alpha_d": {"range": [0.005, 0.1], "log": True},
                            "alpha_theta_d": {"range": [0.001, 0.03], "log": True}})
     values = D.design_points(space, "sobol", args.sets)
@@ -83,8 +85,8 @@ def main(argv: list[str] | None = None) -> dict:
         return time.perf_counter() - t0, res
 
     # Loop: the filter once per set (compiled once; parameters are traced arguments).
-    base = slam.filter_params(config)
-    obs = slam.map_observations(run, config)
+    base = sizing.filter_params(config)
+    obs = observations.map_observations(run, config)
     controls = jnp.asarray(run.controls, jnp.float32)
     idx = jnp.asarray(run.obs_index, jnp.int32)
     start = jnp.asarray(run.start_pose(), jnp.float32)

@@ -12,7 +12,7 @@ from typing import Callable
 import jax
 import numpy as np
 
-from gslam_jax import choices, slam
+from gslam_jax import choices, sizing, slam
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.run import Run
@@ -50,7 +50,7 @@ def key_averaged(run: Run, config: Config, names: tuple[str, ...] = ALPHAS
     """f(values [P, d], keys, objective) -> [P]: the objective of each parameter set averaged
     over the filter keys (common random numbers across the sets for each key)."""
     inputs, cfg = slam.run_arrays(run, config)
-    base = slam.filter_params(config)
+    base = sizing.filter_params(config)
 
     def f(values: np.ndarray, keys: range, objective: str) -> np.ndarray:
         return np.mean([evaluate(values, jax.random.key(k), inputs, base, names, cfg,

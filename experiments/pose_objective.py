@@ -46,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array, lax
 
-from gslam_jax import rbpf, slam
+from gslam_jax import observations, rbpf, sizing
 from gslam_jax.config import Config, apply_overrides, layered_config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.machine import environment
@@ -121,16 +121,16 @@ class UpdateScore(NamedTuple):
 
 
 def truth_config(run: Run, config: Config) -> tuple[rbpf.FilterConfig, rbpf.FilterParams]:
-    """One particle in a dense map (the filter's ``slam.filter_config`` otherwise), the map
+    """One particle in a dense map (the filter's ``sizing.filter_config`` otherwise), the map
     widened to hold the true path as well as the VO path, and the config's parameters."""
     one = apply_overrides(config, ["filter.particles=1", "filter.proposal=motion",
                                    "map.store=dense"])
-    cfg = slam.filter_config(one, run)
+    cfg = sizing.filter_config(one, run)
     gt = np.asarray(run.ground_truth, np.float64)
     path = np.concatenate([run.vo_poses(), gt[np.isfinite(gt[:, :2]).all(axis=1)]])
-    extent = slam.map_extent(path, cfg.local_size, cfg.resolution, config.map.margin, cfg.window)
+    extent = sizing.map_extent(path, cfg.local_size, cfg.resolution, config.map.margin, cfg.window)
     cfg = cfg._replace(map_shape=extent.shape, map_origin=extent.origin).validate()
-    return cfg, slam.filter_params(one)
+    return cfg, sizing.filter_params(one)
 
 
 def _poses(centre: Array, along: Array, across: Array, heading: Array) -> Array:
@@ -252,7 +252,7 @@ def pose_objective(run: Run, config: Config, grid: Grid,
         raise ValueError("the pose objective needs a run with ground truth")
     cfg, params = truth_config(run, config)
     truth = np.asarray(run.ground_truth, np.float64)
-    local_obs = slam.map_observations(run, config)
+    local_obs = observations.map_observations(run, config)
     prior = prior_variances(run.controls, np.asarray(run.obs_index), run.start_pose(), truth,
                             params)
     state = rbpf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
@@ -285,7 +285,7 @@ def self_peaks(run: Run, config: Config, grid: Grid) -> np.ndarray:
     overlap, so a shift that moves a few poorly matched cells off the map can score higher."""
     cfg, params = truth_config(run, config)
     truth = np.asarray(run.ground_truth, np.float64)
-    local_obs = slam.map_observations(run, config)
+    local_obs = observations.map_observations(run, config)
     empty = rbpf.init(cfg)
     u = rbpf.update_noise(jax.random.key(config.filter.seed), cfg).unknown_u
     axes = [jnp.asarray(a, jnp.float32) for a in grid]

@@ -33,19 +33,18 @@ from pathlib import Path
 import jax
 import numpy as np
 
-
-from gslam_jax.tuning import designs as D  # noqa: E402
-from gslam_jax.tuning import evaluation as E  # noqa: E402
-from gslam_jax.tuning import space as SP  # noqa: E402
-from gslam_jax import slam  # noqa: E402
-from gslam_jax.tuning import strategies as ST  # noqa: E402
-from gslam_jax.tuning import gradient as TU  # noqa: E402
+from experiments.common import report  # noqa: E402
+from gslam_jax import sizing, slam  # noqa: E402
 from gslam_jax.app.bench import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
-from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
 from gslam_jax.run import Run, load_run  # noqa: E402
-from experiments.common import report  # noqa: E402
+from gslam_jax.tuning import designs as D  # noqa: E402
+from gslam_jax.tuning import evaluation as E  # noqa: E402
+from gslam_jax.tuning import gradient as TU  # noqa: E402
+from gslam_jax.tuning import space as SP  # noqa: E402
+from gslam_jax.tuning import strategies as ST  # noqa: E402
+from gslam_jax.vo.localmap import LocalMapParams  # noqa: E402
 
 LOG = lambda lo, hi: {"range": [lo, hi], "log": True}  # noqa: E731
 SPACES = {
@@ -73,7 +72,7 @@ def evaluator(run: Run, config: Config, names: tuple[str, ...], keys: list[int],
     """values [P, d] -> mean-path RMS [P] averaged over ``keys``; P padded to a multiple of
     ``batch`` so that every call reuses one compiled shape."""
     inputs, cfg = slam.run_arrays(run, config)
-    base = slam.filter_params(config)
+    base = sizing.filter_params(config)
 
     def per_key(values: np.ndarray) -> np.ndarray:
         P = len(values)

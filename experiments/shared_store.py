@@ -33,7 +33,7 @@ def point(course: str, J: int, store: str, frames: int, unknown_cells: str = "ig
 
     import numpy as np
 
-    from gslam_jax import slam
+    from gslam_jax import sizing, slam
     from gslam_jax.config import Config
     from gslam_jax.rbpf import maps
 
@@ -44,7 +44,7 @@ def point(course: str, J: int, store: str, frames: int, unknown_cells: str = "ig
     run = _course_run(course, frames, config)
     res = slam.run_slam(run, config, chunk=CHUNK)
     timed = int(np.sum(np.asarray(run.obs_index)[CHUNK:] >= 0))
-    cfg = slam.filter_config(config, run)
+    cfg = sizing.filter_config(config, run)
     MB = 2 ** 20
     return {"course": course, "particles": J, "store": res.store, "unknown_cells": unknown_cells,
             "frames": run.num_frames, "updates": run.num_local_maps, "timed_updates": timed,
@@ -65,17 +65,17 @@ def ab(rounds: int, particles: int = 200, unknown_cells: str = "ignore") -> dict
     import jax
     import numpy as np
 
-    from gslam_jax import slam
-    from gslam_jax.config import Config
+    from gslam_jax import observations, sizing
     from gslam_jax.app.compare import _default_run, time_dense_updates
+    from gslam_jax.config import Config
 
     run = _default_run()
     c = Config()
     config = dataclasses.replace(
         c, filter=dataclasses.replace(c.filter, particles=particles, unknown_cells=unknown_cells),
         map=dataclasses.replace(c.map, resolution=run.resolution))
-    cfg, params = slam.filter_config(config, run), slam.filter_params(config)
-    obs = slam.local_observations(run, config.map.min_variance)
+    cfg, params = sizing.filter_config(config, run), sizing.filter_params(config)
+    obs = observations.local_observations(run, config.map.min_variance)
     out: dict = {"dense": [], "shared": []}
     for _ in range(rounds):
         for store in out:
@@ -94,8 +94,8 @@ RUN_CACHE = Path("results/shared_store/runs")  # simulated courses, made once pe
 def _course_run(course: str, frames: int, config):
     """The simulated course (seed 0, the config's local maps), cached as a Run file."""
     from gslam_jax.datasets.sim import simulate_run
-    from gslam_jax.vo.localmap import localmap_params
     from gslam_jax.run import load_run, save_run
+    from gslam_jax.vo.localmap import localmap_params
 
     path = RUN_CACHE / f"{course}_{frames}.npz"
     if path.exists():

@@ -70,7 +70,7 @@ class FilterSection:
     proposal_stages: int = 2    # "informed": grids, each in the previous fit's coordinates
     seed: int = 0
     # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
-    # a CPU, all particles on an accelerator; resolved on the host, slam.filter_config)
+    # a CPU, all particles on an accelerator; resolved on the host, sizing.filter_config)
     particle_block: int = 0
 
 

@@ -1,7 +1,7 @@
 """Gamma-SLAM on a live robot: frames pushed one at a time, the estimate after each.
 
 ``Online`` drives the same kernel as ``slam.run_slam`` (``rbpf.scan_frames`` over one frame,
-``slam.refine_observations``, ``slam.filter_params``, ``slam.extent_filter_config``), one
+``observations.refine_observations``, ``sizing.filter_params``, ``sizing.extent_filter_config``), one
 jitted call per frame, compiled at the first frame and never again: every frame has the same
 shapes (a frame without a local map carries a zero one and is not updated). Frame t's PRNG key
 is ``fold_in(key, t)``, which under JAX's partitionable threefry (the default) is
@@ -9,7 +9,7 @@ is ``fold_in(key, t)``, which under JAX's partitionable threefry (the default) i
 are the batch run's.
 
 A live robot has no path yet, so the map cannot be sized from it: its extent is given (a
-``slam.MapExtent``, or the side in metres of the square the robot drives in, centred on the
+``sizing.MapExtent``, or the side in metres of the square the robot drives in, centred on the
 start). The map does not grow (a larger map would be a new shape, hence a recompilation):
 when a local map reaches past its edge the frame is applied with the cells beyond the edge
 skipped, as the batch run does, and ``MapEdgeError`` is raised.
@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import rbpf, slam
+from gslam_jax import observations, rbpf, sizing, slam
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap
@@ -77,27 +77,27 @@ class OnlineStats(NamedTuple):
 
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
 def online_step(state: rbpf.FilterState, key: jax.Array, t: jax.Array, control: jax.Array,
-                raw_obs: jax.Array, has_obs: jax.Array, settings: slam.ObsSettings,
+                raw_obs: jax.Array, has_obs: jax.Array, settings: observations.ObsSettings,
                 params: rbpf.FilterParams, cfg: rbpf.FilterConfig
                 ) -> tuple[rbpf.FilterState, tuple[rbpf.StepInfo, jax.Array, jax.Array]]:
     """One frame t of the batch run's scan: its key ``fold_in(key, t)``, its raw observation
-    [L, L, 2] refined (``slam.refine_observations``) and, where ``has_obs``, the update.
+    [L, L, 2] refined (``observations.refine_observations``) and, where ``has_obs``, the update.
     ``state`` is donated. Returns the state and the frame's (StepInfo, best pose, mean pose)."""
     keys = jax.random.fold_in(key, t)[None]
-    obs = slam.refine_observations(raw_obs[None], settings)
+    obs = observations.refine_observations(raw_obs[None], settings)
     index = jnp.where(has_obs, 0, -1).astype(jnp.int32)[None]
     state, out = rbpf.scan_frames(state, keys, control[None], index, obs, params, cfg)
     return state, jax.tree.map(lambda x: x[0], out)
 
 
-def _extent(config: Config, size: float, start: np.ndarray, local_size: int) -> slam.MapExtent:
+def _extent(config: Config, size: float, start: np.ndarray, local_size: int) -> sizing.MapExtent:
     """The map around the square of side ``size`` metres centred on ``start`` (plus a local
-    map's reach), sized by the batch run's rule (``slam.map_extent``)."""
+    map's reach), sized by the batch run's rule (``sizing.map_extent``)."""
     if not (math.isfinite(size) and size >= 0):
         raise ConfigError(f"Online: map_extent must be a size >= 0 metres, got {size}")
     probe = rbpf.FilterConfig(num_particles=1, map_shape=(8, 8), map_origin=(0.0, 0.0),
                               resolution=config.map.resolution, local_size=local_size)
-    return slam.map_extent(start[None], local_size, config.map.resolution, 0.5 * size,
+    return sizing.map_extent(start[None], local_size, config.map.resolution, 0.5 * size,
                            probe.window)
 
 
@@ -105,7 +105,7 @@ class Online:
     """Gamma-SLAM one frame at a time (see the module docstring).
 
     config: the run's settings ([filter], [motion], [map], [localmap]).
-    map_extent: ``slam.MapExtent`` (origin, shape in cells), or a float: the side in metres of
+    map_extent: ``sizing.MapExtent`` (origin, shape in cells), or a float: the side in metres of
         the square centred on ``start_pose`` the robot may drive in; None: ``DEFAULT_SIZE``.
     start_pose: [3] the pose before the first frame (zeros: the robot's own frame).
     seed: the filter's seed (None: [filter] seed); the batch run with that seed draws the same.
@@ -114,10 +114,10 @@ class Online:
     sensor: how the pushed local maps are made, one of ``choices.SENSORS`` ("stereo" for a
         stereo rig's dense points), for the automatic ``[filter] ess_target``; None: "points".
     filter_config: a ready ``rbpf.FilterConfig`` instead of the five above (e.g. a batch run's
-        ``slam.filter_config``, to reproduce it).
+        ``sizing.filter_config``, to reproduce it).
     """
 
-    def __init__(self, config: Config, map_extent: slam.MapExtent | tuple | float | None = None,
+    def __init__(self, config: Config, map_extent: sizing.MapExtent | tuple | float | None = None,
                  *, start_pose: np.ndarray | None = None, seed: int | None = None,
                  local_size: int | None = None, observed_cells: int = 0,
                  sensor: str | None = None, filter_config: rbpf.FilterConfig | None = None):
@@ -133,21 +133,21 @@ class Online:
                 size = DEFAULT_SIZE if map_extent is None else float(map_extent)
                 extent = _extent(config, size, self.start, L)
             else:
-                extent = slam.MapExtent(*map_extent)
-            filter_config = slam.extent_filter_config(config, extent, L, observed_cells, sensor)
+                extent = sizing.MapExtent(*map_extent)
+            filter_config = sizing.extent_filter_config(config, extent, L, observed_cells, sensor)
         elif (map_extent is not None or local_size is not None or observed_cells
               or sensor is not None):
             raise ConfigError("Online: give either filter_config or map_extent, local_size, "
                               "observed_cells and sensor, not both")
         cfg = filter_config.validate()
-        available, what = slam.map_memory()
+        available, what = sizing.map_memory()
         H, W = cfg.map_shape
         maps.check_memory(cfg, available, what, extent=f" (the live map, {H * cfg.resolution:.4g}"
                                                        f" x {W * cfg.resolution:.4g} m)")
         self._check_reach(cfg)
         self.cfg = cfg
-        self.params = slam.filter_params(config)
-        self.settings = slam.obs_settings(config)
+        self.params = sizing.filter_params(config)
+        self.settings = observations.obs_settings(config)
         self.key = jax.random.key(config.filter.seed if seed is None else seed)
         self.state = rbpf.init(cfg, jnp.asarray(self.start, jnp.float32))
         self._zero_obs = jnp.zeros((cfg.local_size, cfg.local_size, 2), jnp.float32)

@@ -11,20 +11,19 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import choices, rbpf
-from gslam_jax.rbpf import resampling
+from gslam_jax import choices, rbpf, sizing
 from gslam_jax.app.cli import build_parser
-from gslam_jax import slam
 from gslam_jax.config import Config, ConfigError, apply_overrides, load_config
-from gslam_jax.vo.localmap import LocalMapParams
+from gslam_jax.rbpf import resampling
 from gslam_jax.tiled import numerics
+from gslam_jax.vo.localmap import LocalMapParams
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_every_filter_setting_of_the_config_reaches_the_filter():
-    """The filter's static config and params are built from a Config (``slam.filter_config``,
-    ``slam.filter_params``): each setting they share, set away from its default, arrives."""
+    """The filter's static config and params are built from a Config (``sizing.filter_config``,
+    ``sizing.filter_params``): each setting they share, set away from its default, arrives."""
     run, _ = make_run(seed=1, steps=20)
     changed = {"filter": dict(particles=9, resampler="systematic", resample_ratio=0.3,
                               unknown_cells="sample", unknown_samples=77, particle_block=3,
@@ -34,14 +33,14 @@ def test_every_filter_setting_of_the_config_reaches_the_filter():
     config = dataclasses.replace(Config(), **{
         name: dataclasses.replace(getattr(Config(), name), **values)
         for name, values in changed.items()})
-    cfg = slam.filter_config(config, run)
+    cfg = sizing.filter_config(config, run)
     shared = [f for f in rbpf.FilterConfig._fields
               if f in changed["filter"] or f in changed["map"]]
     assert len(shared) == 10  # resampler .. ess_target, store, tile, pool_tiles
     for name in shared:
         assert getattr(cfg, name) == {**changed["filter"], **changed["map"]}[name], name
     assert cfg.num_particles == 9
-    params = slam.filter_params(config)
+    params = sizing.filter_params(config)
     np.testing.assert_allclose([float(v) for v in params.motion], [0.11, 0.12, 0.13], rtol=1e-6)
     np.testing.assert_allclose([float(params.beta_prev), float(params.beta_new)], [0.2, 0.3],
                                rtol=1e-6)

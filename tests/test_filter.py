@@ -9,13 +9,12 @@ import numpy as np
 import pytest
 from synthetic import World, make_run
 
-from gslam_jax import rbpf
+from gslam_jax import observations, rbpf, sizing, slam
+from gslam_jax.config import Config, FilterSection, MotionSection
+from gslam_jax.rbpf.cells import obs_from_stats
 from gslam_jax.rbpf.footprint import observation_cells
 from gslam_jax.rbpf.importance import _log_importance, log_importance
 from gslam_jax.rbpf.types import CPU_BLOCK_CELLS
-from gslam_jax import slam
-from gslam_jax.rbpf.cells import obs_from_stats
-from gslam_jax.config import Config, FilterSection, MotionSection
 from gslam_jax.vo.localmap import LocalMapParams, points_to_stats
 
 RES = 0.16
@@ -94,7 +93,7 @@ def test_best_particle_survives_resampling():
 def test_without_map_updates_the_weights_stay_uniform(mode):
     run, _ = _make_run(seed=1, steps=30)
     cfg = _cfg(16, mode, update_map=False)
-    obs = jnp.asarray(slam.local_observations(run, 1e-6))
+    obs = jnp.asarray(observations.local_observations(run, 1e-6))
     out = rbpf.run_filter(jax.random.key(0), rbpf.FilterParams(),
                           jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index),
                           obs, cfg)
@@ -136,7 +135,7 @@ def test_footprints_leaving_the_map_are_counted_not_wrapped():
     run, _ = _make_run(seed=1, steps=30)
     cfg = rbpf.FilterConfig(num_particles=4, map_shape=(112, 112), map_origin=(-2.0, -9.0),
                             resolution=RES, local_size=64, unknown_cells="ignore")
-    obs = jnp.asarray(slam.local_observations(run, 1e-6))
+    obs = jnp.asarray(observations.local_observations(run, 1e-6))
     out = rbpf.run_filter(jax.random.key(0), rbpf.FilterParams(),
                           jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index),
                           obs, cfg)
@@ -215,7 +214,7 @@ def _shared_run(mode: str, observed_cells: int, particle_block: int) -> rbpf.Run
                                       particle_block=particle_block)
     return rbpf.run_filter(jax.random.key(4), rbpf.FilterParams(),
                            jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index),
-                           jnp.asarray(slam.local_observations(run, 1e-6)), cfg)
+                           jnp.asarray(observations.local_observations(run, 1e-6)), cfg)
 
 
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
@@ -223,9 +222,9 @@ def test_compacted_update_equals_full_and_reports_overflow(mode):
     """Evaluating only the observed cells (observed_cells = M) gives the same weights and maps
     as evaluating all L*L; a cap below the observed count is reported, not silent."""
     run, _ = _make_run(seed=2, steps=30)
-    obs = jnp.asarray(slam.local_observations(run, 1e-6))
+    obs = jnp.asarray(observations.local_observations(run, 1e-6))
     L = obs.shape[1]
-    M = slam.observed_cells(run)
+    M = sizing.observed_cells(run)
     assert M < L * L
     base = _shared_base(mode)
     full, compact = (_shared_run(mode, cap, J_SHARED) for cap in (0, M))
@@ -246,7 +245,7 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
     default's shape) gives the same weights, resampling and maps as one pass over all of them,
     and the auto choice is one pass on accelerators, cache-sized blocks on a CPU."""
     run, _ = _make_run(seed=2, steps=30)
-    M = slam.observed_cells(run)
+    M = sizing.observed_cells(run)
     one, blocks = (_shared_run(mode, M, block) for block in (J_SHARED, 3))
     assert int(np.sum(one.infos.resampled)) >= 1
     np.testing.assert_array_equal(blocks.infos.resampled, one.infos.resampled)
@@ -270,13 +269,13 @@ def test_filter_config_resolves_the_automatic_particle_block_on_the_host():
     """``[filter] particle_block = 0`` becomes the default backend's block size when the config
     is built, so the static config the update is traced with carries it; a set size is kept."""
     run, _ = _make_run(seed=2, steps=30)
-    cfg = slam.filter_config(_config(J=200, mode="ignore"), run)
+    cfg = sizing.filter_config(_config(J=200, mode="ignore"), run)
     auto = CPU_BLOCK_CELLS // cfg.max_observed if jax.default_backend() == "cpu" else 200
     assert cfg.particle_block == min(auto, 200) > 0
     config = _config(J=200, mode="ignore")
     config = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
                                                                     particle_block=7))
-    assert slam.filter_config(config, run).particle_block == 7
+    assert sizing.filter_config(config, run).particle_block == 7
 
 
 @pytest.mark.parametrize("M", [200, 256])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import gps, slam
+from gslam_jax import gps, sizing
 from gslam_jax.app.cli import main
 from gslam_jax.config import Config, ConfigError, apply_overrides
 from gslam_jax.gps import GpsLogError
@@ -52,16 +52,16 @@ def test_a_huge_margin_is_an_error_not_an_empty_map(run):
     config = apply_overrides(Config(), ["map.margin=1e300"])
     with pytest.raises(ConfigError, match=r"particle maps need .* 1\.25e301 x 1\.25e301 cells"
                        r".*\[map\] margin 1e\+300 m"):
-        slam.filter_config(config, run)
+        sizing.filter_config(config, run)
     with pytest.raises(ConfigError, match=r"map extent is not finite: \[map\] margin 1e\+308"):
-        slam.filter_config(apply_overrides(Config(), ["map.margin=1e308"]), run)
+        sizing.filter_config(apply_overrides(Config(), ["map.margin=1e308"]), run)
 
 
 def test_a_huge_control_is_named_not_a_memory_problem(run):
     controls = np.array(run.controls)
     controls[5, 0] = 1e12
     with pytest.raises(RunError, match=r"field 'controls': frame 5 moves 1e\+12 m in one step"):
-        slam.filter_config(Config(), run._replace(controls=controls))
+        sizing.filter_config(Config(), run._replace(controls=controls))
 
 
 def test_integer_controls_in_a_run_file_are_refused(tmp_path, run):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from synthetic import World, truth_and_controls
 
-from gslam_jax import slam
+from gslam_jax import sizing, slam
 from gslam_jax.config import Config, ConfigError, FilterSection, LocalMapSection
 from gslam_jax.errors import InputError
 from gslam_jax.online import MapEdgeError, Online, online_step
@@ -35,7 +35,7 @@ def frames():
 @pytest.fixture(scope="module")
 def batch(frames):
     run, _ = frames
-    return slam.run_slam(run, CONFIG), slam.filter_config(CONFIG, run)
+    return slam.run_slam(run, CONFIG), sizing.filter_config(CONFIG, run)
 
 
 def test_online_reproduces_the_batch_run_with_one_compilation(frames, batch):
@@ -76,7 +76,7 @@ def test_online_reproduces_the_batch_run_with_one_compilation(frames, batch):
 def test_a_given_extent_sizes_the_filter_as_the_batch_run(frames, batch):
     run, _ = frames
     _, cfg = batch
-    live = Online(CONFIG, slam.MapExtent(cfg.map_origin, cfg.map_shape),
+    live = Online(CONFIG, sizing.MapExtent(cfg.map_origin, cfg.map_shape),
                   local_size=cfg.local_size, observed_cells=cfg.observed_cells)
     assert live.cfg == cfg
 

@@ -150,13 +150,13 @@ CONFIG_NOT_YET_BOUNDED = {
 
 
 def _filter_config(config: Config) -> None:
-    """``slam.filter_config`` on a small Run: the map's checks, made once the Run is known."""
+    """``sizing.filter_config`` on a small Run: the map's checks, made once the Run is known."""
     import sys
     sys.path.insert(0, str(Path(__file__).parent))
     from synthetic import make_run
 
-    from gslam_jax import slam
-    slam.filter_config(config, make_run(steps=15)[0])
+    from gslam_jax import sizing
+    sizing.filter_config(config, make_run(steps=15)[0])
 
 
 # Keys checked only once the Run is known (before the filter starts): their check, called here.

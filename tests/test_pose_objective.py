@@ -10,7 +10,7 @@ import pytest
 from synthetic import World, truth_and_controls
 
 from experiments import pose_objective as P
-from gslam_jax import rbpf, slam
+from gslam_jax import observations, rbpf
 from gslam_jax.config import Config
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.run import Run, integrate_controls
@@ -87,7 +87,7 @@ def test_prior_variances_of_a_straight_drive_in_the_robot_frame():
 def _self_map(run: Run, config: Config, t: int):
     """One particle whose map holds only the local map of frame ``t``, at its true pose."""
     cfg, params = P.truth_config(run, config)
-    obs = slam.map_observations(run, config)[int(run.obs_index[t])]
+    obs = observations.map_observations(run, config)[int(run.obs_index[t])]
     pose = jnp.asarray(run.ground_truth[t], jnp.float32)
     u = rbpf.update_noise(jax.random.key(0), cfg).unknown_u
     state, _ = P._update(rbpf.init(cfg)._replace(pose=pose[None]), obs, u, params, cfg)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from synthetic import World, truth_and_controls
 
-from gslam_jax import metrics, rbpf, slam
+from gslam_jax import map_reuse, metrics, rbpf, sizing, slam
 from gslam_jax.app import cli
 from gslam_jax.app.pipeline import load_prior
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
@@ -156,7 +156,7 @@ class Runs(NamedTuple):
     b: Run                    # the same terrain, other sensor noise and VO drift
     res_a: slam.SlamResult
     plain_b: slam.SlamResult  # B without the prior
-    prior: slam.PriorMap      # A's map, B's start in A's frame
+    prior: map_reuse.PriorMap      # A's map, B's start in A's frame
     res_b: slam.SlamResult    # B with it
 
 
@@ -167,16 +167,16 @@ def runs() -> Runs:
     b = _run(world, 7, -0.006)  # other sensor noise, the other way of drift
     res_a = slam.run_slam(a, config)
     # B starts where A started: the pose before frame 0, (0, 0, 0) in both runs' frames.
-    prior = slam.PriorMap(_grid(res_a), np.zeros(3), np.zeros(3), "A")
+    prior = map_reuse.PriorMap(_grid(res_a), np.zeros(3), np.zeros(3), "A")
     return Runs(a, b, res_a, slam.run_slam(b, config), prior,
                 slam.run_slam(b, config, prior=prior))
 
 
 def test_an_empty_prior_with_an_exact_start_reproduces_a_plain_run(runs):
     config = _config()
-    cfg = slam.filter_config(config, runs.a)
+    cfg = sizing.filter_config(config, runs.a)
     empty = GridMap(np.zeros(cfg.map_shape), np.zeros(cfg.map_shape), cfg.map_origin, 0.16)
-    prior = slam.PriorMap(empty, runs.a.start_pose(), np.zeros(3))
+    prior = map_reuse.PriorMap(empty, runs.a.start_pose(), np.zeros(3))
     again = slam.run_slam(runs.a, config, prior=prior)
     plain = runs.res_a
     assert again.map_origin == plain.map_origin and again.kmap.shape == plain.kmap.shape
@@ -190,7 +190,7 @@ def test_a_prior_of_the_same_terrain_is_extended_in_its_frame_and_helps_the_run(
     steps = (np.asarray(res.map_origin) - np.asarray(prior_grid.origin)) / 0.16
     np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
     assert res.kmap.sum() > prior_grid.k.sum()  # B's observations added to A's
-    summary = slam.prior_summary(runs.prior, res)
+    summary = map_reuse.prior_summary(runs.prior, res)
     assert summary["prior_known_cells"] == int((prior_grid.k > 0).sum())
     assert summary["known_cells"] == int((res.kmap > 0).sum())
     assert summary["cells_added"] > 0
@@ -252,10 +252,10 @@ def test_a_shared_pool_smaller_than_the_prior_is_a_config_error():
     run = _run(World(0), 1, 0.004, steps=20)
     config = dataclasses.replace(_config(), map=MapSection(margin=2.0, store="shared", tile=16,
                                                            pool_tiles=3))
-    cfg = slam.filter_config(config, run)
+    cfg = sizing.filter_config(config, run)
     k = np.ones(cfg.map_shape)
     grid = GridMap(k, k, cfg.map_origin, 0.16)
     with pytest.raises(ConfigError, match=r"the prior map needs \d+ tiles .* \[map\] "
                                           r"pool_tiles = 3"):
-        slam.run_slam(run, config, prior=slam.PriorMap(grid, np.zeros(3), np.zeros(3)))
+        slam.run_slam(run, config, prior=map_reuse.PriorMap(grid, np.zeros(3), np.zeros(3)))
     assert unknown.BLOCK == 8  # the bit layout _np_bits mirrors

@@ -13,11 +13,11 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import metrics
+from gslam_jax.config import Config, FilterSection, MapSection
 from gslam_jax.tuning import designs as D
 from gslam_jax.tuning import evaluation as E
 from gslam_jax.tuning import search as S
 from gslam_jax.tuning import space as SP
-from gslam_jax.config import Config, FilterSection, MapSection
 from gslam_jax.vo.localmap import LocalMapParams
 
 LM = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0)
@@ -136,8 +136,9 @@ def test_search_ranks_and_writes(small_run, tmp_path):
     res = S.search(small_run, CONFIG, space, "halton", 5, "rms", batch=3)
     assert res.values.shape == (5, 2) and np.all(np.diff(res.objective) >= 0)
     # Every set is the filter's own output under the same key (common random numbers).
-    from gslam_jax import slam
     import dataclasses
+
+    from gslam_jax import slam
     best = res.best()
     cfg = dataclasses.replace(CONFIG, motion=dataclasses.replace(CONFIG.motion, **best))
     out = slam.run_slam(small_run, cfg)
@@ -170,10 +171,10 @@ def test_rms_needs_a_frame_with_ground_truth(small_run):
         S.search(blind, CONFIG, space, n=2, objective="rms")
     import jax
 
-    from gslam_jax import slam
+    from gslam_jax import sizing, slam
     inputs, cfg = slam.run_arrays(blind, CONFIG)
     with pytest.raises(SP.SearchError, match=r"no frame with a finite position \(x, y\)"):
-        E.evaluate(np.array([[0.05]]), jax.random.key(0), inputs, slam.filter_params(CONFIG),
+        E.evaluate(np.array([[0.05]]), jax.random.key(0), inputs, sizing.filter_params(CONFIG),
                    space.names, cfg, "rms")
     # One frame with ground truth is enough; loglik needs none.
     some = blind.ground_truth.copy()
@@ -285,32 +286,32 @@ def test_config_with_values_sets_every_section():
 
 def test_run_and_search_share_the_observation_route(small_run):
     """A run, the search and the tuner refine the same raw observations on the device
-    (``slam.refine_observations``); with the default settings that equals the float64 host
+    (``observations.refine_observations``); with the default settings that equals the float64 host
     conversion of ``cells.obs_from_stats`` bit for bit, and within float32 rounding with
     others."""
-    from gslam_jax import slam
+    from gslam_jax import observations, slam
 
-    np.testing.assert_array_equal(np.asarray(slam.map_observations(small_run, CONFIG)),
-                                  slam.local_observations(small_run, 1e-6))
+    np.testing.assert_array_equal(np.asarray(observations.map_observations(small_run, CONFIG)),
+                                  observations.local_observations(small_run, 1e-6))
     values = {"min_variance": 1e-3, "obs_weight": 0.4, "min_points": 3}
     cfg = SP.config_with_values(CONFIG, values)
     inputs, _ = slam.run_arrays(small_run, CONFIG)
     row = jnp.asarray(list(values.values()), jnp.float32)
     searched = SP.observations_from_values(row, tuple(values), inputs.obs, inputs.local_obs)
     np.testing.assert_array_equal(np.asarray(searched),
-                                  np.asarray(slam.map_observations(small_run, cfg)))
+                                  np.asarray(observations.map_observations(small_run, cfg)))
     np.testing.assert_allclose(np.asarray(searched),
-                               slam.local_observations(small_run, 1e-3, 0.4, 3), rtol=1e-6)
+                               observations.local_observations(small_run, 1e-3, 0.4, 3), rtol=1e-6)
 
 
 def test_settings_table_names_config_fields_and_device_fields():
     """Every searchable setting is a field of its Config section; the observation settings
-    are the fields of ``slam.ObsSettings``, the filter parameters those of FilterParams."""
-    from gslam_jax import rbpf, slam
+    are the fields of ``observations.ObsSettings``, the filter parameters those of FilterParams."""
+    from gslam_jax import observations, rbpf
 
     for s in SP.SETTINGS.values():
         assert hasattr(getattr(CONFIG, s.section), s.name), s
-    assert set(SP.OBS_PARAM_NAMES) == set(slam.ObsSettings._fields)
+    assert set(SP.OBS_PARAM_NAMES) == set(observations.ObsSettings._fields)
     params = rbpf.FilterParams()
     assert set(SP.FILTER_PARAM_NAMES) == (set(params.motion._fields)
                                           | set(params._fields) - {"motion"})

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import choices, slam
+from gslam_jax import choices, sizing, slam
 from gslam_jax.config import Config, ConfigError, apply_overrides
 from gslam_jax.online import Online
 from gslam_jax.run import RunError, load_run, save_run
@@ -18,9 +18,9 @@ def _small(*overrides: str) -> Config:
 @pytest.mark.parametrize("sensor, target", [(None, 0.5), ("points", 0.5), ("stereo", 0.98)])
 def test_the_run_sensor_picks_the_automatic_target(sensor, target):
     run, _ = make_run(steps=12)
-    cfg = slam.filter_config(_small(), run._replace(sensor=sensor))
+    cfg = sizing.filter_config(_small(), run._replace(sensor=sensor))
     assert cfg.ess_target == target == choices.AUTO_ESS_TARGET.get(sensor or "points")
-    assert slam.filter_config(_small("filter.ess_target=0.7"),
+    assert sizing.filter_config(_small("filter.ess_target=0.7"),
                               run._replace(sensor=sensor)).ess_target == 0.7  # set: kept
 
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import slam
-from gslam_jax.rbpf import cells, maps
+from gslam_jax import observations, sizing, slam
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
 from gslam_jax.errors import InputError
+from gslam_jax.rbpf import cells, maps
 from gslam_jax.run import RunError
 
 
@@ -62,7 +62,7 @@ def test_maps_larger_than_memory_are_a_config_error_before_allocating(monkeypatc
 
 def test_map_memory_check_against_a_given_budget():
     run, _ = make_run(steps=15)
-    cfg = slam.filter_config(_small_config(), run)
+    cfg = sizing.filter_config(_small_config(), run)
     H, W = cfg.map_shape
     need = maps.map_bytes(cfg)
     assert need == 8 * H * W * 2 * 4  # ignore mode: k and S only
@@ -88,6 +88,6 @@ def test_observations_beyond_float32_are_a_run_error_naming_the_local_map():
     match = (rf"field 'local_maps': local map {m} \(frame {t}\), cell \(4, 5\) \(1 cells in "
              rf"all\): .* beyond float32.*check that local map's statistics")
     with pytest.raises(RunError, match=match):
-        slam.local_observations(run, 1e-6)
+        observations.local_observations(run, 1e-6)
     with pytest.raises(RunError, match=match):
         slam.run_slam(run, _small_config())

@@ -65,8 +65,9 @@ def _equivalence() -> dict:
     from synthetic import make_run
 
     from gslam_jax import rbpf
-    from gslam_jax.slam import local_observations, map_extent, observed_cells
     from gslam_jax.app.compare import DenseOutput, check_agreement
+    from gslam_jax.observations import local_observations
+    from gslam_jax.sizing import map_extent, observed_cells
     from gslam_jax.tiled.reference import run_tiled
 
     run, _ = make_run(seed=0, steps=70)
@@ -207,11 +208,11 @@ def test_ledger_counts_known_cell_caches():
 
 def _small_setup(mode: str, J: int = 8):
     import jax
-
     from cached_runs import shared_run
 
     from gslam_jax import rbpf
-    from gslam_jax.slam import local_observations, map_extent
+    from gslam_jax.observations import local_observations
+    from gslam_jax.sizing import map_extent
 
     run = shared_run(24, seed=1)  # also compare's run (the ``compared`` fixture)
     obs = local_observations(run, 1e-4)
@@ -257,8 +258,8 @@ def compared():
     backend started, so only the labels change) and the printout captured."""
     import jax
 
-    from gslam_jax.config import Config, FilterSection, MapSection
     from gslam_jax.app import compare as C
+    from gslam_jax.config import Config, FilterSection, MapSection
 
     jax.devices()  # the backend starts here, before XLA_FLAGS changes (XLA reads it at start)
     real_tiled, real_dense = C.run_tiled, C.run_dense

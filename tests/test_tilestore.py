@@ -185,13 +185,13 @@ def test_filter_on_shared_store_equals_dense(mode):
     and log weights (within 1e-5), on the same draws."""
     from cached_runs import shared_run
 
+    from gslam_jax import observations, sizing
     from gslam_jax import rbpf as gf
-    from gslam_jax import slam
 
     run = shared_run(30, seed=2)  # both modes share the course
-    obs = jnp.asarray(slam.local_observations(run, 1e-6))
+    obs = jnp.asarray(observations.local_observations(run, 1e-6))
     base = gf.FilterConfig(11, (160, 160), (-8.0, -12.8), 0.16, obs.shape[1], unknown_cells=mode,
-                           unknown_samples=64, observed_cells=slam.observed_cells(run),
+                           unknown_samples=64, observed_cells=sizing.observed_cells(run),
                            particle_block=3, resample_ratio=0.8)
     args = (jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index), obs)
     dense = gf.run_filter(jax.random.key(4), gf.FilterParams(), *args, base)
@@ -233,18 +233,18 @@ def _pool_run_and_config():
 def test_filter_reports_pool_exhaustion_per_frame():
     """The scan reports the status per frame. Fed as ``slam.run_slam`` feeds it (one chunk),
     so the next test reuses this compilation."""
+    from gslam_jax import observations, sizing
     from gslam_jax import rbpf as gf
-    from gslam_jax import slam
 
     run, config = _pool_run_and_config()
-    cfg = slam.filter_config(config, run)
+    cfg = sizing.filter_config(config, run)
     assert cfg.store == "shared" and cfg.pool_tiles == 30
     state = gf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
     keys = gf.frame_keys(jax.random.key(config.filter.seed), run.num_frames)
     _, (infos, _, _) = gf.scan_frames(
         state, keys, jnp.asarray(np.asarray(run.controls, np.float32)),
-        jnp.asarray(np.asarray(run.obs_index, np.int32)), slam.map_observations(run, config),
-        slam.filter_params(config), cfg)
+        jnp.asarray(np.asarray(run.obs_index, np.int32)), observations.map_observations(run, config),
+        sizing.filter_params(config), cfg)
     status = np.asarray(infos.map_status)
     assert status[-1] & ts.POOL_EXHAUSTED
     assert np.all(np.diff(status) >= 0)  # sticky: the frame it first happened stays findable
@@ -293,9 +293,9 @@ def test_map_bytes_are_what_each_store_allocates(mode):
 def test_search_and_tune_do_not_score_a_run_whose_pool_ran_out():
     """A search scores such a run NaN (never best, with a warning naming the setting); a tuning
     step stops with the store's error."""
+    from gslam_jax.tuning import gradient as tuning
     from gslam_jax.tuning import search
     from gslam_jax.tuning.space import SearchError, parse_space
-    from gslam_jax.tuning import gradient as tuning
 
     run, config = _pool_run_and_config()
     space = parse_space({"alpha_d": [0.05, 0.2]})

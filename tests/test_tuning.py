@@ -6,12 +6,11 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import rbpf
-from gslam_jax import slam
-from gslam_jax.tuning import gradient as TU
+from gslam_jax import observations, rbpf, sizing
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
-from gslam_jax.vo.localmap import LocalMapParams
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, log_density
+from gslam_jax.tuning import gradient as TU
+from gslam_jax.vo.localmap import LocalMapParams
 
 LM = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0)
 
@@ -52,8 +51,8 @@ def test_transition_score_is_the_motion_log_density_gradient():
 def test_forward_values_equal_the_filter(short_run):
     config = _config(8)
     inputs, cfg = TU.make_inputs(short_run, config)
-    inputs = inputs._replace(local_obs=slam.refine_observations(inputs.local_obs, inputs.obs))
-    params = slam.filter_params(config)
+    inputs = inputs._replace(local_obs=observations.refine_observations(inputs.local_obs, inputs.obs))
+    params = sizing.filter_params(config)
     key = jax.random.key(5)
     obj = TU.sw_objectives(key, params, inputs, cfg)
     out = rbpf.run_filter(key, params, inputs.controls, inputs.obs_index, inputs.local_obs, cfg,
@@ -83,7 +82,7 @@ def test_gradient_matches_central_differences(short_run):
     config = _config(J, ratio=0.5, tempering="fixed", alpha_d=0.15, alpha_theta_d=0.03,
                      alpha_theta=0.15)
     inputs, cfg = TU.make_inputs(short_run, config)
-    base = slam.filter_params(config)
+    base = sizing.filter_params(config)
     x = jnp.log(jnp.asarray([0.15, 0.15, 0.05], jnp.float32))
     keys = jax.random.split(jax.random.key(0), K)
     _, g = TU._value_and_grad(x, keys, base, inputs, names, cfg, "supervised")

@@ -25,8 +25,8 @@ from jax import lax
 from gslam_jax import choices, rbpf
 from gslam_jax.app.outfile import atomic_file, check_output_file, write_text_atomic
 from gslam_jax.errors import InputError
-from gslam_jax.rbpf import maps, unknown
 from gslam_jax.machine import environment, physical_memory
+from gslam_jax.rbpf import maps, unknown
 
 __all__ = ["BenchError", "check_arguments", "time_update", "time_course", "plot_scaling", "main"]
 
@@ -143,7 +143,7 @@ def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0
     import dataclasses
     import resource
 
-    from gslam_jax import slam
+    from gslam_jax import sizing, slam
     from gslam_jax.config import Config
     from gslam_jax.datasets.sim import simulate_run
     from gslam_jax.vo.localmap import localmap_params
@@ -158,7 +158,7 @@ def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0
     t = time.perf_counter()
     res = slam.run_slam(run, config)
     wall = time.perf_counter() - t
-    cfg = slam.filter_config(config, run)
+    cfg = sizing.filter_config(config, run)
     maps_mb = 2 * 4 * particles * cfg.map_shape[0] * cfg.map_shape[1] / 1e6
     return {"course": course, "particles": particles, "frames": run.num_frames,
             "local_maps": run.num_local_maps, "local": cfg.local_size,

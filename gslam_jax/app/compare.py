@@ -30,12 +30,17 @@ import numpy as np
 
 from gslam_jax import rbpf
 from gslam_jax.app.results import results_folder
+from gslam_jax.config import Config
 from gslam_jax.errors import InputError
 from gslam_jax.rbpf import maps
-from gslam_jax.config import Config
 from gslam_jax.run import Run
-from gslam_jax.tiled.reference import (DEFAULT_TILE_SIZE, Decisions, TiledOutput, draw_noise,
-                                       run_tiled)
+from gslam_jax.tiled.reference import (
+    DEFAULT_TILE_SIZE,
+    Decisions,
+    TiledOutput,
+    draw_noise,
+    run_tiled,
+)
 from gslam_jax.vo.localmap import LocalMapParams
 
 __all__ = ["TOLERANCES", "MAX_TILE_CELLS", "CompareError", "default_tile_size",
@@ -325,7 +330,8 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
              pool_tiles: int | None) -> tuple[dict, DenseOutput, TiledOutput, rbpf.FilterConfig]:
     """``compare`` without the output folder: the result dict, both runs and the config."""
     from gslam_jax.machine import environment
-    from gslam_jax.slam import filter_config, filter_params, local_observations
+    from gslam_jax.observations import local_observations
+    from gslam_jax.sizing import filter_config, filter_params
 
     config = config or Config()
     run = run if run is not None else _default_run()

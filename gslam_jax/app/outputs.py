@@ -48,8 +48,8 @@ def write_figures(out: Path, run, result, num_particles: int,
     over the maps and ``errors.png`` (position error against distance travelled, after the
     RMS's rigid fit). Returns the Gamma-SLAM map's expected std."""
     from gslam_jax import metrics
-    from gslam_jax.rbpf import cells
     from gslam_jax.app import plots
+    from gslam_jax.rbpf import cells
 
     slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
     vo_map = metrics.vo_only_map(run)
@@ -85,7 +85,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
     """The figures of ``summary.json`` (without the GPS figures). With ground truth that moved
     less than MIN_DRIFT_DISTANCE there is no drift percentage and no ``motion_fit``; a
     ``drift_note`` says why."""
-    from gslam_jax import metrics, slam
+    from gslam_jax import metrics, sizing
 
     summary = {
         "source": description,
@@ -96,7 +96,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "particles": config.filter.particles,
         "estimate": config.filter.estimate,
         "sensor": run.sensor,
-        "ess_target": slam.resolve_ess_target(config.filter.ess_target, run.sensor),
+        "ess_target": sizing.resolve_ess_target(config.filter.ess_target, run.sensor),
         "resampling_events": int(np.sum(result.resampled)),
         "extent_violations": result.extent_violations,
         "empty_observations": result.empty_observations,
@@ -142,7 +142,7 @@ def _motion_check(run, config: Config) -> dict:
 def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
                   gps_input=None, prior=None) -> dict:
     """Every output file of a run into ``out`` (a staging folder); returns the summary. With a
-    ``prior`` map (``slam.PriorMap``) the summary records it (``slam.prior_summary``).
+    ``prior`` map (``map_reuse.PriorMap``) the summary records it (``map_reuse.prior_summary``).
 
     The TUM files carry the dataset's own clock (``Run.time_origin_ns`` added, e.g. EuRoC's
     nanosecond timestamps); ``ground_truth_tum.txt`` holds the frames with a finite
@@ -183,7 +183,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     slam_std = write_figures(out, run, result, config.filter.particles,
                              config.filter.resample_ratio)
     if prior is not None:
-        from gslam_jax.slam import prior_summary
+        from gslam_jax.map_reuse import prior_summary
         summary["prior_map"] = prior_summary(prior, result)
     if gps_input is not None:
         from gslam_jax.app.geotiff import write_run_geotiff

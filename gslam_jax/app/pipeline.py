@@ -12,7 +12,6 @@ target only once every file is written.
 from __future__ import annotations
 
 import math
-
 from pathlib import Path
 from typing import Callable
 
@@ -120,14 +119,14 @@ def check_gps(gps: str | Path | None, run, seed: int | None, log=None):
 
 
 def load_prior(path: Path, start, start_sigma, config: Config):
-    """The ``slam.PriorMap`` of ``--prior-map PATH [--start X,Y,THETA] [--start-sigma ...]``,
+    """The ``map_reuse.PriorMap`` of ``--prior-map PATH [--start X,Y,THETA] [--start-sigma ...]``,
     read and checked before any work: a MapFileError names an unusable map, a ConfigError a
-    resolution other than [map] resolution (``slam.check_prior``). Without ``start`` the start
-    is located from the run once it is loaded (``slam.locate_prior_start``)."""
+    resolution other than [map] resolution (``map_reuse.check_prior``). Without ``start`` the start
+    is located from the run once it is loaded (``map_reuse.locate_prior_start``)."""
     import numpy as np
 
     from gslam_jax.gridmap import load_map
-    from gslam_jax.slam import PriorMap, check_prior
+    from gslam_jax.map_reuse import PriorMap, check_prior
 
     path = Path(path)
     grid = load_map(path)
@@ -153,7 +152,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
     ``on_chunk`` and ``chunk`` go to ``slam.run_slam`` (e.g. ``app.viewer``: a callback after
     every ``chunk`` frames; the results do not depend on ``chunk``).
     """
-    from gslam_jax import slam
+    from gslam_jax import map_reuse, slam
 
     bar = progress or (lambda label: None)
     check_inputs(src, config, gps)
@@ -170,7 +169,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
             save_run_file(save_run, run)
         gps_input = check_gps(gps, run, src.seed, log=gps_log)
         if prior is not None and prior.start is None:
-            prior = slam.locate_prior_start(prior, run, config)
+            prior = map_reuse.locate_prior_start(prior, run, config)
             found = prior.located
             print(f"start located in the prior map: x {prior.start[0]:.2f} m, y "
                   f"{prior.start[1]:.2f} m, heading {math.degrees(prior.start[2]):.1f} deg (from "
@@ -180,7 +179,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
         result = slam.run_slam(run, config, progress=bar("gamma-slam"), prior=prior,
                                on_chunk=on_chunk, **({"chunk": chunk} if chunk else {}))
         if prior is not None:  # the VO-only map and the figures in the prior's frame too
-            loaded = loaded._replace(run=slam.rebase(run, prior.start))
+            loaded = loaded._replace(run=map_reuse.rebase(run, prior.start))
         try:
             summary = write_outputs(folder.staging, loaded, result, config, gps_input, prior)
         except OSError as err:

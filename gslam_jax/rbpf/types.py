@@ -30,7 +30,7 @@ class FilterConfig(NamedTuple):
 
     map_origin is the world (x, y) of the corner of cell (0, 0); cell (i, j) covers
     x in [x0 + i res, x0 + (i+1) res), y likewise with j. map_shape entries are multiples of 8.
-    ``slam.filter_config`` builds it from a ``Config``.
+    ``sizing.filter_config`` builds it from a ``Config``.
     """
 
     num_particles: int
@@ -47,7 +47,7 @@ class FilterConfig(NamedTuple):
     particle_block: int = FilterSection.particle_block
     tempering: str = FilterSection.tempering  # "fixed": the paper's beta; "adaptive": ``tempering``
     # "adaptive": conditional ESS fraction kept (``[filter] ess_target = 0`` is resolved by the
-    # run's sensor before, ``slam.extent_filter_config``; this default is a sensorless run's)
+    # run's sensor before, ``sizing.extent_filter_config``; this default is a sensorless run's)
     ess_target: float = choices.AUTO_ESS_TARGET["points"]
     store: str = MapSection.store  # "dense" or "shared" (``rbpf.maps``; "auto" resolved before)
     tile: int = MapSection.tile

@@ -25,7 +25,7 @@ from typing import Any, Callable, Sequence
 import jax
 import numpy as np
 
-from gslam_jax import slam
+from gslam_jax import sizing, slam
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 from gslam_jax.tuning.evaluation import chunk_size, evaluate
@@ -41,7 +41,7 @@ def evaluate_chunk(values: np.ndarray, run: Run, config: Config, names: tuple[st
     in one call (``evaluation.evaluate`` with ``batch`` = B)."""
     inputs, cfg = slam.run_arrays(run, config)
     key = jax.random.wrap_key_data(np.asarray(key_data))
-    return evaluate(values, key, inputs, slam.filter_params(config), names, cfg, objective,
+    return evaluate(values, key, inputs, sizing.filter_params(config), names, cfg, objective,
                     path, batch=len(values))
 
 

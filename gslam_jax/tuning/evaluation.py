@@ -30,10 +30,14 @@ import numpy as np
 from jax import Array, lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from gslam_jax import choices, rbpf, slam
+from gslam_jax import choices, observations, rbpf, slam
 from gslam_jax.machine import device_memory_limit, physical_memory
-from gslam_jax.tuning.space import (OBS_PARAM_NAMES, SearchError, observations_from_values,
-                                    params_from_values)
+from gslam_jax.tuning.space import (
+    OBS_PARAM_NAMES,
+    SearchError,
+    observations_from_values,
+    params_from_values,
+)
 
 __all__ = ["OBJECTIVES", "PATHS", "rigid_rms", "objective_value", "evaluate", "default_inner",
            "chunk_size", "auto_batch"]
@@ -95,7 +99,7 @@ def _batch_fn(key: Array, inputs: _Inputs, base: rbpf.FilterParams, names: tuple
         return objective_value(out, objective, inputs.reference, inputs.mask, path)
 
     def block(values: Array) -> Array:
-        shared = None if per_set else slam.refine_observations(inputs.local_obs, inputs.obs)
+        shared = None if per_set else observations.refine_observations(inputs.local_obs, inputs.obs)
         one_ = partial(one, shared=shared)
         if inner == 1:  # never vmap, not even a block of one set: the conds would become selects
             return lax.map(one_, values)

@@ -41,15 +41,21 @@ import numpy as np
 import optax
 from jax import Array, lax
 
-from gslam_jax import choices, rbpf, slam
+from gslam_jax import choices, rbpf, sizing, slam
 from gslam_jax.config import Config
 from gslam_jax.errors import InputError
-from gslam_jax.rbpf.motion import MotionParams, motion_stds
 from gslam_jax.rbpf import maps
+from gslam_jax.rbpf.motion import MotionParams, motion_stds
 from gslam_jax.run import Run
-from gslam_jax.tuning.space import (FILTER_PARAM_NAMES, MOTION_PARAM_NAMES, SETTINGS,
-                                    TUNABLE_NAMES, base_values, observations_from_values,
-                                    params_from_values)
+from gslam_jax.tuning.space import (
+    FILTER_PARAM_NAMES,
+    MOTION_PARAM_NAMES,
+    SETTINGS,
+    TUNABLE_NAMES,
+    base_values,
+    observations_from_values,
+    params_from_values,
+)
 
 __all__ = ["TUNE_OBJECTIVES", "TuneError", "TuneInputs", "TuneResult", "transition_score",
            "sw_propose", "sw_resample", "sw_objectives", "objective_fn", "make_inputs", "tune",
@@ -264,7 +270,7 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     inputs, cfg = slam.run_arrays(run, config)
     if objective == "supervised":
         slam.require_ground_truth(inputs.mask, objective, TuneError)
-    base = slam.filter_params(config)
+    base = sizing.filter_params(config)
     cur = base_values(config)
     cur.update(start or {})
     for n in names:

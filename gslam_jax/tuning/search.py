@@ -20,12 +20,11 @@ import jax
 import numpy as np
 from jax import Array
 
-from gslam_jax import slam
+from gslam_jax import sizing, slam
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 from gslam_jax.tuning.designs import design_points
-from gslam_jax.tuning.evaluation import (OBJECTIVES, PATHS, auto_batch, default_inner,
-                                         evaluate)
+from gslam_jax.tuning.evaluation import OBJECTIVES, PATHS, auto_batch, default_inner, evaluate
 from gslam_jax.tuning.space import SearchError, SearchSpace
 
 __all__ = ["SearchResult", "rank", "design_values", "search", "finish"]
@@ -139,7 +138,7 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     """
     values = design_values(run, space, design, n, objective, path, seed, values)
     inputs, cfg = slam.run_arrays(run, config)  # evaluate() checks "rms"'s truth
-    base = slam.filter_params(config)
+    base = sizing.filter_params(config)
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:
         raise SearchError("crn=False is not supported by the batched search: every set uses "

@@ -11,8 +11,8 @@ Two routes to the device, both traced (no recompilation per value):
 * filter parameters (``[motion]`` alphas of eqs. 2-3, ``[filter]`` betas of eqs. 29-31):
   fields of ``rbpf.FilterParams`` (``params_from_values``);
 * observation settings (``[map]`` min_variance, obs_weight, min_points): fields of
-  ``slam.ObsSettings``, applied to the run's raw observations on the device by
-  ``slam.refine_observations`` (``observations_from_values``), as in a plain run.
+  ``observations.ObsSettings``, applied to the run's raw observations on the device by
+  ``observations.refine_observations`` (``observations_from_values``), as in a plain run.
 
 Other config values are shapes or discrete choices (static: a recompilation per value) or
 belong to the front-end (they change the Run); they are not searchable.
@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from gslam_jax import rbpf, slam
+from gslam_jax import observations, rbpf
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 
@@ -47,7 +47,7 @@ class SearchError(InputError):
 class Setting(NamedTuple):
     """One searchable setting. ``name`` is both its field in ``Config.<section>`` and its key
     in ``[space]``; a filter parameter (``[motion]``: ``FilterParams.motion``; ``[filter]``:
-    ``FilterParams``) or an observation setting (``[map]``: ``slam.ObsSettings``)."""
+    ``FilterParams``) or an observation setting (``[map]``: ``observations.ObsSettings``)."""
 
     name: str
     section: str            # "motion", "filter" or "map"
@@ -202,14 +202,14 @@ def params_from_values(values: Array, names: Sequence[str], base: rbpf.FilterPar
                          **pick("filter", base))
 
 
-def observations_from_values(values: Array, names: Sequence[str], base: slam.ObsSettings,
+def observations_from_values(values: Array, names: Sequence[str], base: observations.ObsSettings,
                              raw: Array) -> Array:
     """Local-map observations [M, L, L, 2] for one parameter row ``values`` [d]: the raw
-    observations (``slam.run_arrays``) refined by ``slam.refine_observations`` with the named
+    observations (``slam.run_arrays``) refined by ``observations.refine_observations`` with the named
     observation settings, the others from ``base``."""
     col = {n: values[i] for i, n in enumerate(names)}
     settings = base._replace(**{n: col[n] for n in OBS_PARAM_NAMES if n in col})
-    return slam.refine_observations(raw, settings)
+    return observations.refine_observations(raw, settings)
 
 
 def base_values(config: Config) -> dict[str, float]:

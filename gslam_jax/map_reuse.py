@@ -1,0 +1,127 @@
+"""Map reuse (``gslam run --prior-map``): a finished map the particles start with, where the
+run starts in it, and how the filter starts from it."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gslam_jax import rbpf
+from gslam_jax.config import Config, ConfigError
+from gslam_jax.gridmap import GridMap, place
+from gslam_jax.rbpf import maps, tilestore
+from gslam_jax.run import Run, check_start_pose
+
+if TYPE_CHECKING:
+    from gslam_jax.slam import SlamResult
+
+__all__ = ["PriorMap", "START_STREAM", "check_prior", "locate_prior_start", "rebase",
+           "known_box", "prior_state", "prior_summary"]
+
+START_STREAM = 0x57A7  # folded into the filter's key for the start poses drawn around a prior
+
+class PriorMap(NamedTuple):
+    """Map reuse: a finished map (run A's) the particles start with, localise in and extend.
+
+    ``start`` is the run's start pose in the map's frame; the particles start there, spread by
+    N(0, diag(start_sigma^2)) (x, y in metres, heading in radians; zeros: every particle at
+    ``start``). ``source`` says where the map was read from (for the results)."""
+
+    grid: GridMap
+    start: np.ndarray | None  # [3] x, y, theta; None: to be located (``relocalise``)
+    start_sigma: np.ndarray   # [3] standard deviations, >= 0
+    source: str = ""
+    located: dict | None = None  # how the start was located, when it was (summary.json)
+
+def check_prior(prior: PriorMap, config: Config) -> None:
+    """ConfigError when the prior map cannot be the filter's map: another resolution than
+    [map] resolution (the filter's grid lies on the prior's lattice), or a start pose or
+    spread that is not finite (the spread must be >= 0), or a start beyond float32's reach of
+    the map's cells (``run.check_start_pose``)."""
+    res = prior.grid.resolution
+    if not math.isclose(res, config.map.resolution, rel_tol=1e-6):
+        raise ConfigError(f"the prior map {prior.source or ''} has resolution {res:g} m, "
+                          f"[map] resolution is {config.map.resolution:g} m: they must be "
+                          "equal (set [map] resolution to the prior map's)")
+    if prior.start is None:  # located later, from the run (``locate_prior_start``)
+        return
+    start, sigma = np.asarray(prior.start, float), np.asarray(prior.start_sigma, float)
+    if start.shape != (3,) or not np.isfinite(start).all():
+        raise ConfigError(f"the start pose in the prior map must be 3 finite numbers "
+                          f"(x, y, theta), got {start.tolist()}")
+    if sigma.shape != (3,) or not (np.isfinite(sigma).all() and (sigma >= 0).all()):
+        raise ConfigError(f"the start pose's standard deviations must be 3 finite numbers "
+                          f">= 0 (x, y, theta), got {sigma.tolist()}")
+
+    def fail(field: str, msg: str) -> None:
+        raise ConfigError(f"--start (the start pose in the prior map): {msg}")
+
+    check_start_pose(start, res, fail)  # within float32's reach of the map's cells
+
+
+def locate_prior_start(prior: PriorMap, run: Run, config: Config) -> PriorMap:
+    """``prior`` with its start located from ``run`` when it has none
+    (``relocalise.locate_start``: the run's first metres aligned in the prior map); the
+    spread is the given one when it is not zero, else the located one. AlignmentRefused (an
+    InputError) when the run's start cannot be told from the map."""
+    if prior.start is not None:
+        return prior
+    from gslam_jax.relocalise import locate_start
+
+    found = locate_start(prior.grid, run)
+    given = np.asarray(prior.start_sigma, float)
+    sigma = given if np.any(given > 0) else found.sigma
+    located = {"frames": found.frames, **found.alignment.summary()}
+    prior = prior._replace(start=found.start, start_sigma=sigma, located=located)
+    check_prior(prior, config)
+    return prior
+
+
+def rebase(run: Run, start: np.ndarray) -> Run:
+    """``run`` starting at ``start`` (a pose in another frame, e.g. a prior map's): its VO path
+    (``Run.vo_poses``) and everything the filter does are then in that frame."""
+    return run._replace(initial_pose=np.asarray(start, np.float64).copy())
+
+
+def known_box(grid: GridMap) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lo, hi) corners of the box around the prior's known cells; None when it has none."""
+    i, j = np.nonzero(grid.known)
+    if not i.size:
+        return None
+    r, o = grid.resolution, np.asarray(grid.origin, np.float64)
+    return (o + r * np.array([i.min(), j.min()]), o + r * np.array([i.max() + 1, j.max() + 1]))
+
+def prior_state(prior: PriorMap, cfg: rbpf.FilterConfig, key: jax.Array) -> rbpf.FilterState:
+    """The filter's start with a prior map: the prior placed on the filter's grid in every
+    particle's map, the particles at ``prior.start`` spread by ``prior.start_sigma`` (drawn
+    from ``key`` folded with START_STREAM; a zero spread draws nothing)."""
+    grid = place(prior.grid, cfg.map_origin, cfg.map_shape)
+    if cfg.store == "shared":
+        need, have = tilestore.prior_tiles(grid.k, cfg.tile), maps.pool_tiles(cfg)
+        if need > have:
+            raise ConfigError(f"the prior map needs {need} tiles of the shared map store, "
+                              f"more than its [map] pool_tiles = {have}; raise [map] "
+                              "pool_tiles (0: automatic)")
+    sigma = np.asarray(prior.start_sigma, np.float64)
+    return rbpf.init(cfg, jnp.asarray(prior.start, jnp.float32),
+                     (jnp.asarray(grid.k, jnp.float32), jnp.asarray(grid.S, jnp.float32)),
+                     jax.random.fold_in(key, START_STREAM),
+                     jnp.asarray(sigma, jnp.float32) if sigma.any() else None)
+
+
+def prior_summary(prior: PriorMap, result: SlamResult) -> dict:
+    """What ``summary.json`` records of a run on a prior map: where the map came from, the
+    start pose and its spread, the prior's known cells and the cells the run added to it."""
+    grid = place(prior.grid, result.map_origin, result.kmap.shape)
+    known = np.asarray(result.kmap) > 0
+    return {"path": prior.source, "start": np.asarray(prior.start, float).tolist(),
+            "start_sigma": np.asarray(prior.start_sigma, float).tolist(),
+            **({"start_located": prior.located} if prior.located is not None else {}),
+            "origin": list(prior.grid.origin), "resolution": prior.grid.resolution,
+            "prior_known_cells": int(grid.known.sum()),
+            "cells_added": int(np.sum(known & ~grid.known)),
+            "known_cells": int(known.sum())}

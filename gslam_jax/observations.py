@@ -1,0 +1,76 @@
+"""A Run's local maps as the filter's observations (k, S) (eq. 13 with the ``[map]``
+settings): converted on the host, or kept raw and refined on the device so that the search and
+the tuner can vary the settings without a recompilation."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gslam_jax.config import Config
+from gslam_jax.rbpf import cells
+from gslam_jax.run import Run, RunError, describe_cells
+
+__all__ = ["local_observations", "raw_observations", "ObsSettings", "obs_settings",
+           "refine_observations", "map_observations"]
+
+def local_observations(run: Run, min_variance: float, weight: float = 1.0,
+                       min_points: int = 2) -> np.ndarray:
+    """[max(M, 1), L, L, 2] float32 observations (k, S) (``cells.obs_from_stats`` with the
+    ``[map]`` settings min_variance, obs_weight and min_points); float64 on the host, then cast.
+
+    A RunError, naming the local map and a frame that uses it, when a value is not finite in
+    float32 (statistics finite in float64 may overflow float32's range, about 3.4e38)."""
+    if run.num_local_maps == 0:
+        return np.zeros((1, 8, 8, 2), np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        obs = cells.obs_from_stats(run.local_maps, min_variance, weight,
+                                   min_points).astype(np.float32)
+    bad = ~np.isfinite(obs).all(axis=-1)
+    if bad.any():
+        m, i, j = (int(v) for v in np.argwhere(bad)[0])
+        raise RunError(
+            f"field 'local_maps': {describe_cells(bad, run.obs_index)}: the statistics "
+            f"{run.local_maps[m, i, j].tolist()} (n, sum z, sum z^2) give an observation "
+            f"(k, S) = {obs[m, i, j].tolist()} beyond float32, which the filter computes in; "
+            f"check that local map's statistics")
+    return obs
+
+
+def raw_observations(run: Run) -> np.ndarray:
+    """The Run's raw observations: ``local_observations`` with no floor, weight 1 and the
+    two-point threshold, which ``refine_observations`` turns into the filter's on the device."""
+    return local_observations(run, 0.0)
+
+
+class ObsSettings(NamedTuple):
+    """The ``[map]`` observation settings, float32 scalars on the device (traced: the search
+    and the tuner vary them without a recompilation)."""
+
+    min_variance: jax.Array
+    obs_weight: jax.Array
+    min_points: jax.Array
+
+
+def obs_settings(config: Config) -> ObsSettings:
+    """The config's ``[map]`` min_variance, obs_weight and min_points."""
+    m = config.map
+    return ObsSettings(jnp.float32(m.min_variance), jnp.float32(m.obs_weight),
+                       jnp.float32(m.min_points))
+
+
+def refine_observations(raw: jax.Array, settings: ObsSettings) -> jax.Array:
+    """The filter's observations [M, L, L, 2]: ``raw_observations`` floored, weighted and
+    thresholded by ``settings`` on the device (``cells.refine_obs``). The one route of the
+    observation settings, for a run as for a search or the tuner."""
+    return cells.refine_obs(raw, settings.min_variance, settings.obs_weight,
+                            settings.min_points)
+
+
+def map_observations(run: Run, config: Config) -> jax.Array:
+    """The filter's observations of ``run`` under the config's ``[map]`` settings:
+    ``raw_observations`` refined on the device (``refine_observations``)."""
+    return refine_observations(jnp.asarray(raw_observations(run)), obs_settings(config))
