@@ -5,9 +5,11 @@ than running it. Unless ``XLA_FLAGS`` is already set (to test with other flags, 
 XLA's defaults: ``XLA_FLAGS= python -m pytest ...``), the tests, their pytest-xdist workers and
 the commands they start as subprocesses (which inherit the environment) compile with
 ``--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true``: about a
-fifth less wall time on a 2-core machine. The programs and their numbers are the same
-computations; only the generated machine code is less optimised. Timings that the suite
-prints are not benchmarks either way (``gslam bench`` and experiments/ are, run without it).
+fifth less wall time on a 2-core machine. The programs compute the same things with less
+optimised machine code (float rounding may differ in the last bits where operations are
+ordered or contracted differently); every process of a test run uses the same flags. Timings
+the suite prints are not benchmarks either way (``gslam bench`` and experiments/ are, run
+without it).
 """
 
 from __future__ import annotations
