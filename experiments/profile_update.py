@@ -20,7 +20,8 @@ import numpy as np
 
 
 from gslam_jax import choices, rbpf  # noqa: E402
-from gslam_jax.app.bench import _chained, _synthetic_state  # noqa: E402
+from gslam_jax.app.bench import (_chained, _synthetic_state, bench_config,  # noqa: E402
+                                  synthetic_local_map)
 from gslam_jax.machine import environment  # noqa: E402
 
 
@@ -37,11 +38,8 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
 
     J, L, side = args.particles, args.local, args.map
     rng = np.random.default_rng(0)
-    cfg = rbpf.FilterConfig(num_particles=J, map_shape=(side, side),
-                            map_origin=(-0.08 * side, -0.08 * side), resolution=0.16,
-                            local_size=L, unknown_cells=args.mode)
-    k = rng.integers(0, 30, (L, L)).astype(np.float32)
-    obs = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
+    cfg = bench_config(J, L, side, args.mode)
+    obs = synthetic_local_map(rng, L)
     params = rbpf.FilterParams()
     noise = rbpf.update_noise(jax.random.key(0), cfg)
 

@@ -22,7 +22,7 @@ import numpy as np
 from jax import lax
 
 from gslam_jax import choices, rbpf
-from gslam_jax.app.bench import _synthetic_state
+from gslam_jax.app.bench import _synthetic_state, bench_config, synthetic_local_map
 from gslam_jax.machine import environment
 from gslam_jax.rbpf import cells, maps, proposal
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
@@ -69,12 +69,9 @@ def main(argv: list[str] | None = None) -> dict:
 
     J, L, side = args.particles, args.local, args.map
     rng = np.random.default_rng(0)
-    cfg = rbpf.FilterConfig(num_particles=J, map_shape=(side, side),
-                            map_origin=(-0.08 * side, -0.08 * side), resolution=0.16,
-                            local_size=L, unknown_cells=args.mode, store=args.store,
-                            proposal="informed").validate()
-    k = rng.integers(0, 30, (L, L)).astype(np.float32)
-    local = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
+    cfg = bench_config(J, L, side, args.mode, store=args.store)._replace(
+        proposal="informed").validate()
+    local = synthetic_local_map(rng, L)
     params = rbpf.FilterParams()
     noise = rbpf.update_noise(jax.random.key(0), cfg)
     state = _synthetic_state(cfg._replace(proposal="motion"), rng)

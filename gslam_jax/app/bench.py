@@ -28,20 +28,28 @@ from gslam_jax.errors import InputError
 from gslam_jax.machine import environment, physical_memory
 from gslam_jax.rbpf import maps, unknown
 
-__all__ = ["BenchError", "check_arguments", "time_update", "time_course", "plot_scaling", "main"]
+__all__ = ["BenchError", "bench_config", "synthetic_local_map", "check_arguments", "time_update",
+           "time_course", "plot_scaling", "main"]
 
 
 class BenchError(InputError):
     """A ``gslam bench`` argument the filter cannot run with: the message names the option."""
 
 
-def _bench_config(J: int, local: int, map_side: int, mode: str, particle_block: int = 0,
+def bench_config(J: int, local: int, map_side: int, mode: str, particle_block: int = 0,
                   store: str = "dense") -> rbpf.FilterConfig:
     """The filter config ``time_update`` times (0.16 m cells, map centred on the origin)."""
     return rbpf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
                              map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
                              local_size=local, unknown_cells=mode,
                              particle_block=particle_block, store=store)
+
+
+def synthetic_local_map(rng: np.random.Generator, local: int) -> jax.Array:
+    """A local map [L, L, 2] (k, S) with every cell observed: k uniform in 0..29 points, S of
+    gamma-distributed variances (what ``time_update`` and the profiling experiments feed)."""
+    k = rng.integers(0, 30, (local, local)).astype(np.float32)
+    return jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
 
 
 def check_arguments(particles, local, map_side, modes, particle_block, stores) -> None:
@@ -55,7 +63,7 @@ def check_arguments(particles, local, map_side, modes, particle_block, stores) -
         if side % unknown.BLOCK:
             raise BenchError(f"--map {side}: must be a multiple of {unknown.BLOCK} cells")
     for L, side in itertools.product(local, map_side):
-        window, mode = max((_bench_config(1, L, side, m).window, m) for m in modes)
+        window, mode = max((bench_config(1, L, side, m).window, m) for m in modes)
         if side < window:
             raise BenchError(f"--map {side}: smaller than the update window of --local {L} "
                              f"({window} cells with --mode {mode}); use --map {window} or more, "
@@ -63,7 +71,7 @@ def check_arguments(particles, local, map_side, modes, particle_block, stores) -
     for L, side, mode, J, b, store in itertools.product(local, map_side, modes, particles,
                                                         particle_block, stores):
         try:
-            _bench_config(J, L, side, mode, b, store).validate()
+            bench_config(J, L, side, mode, b, store).validate()
         except ValueError as err:
             raise BenchError(f"--particles {J} --local {L} --map {side} --mode {mode} "
                              f"--particle-block {b} --store {store}: {err}") from err
@@ -110,9 +118,8 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     ``store = "shared"`` the forced resamplings ("resample_ms") include the copy-on-write of
     every footprint's tiles at the next update."""
     rng = np.random.default_rng(seed)
-    cfg = _bench_config(J, local, map_side, mode, particle_block, store)
-    k = rng.integers(0, 30, (local, local)).astype(np.float32)
-    obs = jnp.asarray(np.stack([k, k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)], -1))
+    cfg = bench_config(J, local, map_side, mode, particle_block, store)
+    obs = synthetic_local_map(rng, local)
     params = rbpf.FilterParams()
     noise = rbpf.update_noise(jax.random.key(seed), cfg)
     u = jnp.asarray([0.2, 0.0, 0.05], jnp.float32)
