@@ -219,11 +219,13 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction():
     assert float(info.exponent) == 1.0  # fixed tempering: the paper's beta alone
 
 
-@pytest.mark.parametrize("store,prior_std", [
-    ("shared", 0.1),  # every candidate inside its particle's window
-    ("dense", 1.5),   # a prior wider than the window: read from the maps instead
+@pytest.mark.parametrize("store,prior_std,window_bytes", [
+    ("shared", 0.1, None),  # every candidate inside its particle's window
+    ("dense", 1.5, None),   # a prior wider than the window: read from the maps instead
+    ("dense", 0.1, 0),      # windows over budget: every candidate read from the maps
 ])
-def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std):
+def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std, window_bytes,
+                                                           monkeypatch):
     """score_candidates reads each particle's map once (a window and eq. 31's draws) for all
     its candidates; its scores are those of the update's own footprint reads
     (``read_footprints``) at each candidate pose, inside the window or not ("dense" with
@@ -233,7 +235,10 @@ def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std):
     from gslam_jax.rbpf.importance import log_lambda
     from gslam_jax.rbpf.types import FilterParams
 
+    if window_bytes is not None:
+        monkeypatch.setattr(proposal, "WINDOW_BYTES", window_bytes)
     cfg, state, local, (k, S) = _small_case(J=3)
+    assert (proposal.candidate_window(cfg) == 0) == (window_bytes == 0)
     cfg = cfg._replace(store=store, tile=16, pool_tiles=64, unknown_cells="sample",
                        unknown_samples=32).validate()
     store_ = maps.init(cfg, (jnp.asarray(k), jnp.asarray(S)))
@@ -263,3 +268,16 @@ def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std):
     reach = prior_std * 2.0 / cfg.resolution
     assert (reach > cfg.reach // 2 + 1) == (prior_std > 1.0)
 
+
+
+def test_the_windows_stay_within_their_memory_budget():
+    """J = 2000 with KITTI's 128 x 128 local maps would need 1.2 GB of windows: none."""
+    from gslam_jax.rbpf.types import FilterConfig
+
+    def cfg(J, L):
+        return FilterConfig(num_particles=J, map_shape=(640, 640), map_origin=(0.0, 0.0),
+                            resolution=0.16, local_size=L)
+
+    side = proposal.candidate_window(cfg(200, 128))
+    assert side > 2 * cfg(200, 128).reach and 8 * 200 * side ** 2 <= proposal.WINDOW_BYTES
+    assert proposal.candidate_window(cfg(2000, 128)) == 0

@@ -51,8 +51,8 @@ from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
-           "candidate_window", "score_candidates", "fit_proposal", "draw", "quadratic_design",
-           "quadratic_hessian", "JITTER"]
+           "candidate_window", "WINDOW_BYTES", "score_candidates", "fit_proposal", "draw",
+           "quadratic_design", "quadratic_hessian", "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
 # moves the position along-track only, so the covariance is singular until the heading noise
@@ -102,11 +102,18 @@ def _factor(cov: Array) -> Array:
     return jnp.linalg.cholesky(cov + jnp.diag(jnp.asarray(JITTER, cov.dtype)))
 
 
+# Most bytes the windows of all particles may take (k and S, float32); above it (e.g. J = 2000
+# with 128 x 128 local maps: 1.2 GB) every candidate's footprint is read from the maps.
+WINDOW_BYTES = 256 << 20
+
+
 def candidate_window(cfg: FilterConfig) -> int:
     """Side (cells) of the square of each particle's map that ``score_candidates`` reads once
     for all its candidates: a rotated local map (``FilterConfig.reach``) anywhere within
-    ``reach / 2`` cells of the particle's prior mean."""
-    return 2 * (cfg.reach + cfg.reach // 2) + 1
+    ``reach / 2`` cells of the particle's prior mean; 0 when the windows of all particles
+    would take more than ``WINDOW_BYTES``."""
+    side = 2 * (cfg.reach + cfg.reach // 2) + 1
+    return side if 8 * cfg.num_particles * side * side <= WINDOW_BYTES else 0
 
 
 def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unknown_u: Array,
@@ -118,8 +125,9 @@ def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unkno
     (they do not depend on the pose) and the square of ``candidate_window`` cells around its
     prior mean; each candidate's footprint is then gathered from that small window. A
     candidate batch with a footprint cell outside its particle's window (a prior wider than
-    the window) is read from the maps instead, so the scores are exactly those of
-    ``read_footprints`` at every candidate, whichever path is taken."""
+    the window) is read from the maps instead, as is every batch when the windows would not
+    fit ``WINDOW_BYTES``, so the scores are exactly those of ``read_footprints`` at every
+    candidate, whichever path is taken."""
     J = cfg.num_particles
     H, W = cfg.map_shape
     side = candidate_window(cfg)
@@ -127,28 +135,34 @@ def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unkno
     borrowed = read_borrowed(store, maps.known_bits(store, jnp.int32(0), J, cfg), rows,
                              unknown_u, cfg)
     log_v = cells.log_v_obs(obs.k, obs.S)
-    # the window: cells (i0 + a, j0 + b), a, b in [0, side), centred on the prior mean's cell
-    i0 = jnp.floor((mean[:, 0] - cfg.map_origin[0]) / cfg.resolution).astype(jnp.int32)
-    j0 = jnp.floor((mean[:, 1] - cfg.map_origin[1]) / cfg.resolution).astype(jnp.int32)
-    i0, j0 = i0 - side // 2, j0 - side // 2
-    a = jnp.arange(side, dtype=jnp.int32)
-    wi = i0[:, None, None] + a[None, :, None]
-    wj = j0[:, None, None] + a[None, None, :]
-    on = ((wi >= 0) & (wi < H) & (wj >= 0) & (wj < W)).reshape(J, -1)
-    k_win, S_win = maps.read(store, rows, jnp.where(on, (wi * W + wj).reshape(J, -1), H * W),
-                             on, cfg)
 
-    def read_cells(flat: Array, on_map: Array) -> tuple[Array, Array]:
-        ri, rj = flat // W - i0[:, None], flat % W - j0[:, None]
-        inside = (ri >= 0) & (ri < side) & (rj >= 0) & (rj < side)
-        at = jnp.where(inside, ri * side + rj, 0)
+    def read_maps(flat: Array, on_map: Array) -> tuple[Array, Array]:
+        return maps.read(store, rows, flat, on_map, cfg)
 
-        def from_window() -> tuple[Array, Array]:
-            take = partial(jnp.take_along_axis, indices=at, axis=1)
-            return (jnp.where(on_map, take(k_win), 0.0), jnp.where(on_map, take(S_win), 0.0))
+    read_cells = read_maps
+    if side:
+        # the window: cells (i0 + a, j0 + b), a, b in [0, side), centred on the mean's cell
+        i0 = jnp.floor((mean[:, 0] - cfg.map_origin[0]) / cfg.resolution).astype(jnp.int32)
+        j0 = jnp.floor((mean[:, 1] - cfg.map_origin[1]) / cfg.resolution).astype(jnp.int32)
+        i0, j0 = i0 - side // 2, j0 - side // 2
+        a = jnp.arange(side, dtype=jnp.int32)
+        wi = i0[:, None, None] + a[None, :, None]
+        wj = j0[:, None, None] + a[None, None, :]
+        on = ((wi >= 0) & (wi < H) & (wj >= 0) & (wj < W)).reshape(J, -1)
+        k_win, S_win = read_maps(jnp.where(on, (wi * W + wj).reshape(J, -1), H * W), on)
 
-        return lax.cond(jnp.all(inside | ~on_map), from_window,
-                        lambda: maps.read(store, rows, flat, on_map, cfg))
+        def read_cells(flat: Array, on_map: Array) -> tuple[Array, Array]:
+            ri, rj = flat // W - i0[:, None], flat % W - j0[:, None]
+            inside = (ri >= 0) & (ri < side) & (rj >= 0) & (rj < side)
+            at = jnp.where(inside, ri * side + rj, 0)
+
+            def from_window() -> tuple[Array, Array]:
+                take = partial(jnp.take_along_axis, indices=at, axis=1)
+                return (jnp.where(on_map, take(k_win), 0.0),
+                        jnp.where(on_map, take(S_win), 0.0))
+
+            return lax.cond(jnp.all(inside | ~on_map), from_window,
+                            lambda: read_maps(flat, on_map))
 
     def one(g_k: Array) -> Array:
         pose = mean + jnp.einsum("jab,jb->ja", chol, g_k)
@@ -156,7 +170,6 @@ def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unkno
                           cfg)
 
     return lax.map(one, jnp.swapaxes(g, 0, 1)).T
-
 
 Score = Callable[[Array], Array]
 """Candidates g [J, K, 3] (whitened) -> their log importance factors [J, K]."""
