@@ -281,3 +281,37 @@ def test_the_windows_stay_within_their_memory_budget():
     side = proposal.candidate_window(cfg(200, 128))
     assert side > 2 * cfg(200, 128).reach and 8 * 200 * side ** 2 <= proposal.WINDOW_BYTES
     assert proposal.candidate_window(cfg(2000, 128)) == 0
+
+
+def test_a_start_spread_is_the_informed_proposals_first_prior():
+    """With the informed proposal, rbpf.init keeps every particle at the start and makes the
+    start spread its prior covariance; on a map with nothing to score (every cell unknown,
+    eq. 30) the first update then draws the start from exactly that prior, N(start,
+    diag(sigma^2)), and the weights stay equal."""
+    from scipy import stats as st
+
+    from gslam_jax import rbpf
+    from gslam_jax.rbpf.types import FilterConfig
+
+    J = 2000
+    cfg = FilterConfig(num_particles=J, map_shape=(64, 64), map_origin=(0.0, 0.0),
+                       resolution=0.16, local_size=16, unknown_cells="ignore",
+                       proposal="informed", tempering="fixed", update_map=False)
+    start = np.array([5.0, 5.1, 0.3], np.float32)
+    sigma = np.array([0.2, 0.1, 0.05], np.float32)
+    state = rbpf.init(cfg, start, key=jax.random.key(0), start_sigma=sigma)
+    np.testing.assert_array_equal(state.pose, np.broadcast_to(start, (J, 3)))
+    np.testing.assert_allclose(state.prior_cov, np.broadcast_to(np.diag(sigma ** 2), (J, 3, 3)))
+    motion = rbpf.init(cfg._replace(proposal="motion"), start, key=jax.random.key(0),
+                       start_sigma=sigma)
+    assert np.all(np.std(np.asarray(motion.pose), axis=0) > 0.5 * sigma)  # drawn at once
+
+    local = np.zeros((16, 16, 2), np.float32)
+    local[4:12, 4:12] = (5.0, 0.05)
+    z = jax.random.normal(jax.random.key(1), (J, 3))
+    new, _ = rbpf.update(state, jnp.asarray(local), jnp.zeros((J, 0)), rbpf.FilterParams(),
+                         cfg, z)
+    drawn = (np.asarray(new.pose, np.float64) - start) / sigma
+    for axis in range(3):  # standard normal per axis
+        assert st.kstest(drawn[:, axis], "norm").pvalue > 1e-3, axis
+    np.testing.assert_allclose(new.log_w, -math.log(J), atol=1e-5)

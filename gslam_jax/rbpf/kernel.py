@@ -56,18 +56,26 @@ def init(cfg: FilterConfig, start_pose: Array | None = None,
     Map reuse: ``prior_map`` = (k, S) [H, W] on the filter's grid is every particle's map at
     the start (the maps are extended from it by eq. 14), and with ``start_sigma`` [3] (x, y,
     heading standard deviations) the particles start at ``start_pose`` + N(0, diag(sigma^2)),
-    drawn from ``key``; a sigma of None draws nothing (every particle at ``start_pose``)."""
+    drawn from ``key``; a sigma of None draws nothing (every particle at ``start_pose``).
+    With the "informed" proposal that spread is not drawn here but starts every particle's
+    prior covariance, so that the first update draws the start together with the motion,
+    from the map's score times that prior (``proposal``): the same prior, drawn where the
+    prior map agrees with the first local map."""
     cfg.validate()
     J = cfg.num_particles
     start = (jnp.zeros(3, jnp.float32) if start_pose is None
              else jnp.asarray(start_pose, jnp.float32))
     pose = jnp.broadcast_to(start, (J, 3))
+    informed = cfg.proposal == "informed"
+    cov = jnp.zeros((J, 3, 3), jnp.float32) if informed else None
     if start_sigma is not None:
-        if key is None:
+        sigma = jnp.asarray(start_sigma, jnp.float32)
+        if informed:
+            cov = jnp.broadcast_to(jnp.diag(sigma * sigma), (J, 3, 3))
+        elif key is None:
             raise ValueError("init: a start_sigma needs a PRNG key to draw the start poses")
-        z = jax.random.normal(key, (J, 3), jnp.float32)
-        pose = pose + z * jnp.asarray(start_sigma, jnp.float32)
-    cov = jnp.zeros((J, 3, 3), jnp.float32) if cfg.proposal == "informed" else None
+        else:
+            pose = pose + jax.random.normal(key, (J, 3), jnp.float32) * sigma
     return FilterState(pose=pose, log_w=jnp.full((J,), -math.log(J), jnp.float32),
                        maps=maps.init(cfg, prior_map), best=jnp.int32(0), prior_cov=cov)
 
