@@ -61,15 +61,18 @@ def gslam(args: list[str], log: Path) -> dict:
     return json.loads((Path(args[args.index("--out") + 1]) / "summary.json").read_text())
 
 
-def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str) -> dict:
-    """A, B plain, B on A's map (exact start, then spread by ``sigma``) for one course/seed."""
+def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
+        b_set: tuple[str, ...] = ()) -> dict:
+    """A, B plain, B on A's map (exact start, then spread by ``sigma``) for one course/seed;
+    ``b_set``: ``--set KEY=VALUE`` settings of B's three runs (A's map is the default run's)."""
     from gslam_jax.run import load_run
 
     d = out / f"{course}-{seed}"
     d.mkdir(parents=True, exist_ok=True)
     log = out / "commands.txt"
     frames = [] if max_frames is None else ["--max-frames", str(max_frames)]
-    row: dict = {"course": course, "seed": seed, "b_noise_seed": seed + 100}
+    row: dict = {"course": course, "seed": seed, "b_noise_seed": seed + 100,
+                 "b_set": list(b_set)}
     t0 = time.perf_counter()
     a = gslam(["run", "--course", course, "--seed", str(seed), *frames, "--out", str(d / "A"),
                "--overwrite"], log)
@@ -80,12 +83,14 @@ def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str) -
                 f"\"{course}\", {seed}, {seed + 100}, {max_frames}, \"{b_file}\")'\n")
     start = np.asarray(load_run(b_file).start_pose(), np.float64)
     start_text = ",".join(repr(float(v)) for v in start)
-    plain = gslam(["run", str(b_file), "--out", str(d / "B-plain"), "--overwrite"], log)
-    prior = gslam(["run", str(b_file), "--prior-map", str(d / "A"), "--start", start_text,
-                   "--out", str(d / "B-prior"), "--overwrite"], log)
-    spread = gslam(["run", str(b_file), "--prior-map", str(d / "A"), "--start", start_text,
-                    "--start-sigma", sigma, "--out", str(d / "B-prior-sigma"), "--overwrite"],
-                   log)
+    settings = [arg for kv in b_set for arg in ("--set", kv)]
+    plain = gslam(["run", str(b_file), *settings, "--out", str(d / "B-plain"), "--overwrite"],
+                  log)
+    prior = gslam(["run", str(b_file), *settings, "--prior-map", str(d / "A"), "--start",
+                   start_text, "--out", str(d / "B-prior"), "--overwrite"], log)
+    spread = gslam(["run", str(b_file), *settings, "--prior-map", str(d / "A"), "--start",
+                    start_text, "--start-sigma", sigma, "--out", str(d / "B-prior-sigma"),
+                    "--overwrite"], log)
     row.update(frames=a["frames"], a_rms=a["slam_rms_m"], a_vo_rms=a["vo_rms_m"],
                b_vo_rms=plain["vo_rms_m"], b_plain_rms=plain["slam_rms_m"],
                b_prior_rms=prior["slam_rms_m"], b_prior_sigma_rms=spread["slam_rms_m"],
@@ -121,6 +126,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--sigma", default="0.5,0.5,0.1", help="--start-sigma of the spread runs")
+    ap.add_argument("--b-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="--set of B's runs (repeatable), e.g. filter.proposal=informed")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -132,7 +139,8 @@ def main(argv: list[str] | None = None) -> None:
         for seed in args.seeds:
             if (course, seed) in done:
                 continue
-            rows.append(one(course, seed, args.out, args.max_frames, args.sigma))
+            rows.append(one(course, seed, args.out, args.max_frames, args.sigma,
+                            tuple(args.b_set)))
             table.write_text(json.dumps(rows, indent=1))
     rows = [{**r, **agreement(args.out, r)} for r in rows]
     table.write_text(json.dumps(rows, indent=1))
