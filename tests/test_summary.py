@@ -87,3 +87,15 @@ def test_the_real_time_factor_is_log_time_over_compute(parked):
     compute = summary["filter_seconds"] + summary["compile_seconds"]
     assert summary["realtime_factor"] == pytest.approx(2.9 / compute)
     assert f"real-time factor {summary['realtime_factor']:.2g}: 2.9 s of log" in printed
+
+
+def test_the_ess_target_is_reported_only_where_tempering_uses_it(parked, tmp_path):
+    summary, _ = parked
+    assert summary["tempering"] == "adaptive"
+    assert summary["ess_target"] == 0.5  # automatic: the point sensor's (no sensor recorded)
+    save_run(tmp_path / "r.npz", _parked_run(0.3, steps=10))
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(tmp_path / "r.npz"), "--out", str(tmp_path / "o"),
+                     "--set", "filter.particles=8", "--set", "filter.tempering=fixed"]) == 0
+    fixed = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert fixed["tempering"] == "fixed" and fixed["ess_target"] is None

@@ -96,7 +96,10 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "particles": config.filter.particles,
         "estimate": config.filter.estimate,
         "sensor": run.sensor,
-        "ess_target": sizing.resolve_ess_target(config.filter.ess_target, run.sensor),
+        "tempering": config.filter.tempering,
+        # the adaptive exponent's target; fixed tempering (the paper's beta) has none
+        "ess_target": (sizing.resolve_ess_target(config.filter.ess_target, run.sensor)
+                       if config.filter.tempering == "adaptive" else None),
         "resampling_events": int(np.sum(result.resampled)),
         "extent_violations": result.extent_violations,
         "empty_observations": result.empty_observations,
