@@ -24,6 +24,7 @@ __all__ = ["PriorMap", "START_STREAM", "check_prior", "locate_prior_start", "reb
 
 START_STREAM = 0x57A7  # folded into the filter's key for the start poses drawn around a prior
 
+
 class PriorMap(NamedTuple):
     """Map reuse: a finished map (run A's) the particles start with, localise in and extend.
 
@@ -36,6 +37,7 @@ class PriorMap(NamedTuple):
     start_sigma: np.ndarray   # [3] standard deviations, >= 0
     source: str = ""
     located: dict | None = None  # how the start was located, when it was (summary.json)
+
 
 def check_prior(prior: PriorMap, config: Config) -> None:
     """ConfigError when the prior map cannot be the filter's map: another resolution than
@@ -94,6 +96,7 @@ def known_box(grid: GridMap) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     r, o = grid.resolution, np.asarray(grid.origin, np.float64)
     return (o + r * np.array([i.min(), j.min()]), o + r * np.array([i.max() + 1, j.max() + 1]))
+
 
 def prior_state(prior: PriorMap, cfg: rbpf.FilterConfig, key: jax.Array) -> rbpf.FilterState:
     """The filter's start with a prior map: the prior placed on the filter's grid in every

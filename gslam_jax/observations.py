@@ -17,6 +17,7 @@ from gslam_jax.run import Run, RunError, describe_cells
 __all__ = ["local_observations", "raw_observations", "ObsSettings", "obs_settings",
            "refine_observations", "map_observations"]
 
+
 def local_observations(run: Run, min_variance: float, weight: float = 1.0,
                        min_points: int = 2) -> np.ndarray:
     """[max(M, 1), L, L, 2] float32 observations (k, S) (``cells.obs_from_stats`` with the

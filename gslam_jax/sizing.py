@@ -23,9 +23,11 @@ from gslam_jax.run import Run, RunError, coordinate_limit, float32_spacing
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "map_memory",
            "filter_config", "extent_filter_config", "resolve_ess_target", "filter_params"]
 
+
 class MapExtent(NamedTuple):
     origin: tuple[float, float]
     shape: tuple[int, int]
+
 
 def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin: float,
                window: int, lattice: tuple[float, float] | None = None,
@@ -101,6 +103,7 @@ def map_memory() -> tuple[int, str]:
     if process is not None and process < physical:
         return process, "memory this process may use (ulimit -v)"
     return physical, "physical memory"
+
 
 def filter_config(config: Config, run: Run, prior: PriorMap | None = None
                   ) -> rbpf.FilterConfig:

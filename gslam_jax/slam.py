@@ -29,6 +29,7 @@ from gslam_jax.sizing import filter_config, filter_params
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
            "run_slam", "ExtentWarning", "WeightError", "ChunkReport"]
 
+
 class ExtentWarning(UserWarning):
     """Particles observed cells outside the map extent (those cells were skipped)."""
 
@@ -36,6 +37,7 @@ class ExtentWarning(UserWarning):
 class WeightError(InputError):
     """The filter cannot weigh the data: an update left non-finite particle weights (ESS or
     log-likelihood not finite); names the frame and the local map."""
+
 
 class RunArrays(NamedTuple):
     """A Run's device arrays, as the batched search and the tuner feed them to the filter."""
@@ -164,6 +166,7 @@ class ChunkReport(NamedTuple):
     mean_pose: np.ndarray    # [n, 3] weighted mean per frame
     state: rbpf.FilterState  # after the chunk's last frame
     cfg: rbpf.FilterConfig
+
 
 def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | None = None,
              chunk: int = 512, key: jax.Array | None = None,
