@@ -4,7 +4,7 @@ run starts in it, and how the filter starts from it."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -16,11 +16,8 @@ from gslam_jax.gridmap import GridMap, place
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.run import Run, check_start_pose
 
-if TYPE_CHECKING:
-    from gslam_jax.slam import SlamResult
-
 __all__ = ["PriorMap", "START_STREAM", "check_prior", "locate_prior_start", "rebase",
-           "known_box", "prior_state", "prior_summary"]
+           "known_box", "prior_state"]
 
 START_STREAM = 0x57A7  # folded into the filter's key for the start poses drawn around a prior
 
@@ -114,17 +111,3 @@ def prior_state(prior: PriorMap, cfg: rbpf.FilterConfig, key: jax.Array) -> rbpf
                      (jnp.asarray(grid.k, jnp.float32), jnp.asarray(grid.S, jnp.float32)),
                      jax.random.fold_in(key, START_STREAM),
                      jnp.asarray(sigma, jnp.float32) if sigma.any() else None)
-
-
-def prior_summary(prior: PriorMap, result: SlamResult) -> dict:
-    """What ``summary.json`` records of a run on a prior map: where the map came from, the
-    start pose and its spread, the prior's known cells and the cells the run added to it."""
-    grid = place(prior.grid, result.map_origin, result.kmap.shape)
-    known = np.asarray(result.kmap) > 0
-    return {"path": prior.source, "start": np.asarray(prior.start, float).tolist(),
-            "start_sigma": np.asarray(prior.start_sigma, float).tolist(),
-            **({"start_located": prior.located} if prior.located is not None else {}),
-            "origin": list(prior.grid.origin), "resolution": prior.grid.resolution,
-            "prior_known_cells": int(grid.known.sum()),
-            "cells_added": int(np.sum(known & ~grid.known)),
-            "known_cells": int(known.sum())}

@@ -20,11 +20,13 @@ LAYERS = {
     "rbpf": 2, "run": 2,
     "vo": 3, "tiled": 3, "gridmap": 3,
     "sim": 4, "metrics": 4,
-    "datasets": 5, "loops": 5, "relocalise": 5,
-    "slam": 6,
-    "gps": 7, "tuning": 7, "online": 7,
-    "app": 8,
-    "": 9,  # gslam_jax/__init__.py: the public API gathers from every layer
+    "datasets": 5, "loops": 5, "relocalise": 5, "observations": 5,
+    "map_reuse": 6,
+    "sizing": 7,
+    "slam": 8,
+    "gps": 9, "tuning": 9, "online": 9,
+    "app": 10,
+    "": 11,  # gslam_jax/__init__.py: the public API gathers from every layer
 }
 
 

@@ -185,12 +185,14 @@ def test_an_empty_prior_with_an_exact_start_reproduces_a_plain_run(runs):
 
 
 def test_a_prior_of_the_same_terrain_is_extended_in_its_frame_and_helps_the_run(runs):
+    from gslam_jax.app.outputs import prior_summary
+
     prior_grid, res = runs.prior.grid, runs.res_b
     # The map lies on A's lattice, holds A's known cells and what B added.
     steps = (np.asarray(res.map_origin) - np.asarray(prior_grid.origin)) / 0.16
     np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
     assert res.kmap.sum() > prior_grid.k.sum()  # B's observations added to A's
-    summary = map_reuse.prior_summary(runs.prior, res)
+    summary = prior_summary(runs.prior, res)
     assert summary["prior_known_cells"] == int((prior_grid.k > 0).sum())
     assert summary["known_cells"] == int((res.kmap > 0).sum())
     assert summary["cells_added"] > 0

@@ -223,7 +223,7 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction():
     ("shared", 0.1, None),  # every candidate inside its particle's window
     ("dense", 1.5, None),   # a prior wider than the window: read from the maps instead
     ("dense", 0.1, 0),      # windows over budget: every candidate read from the maps
-])
+], ids=["window", "wide-prior", "no-window"])
 def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std, window_bytes,
                                                            monkeypatch):
     """score_candidates reads each particle's map once (a window and eq. 31's draws) for all
@@ -293,7 +293,7 @@ def test_a_start_spread_is_the_informed_proposals_first_prior():
     from gslam_jax import rbpf
     from gslam_jax.rbpf.types import FilterConfig
 
-    J = 2000
+    J = 1000
     cfg = FilterConfig(num_particles=J, map_shape=(64, 64), map_origin=(0.0, 0.0),
                        resolution=0.16, local_size=16, unknown_cells="ignore",
                        proposal="informed", tempering="fixed", update_map=False)

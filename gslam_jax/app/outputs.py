@@ -9,11 +9,16 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.registry import LoadedSource
+
+if TYPE_CHECKING:
+    from gslam_jax.map_reuse import PriorMap
+    from gslam_jax.slam import SlamResult
 
 __all__ = ["json_ready", "write_figures", "local_maps_used", "summarise", "write_outputs",
            "print_summary", "timing_text", "MOTION_NOISE_TOLERANCE", "MIN_DRIFT_DISTANCE"]
@@ -145,7 +150,7 @@ def _motion_check(run, config: Config) -> dict:
 def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
                   gps_input=None, prior=None) -> dict:
     """Every output file of a run into ``out`` (a staging folder); returns the summary. With a
-    ``prior`` map (``map_reuse.PriorMap``) the summary records it (``map_reuse.prior_summary``).
+    ``prior`` map (``map_reuse.PriorMap``) the summary records it (``prior_summary``).
 
     The TUM files carry the dataset's own clock (``Run.time_origin_ns`` added, e.g. EuRoC's
     nanosecond timestamps); ``ground_truth_tum.txt`` holds the frames with a finite
@@ -186,7 +191,6 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     slam_std = write_figures(out, run, result, config.filter.particles,
                              config.filter.resample_ratio)
     if prior is not None:
-        from gslam_jax.map_reuse import prior_summary
         summary["prior_map"] = prior_summary(prior, result)
     if gps_input is not None:
         from gslam_jax.app.geotiff import write_run_geotiff
@@ -269,3 +273,19 @@ def print_summary(summary: dict, run, result) -> None:
     if result.empty_observations:
         print(f"note: {result.empty_observations} local maps had no informative cell "
               "(weights unchanged)")
+
+
+def prior_summary(prior: PriorMap, result: SlamResult) -> dict:
+    """What ``summary.json`` records of a run on a prior map: where the map came from, the
+    start pose and its spread, the prior's known cells and the cells the run added to it."""
+    from gslam_jax.gridmap import place
+
+    grid = place(prior.grid, result.map_origin, result.kmap.shape)
+    known = np.asarray(result.kmap) > 0
+    return {"path": prior.source, "start": np.asarray(prior.start, float).tolist(),
+            "start_sigma": np.asarray(prior.start_sigma, float).tolist(),
+            **({"start_located": prior.located} if prior.located is not None else {}),
+            "origin": list(prior.grid.origin), "resolution": prior.grid.resolution,
+            "prior_known_cells": int(grid.known.sum()),
+            "cells_added": int(np.sum(known & ~grid.known)),
+            "known_cells": int(known.sum())}
