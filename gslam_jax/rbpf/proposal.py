@@ -31,7 +31,7 @@ particles themselves, all at their prior means, do not show; or 1) and used by b
 and the weights. The candidates
 are scored for all particles at once, one candidate after another (``lax.map``), by the update's
 eq. 26 kernel on footprints gathered from one read of each particle's map around its prior mean
-(``score_candidates``).
+(``candidate_scorer``, once per update for every stage).
 """
 
 from __future__ import annotations
@@ -51,8 +51,8 @@ from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
-           "candidate_window", "WINDOW_BYTES", "score_candidates", "fit_proposal", "draw",
-           "quadratic_design", "quadratic_hessian", "JITTER"]
+           "candidate_window", "WINDOW_BYTES", "score_candidates", "candidate_scorer",
+           "fit_proposal", "draw", "quadratic_design", "quadratic_hessian", "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
 # moves the position along-track only, so the covariance is singular until the heading noise
@@ -119,11 +119,20 @@ def candidate_window(cfg: FilterConfig) -> int:
 def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unknown_u: Array,
                      obs: Observation, params: FilterParams, cfg: FilterConfig) -> Array:
     """log lambda [J, K] (eq. 26 with eq. 30 / 31) of the local map at every particle's
-    candidate poses m_j + C_j g_jk (``g`` [J, K, 3]), against the maps before this update.
+    candidate poses m_j + C_j g_jk (``g`` [J, K, 3]), against the maps before this update
+    (``candidate_scorer`` applied once)."""
+    return candidate_scorer(store, mean, chol, unknown_u, obs, params, cfg)(g)
 
-    Each particle's map is read once for all its candidates: eq. 31's borrowed known cells
-    (they do not depend on the pose) and the square of ``candidate_window`` cells around its
-    prior mean; each candidate's footprint is then gathered from that small window. A
+
+def candidate_scorer(store: maps.Maps, mean: Array, chol: Array, unknown_u: Array,
+                     obs: Observation, params: FilterParams, cfg: FilterConfig) -> Score:
+    """The ``Score`` of this update: candidates g [J, K, 3] (whitened, pose m_j + C_j g_jk) ->
+    log lambda [J, K] against the maps before this update.
+
+    Each particle's map is read once here, for the candidates of every stage: eq. 31's
+    borrowed known cells (they do not depend on the pose) and the square of
+    ``candidate_window`` cells around its prior mean; each candidate's footprint is then
+    gathered from that small window. A
     candidate batch with a footprint cell outside its particle's window (a prior wider than
     the window) is read from the maps instead, as is every batch when the windows would not
     fit ``WINDOW_BYTES``, so the scores are exactly those of ``read_footprints`` at every
@@ -169,7 +178,10 @@ def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unkno
         return log_lambda(footprint_at(pose, obs, borrowed, read_cells, cfg), log_v, params,
                           cfg)
 
-    return lax.map(one, jnp.swapaxes(g, 0, 1)).T
+    def score(g: Array) -> Array:
+        return lax.map(one, jnp.swapaxes(g, 0, 1)).T
+
+    return score
 
 Score = Callable[[Array], Array]
 """Candidates g [J, K, 3] (whitened) -> their log importance factors [J, K]."""
@@ -274,9 +286,7 @@ def draw(store: maps.Maps, mean: Array, cov: Array, z: Array,
         return Draw(mean + jnp.einsum("jab,jb->ja", chol, z), jnp.zeros(J, mean.dtype),
                     jnp.full((), jnp.nan, mean.dtype))
 
-    def score(g: Array) -> Array:
-        return score_candidates(store, mean, chol, g, unknown_u, obs, params, cfg)
-
+    score = candidate_scorer(store, mean, chol, unknown_u, obs, params, cfg)
     mu, q_chol, phi = fit_proposal(score, J, cfg.proposal_points, cfg.proposal_span,
                                    cfg.proposal_stages, exponent)
     g = mu + jnp.einsum("jab,jb->ja", q_chol, z)
