@@ -68,6 +68,9 @@ class FilterSection:
     proposal_points: int = 3    # "informed": candidates per axis of each grid (odd)
     proposal_span: float = 2.0  # "informed": half-width of the first grid, in prior stds
     proposal_stages: int = 2    # "informed": grids, each in the previous fit's coordinates
+    # "informed": the fit scores every n-th observed cell (as GMapping's lskip skips beams in
+    # its scan matching); the weights always use every cell
+    proposal_cell_stride: int = 1
     seed: int = 0
     # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
     # a CPU, all particles on an accelerator; resolved on the host, sizing.filter_config)
@@ -221,6 +224,7 @@ class Config:
              "proposal_points", "must be odd and >= 1 (1: the prior itself)"),
             (f.proposal_span > 0, "filter", "proposal_span", "must be positive"),
             (f.proposal_stages >= 1, "filter", "proposal_stages", "must be at least 1"),
+            (f.proposal_cell_stride >= 1, "filter", "proposal_cell_stride", "must be at least 1"),
             (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             *((getattr(self.motion, k) >= 0, "motion", k, "must be non-negative")

@@ -25,8 +25,11 @@ def _quadratic_score(g: np.ndarray, centre: np.ndarray, precision: np.ndarray) -
 def _fit(centre: np.ndarray, precision: np.ndarray, phi: float, points: int = 3,
          stages: int = 2):
     """The staged fit of one particle whose score is ``_quadratic_score``."""
-    def score(g):
-        return jnp.asarray(_quadratic_score(np.asarray(g), centre, precision), jnp.float32)
+    c, A = jnp.asarray(centre, jnp.float32), jnp.asarray(precision, jnp.float32)
+
+    def score(g):  # traced: the stages are one lax.scan
+        d = g - c
+        return -0.5 * jnp.einsum("...a,ab,...b->...", d, A, d)
 
     mu, q_chol, got = proposal.fit_proposal(score, 1, points, 2.0, stages,
                                             lambda log_lam, log_prior: jnp.float32(phi))
@@ -128,16 +131,20 @@ def _small_case(points: int = 3, J: int = 4, seed: int = 0):
     return cfg, state, jnp.asarray(local), (k, S)
 
 
-def _brute_log_lambda(pose, local, k_map, S_map, cfg, beta):
-    """Eq. 26 with eq. 30 in float64 with SciPy, one observed cell at a time."""
+def _brute_log_lambda(pose, local, k_map, S_map, cfg, beta, stride=1):
+    """Eq. 26 with eq. 30 in float64 with SciPy, one observed cell at a time; with ``stride``
+    only every stride-th observed cell in row-major order."""
     from scipy.special import gammaln
 
     L = cfg.local_size
-    total, n = 0.0, 0
+    total, n, seen = 0.0, 0, -1
     for a in range(L):
         for b in range(L):
             ko, So = float(local[a, b, 0]), float(local[a, b, 1])
             if ko <= 0:
+                continue
+            seen += 1
+            if seen % stride:
                 continue
             ca, cb = a - L // 2 + 0.5, b - L // 2 + 0.5
             c, s = math.cos(pose[2]), math.sin(pose[2])
@@ -154,11 +161,14 @@ def _brute_log_lambda(pose, local, k_map, S_map, cfg, beta):
     return total / (beta * n) if n else 0.0
 
 
-def test_candidate_scores_match_brute_force_eq_26():
+@pytest.mark.parametrize("stride", [1, 3])
+def test_candidate_scores_match_brute_force_eq_26(stride):
+    """With ``proposal_cell_stride`` s the candidates are scored on every s-th observed cell."""
     from gslam_jax.rbpf.footprint import compact_observation
     from gslam_jax.rbpf.types import FilterParams
 
     cfg, state, local, (k, S) = _small_case()
+    cfg = cfg._replace(proposal_cell_stride=stride)
     params = FilterParams()
     obs = compact_observation(local, cfg)
     chol = proposal._factor(state.prior_cov)
@@ -171,8 +181,12 @@ def test_candidate_scores_match_brute_force_eq_26():
                                                            np.asarray(grid))
     for j, kk in [(0, 0), (1, 5), (2, 13), (3, 26)]:
         want = _brute_log_lambda(poses[j, kk].astype(np.float64), np.asarray(local), k, S, cfg,
-                                 float(params.beta_prev))
+                                 float(params.beta_prev), stride)
         assert got[j, kk] == pytest.approx(want, rel=2e-4, abs=1e-2)
+    if stride > 1:  # a real subset: not the full score
+        full = _brute_log_lambda(poses[0, 0].astype(np.float64), np.asarray(local), k, S, cfg,
+                                 float(params.beta_prev))
+        assert got[0, 0] != pytest.approx(full, rel=1e-3)
 
 
 def test_one_candidate_reduces_to_the_motion_proposals_update():

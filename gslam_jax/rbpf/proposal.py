@@ -116,6 +116,15 @@ def candidate_window(cfg: FilterConfig) -> int:
     return side if 8 * cfg.num_particles * side * side <= WINDOW_BYTES else 0
 
 
+def thin_observation(obs: Observation, stride: int) -> Observation:
+    """Every ``stride``-th observed cell of ``obs`` (static slicing: the valid cells stay first,
+    padding keeps k = S = 0): a spatially even subset of the local map, for scoring the
+    proposal's candidates as GMapping's ``lskip`` skips beams in its scan matching."""
+    if stride == 1:
+        return obs
+    return obs._replace(index=obs.index[::stride], k=obs.k[::stride], S=obs.S[::stride])
+
+
 def score_candidates(store: maps.Maps, mean: Array, chol: Array, g: Array, unknown_u: Array,
                      obs: Observation, params: FilterParams, cfg: FilterConfig) -> Array:
     """log lambda [J, K] (eq. 26 with eq. 30 / 31) of the local map at every particle's
@@ -143,6 +152,7 @@ def candidate_scorer(store: maps.Maps, mean: Array, chol: Array, unknown_u: Arra
     rows = jnp.arange(J, dtype=jnp.int32)
     borrowed = read_borrowed(store, maps.known_bits(store, jnp.int32(0), J, cfg), rows,
                              unknown_u, cfg)
+    obs = thin_observation(obs, cfg.proposal_cell_stride)
     log_v = cells.log_v_obs(obs.k, obs.S)
 
     def read_maps(flat: Array, on_map: Array) -> tuple[Array, Array]:
@@ -239,21 +249,27 @@ def fit_proposal(score: Score, num: int, points: int, span: float, stages: int,
     quadratic target is fitted exactly at the first stage."""
     t, spacing = candidate_grid(points, span)
     design = quadratic_design(t)
-    a = jnp.zeros((num, 3), jnp.float32)
-    B = jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (num, 3, 3))
-    phi = None
-    for _ in range(stages):
+
+    def stage(carry: tuple[Array, Array, Array], first: Array
+              ) -> tuple[tuple[Array, Array, Array], None]:
+        a, B, phi = carry
         g = a[:, None, :] + jnp.einsum("jab,kb->jka", B, t)
         log_lam = score(g)
-        if phi is None:
-            phi = exponent(log_lam, -0.5 * jnp.sum(g * g, axis=-1))
-        s = phi * log_lam - 0.5 * jnp.sum(g * g, axis=-1)
+        log_prior = -0.5 * jnp.sum(g * g, axis=-1)
+        phi = lax.cond(first, lambda: exponent(log_lam, log_prior).astype(phi.dtype),
+                       lambda: phi)
+        s = phi * log_lam + log_prior
         finite = jnp.isfinite(s)
         floor = jnp.min(jnp.where(finite, s, jnp.inf), axis=1, keepdims=True)
         s = jnp.where(finite, s, floor)
         m, C = _gaussian_of_quadratic(s @ design.T, span, spacing)
-        a = a + jnp.einsum("jab,jb->ja", B, m)
-        B = B @ jnp.linalg.cholesky(C)
+        return (a + jnp.einsum("jab,jb->ja", B, m), B @ jnp.linalg.cholesky(C), phi), None
+
+    # one traced stage for all (a scan, not a Python loop): the scorer is compiled once
+    start = (jnp.zeros((num, 3), jnp.float32),
+             jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32), (num, 3, 3)),
+             jnp.zeros((), jnp.float32))
+    (a, B, phi), _ = lax.scan(stage, start, jnp.arange(stages) == 0)
     return a, B, phi
 
 

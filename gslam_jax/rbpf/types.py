@@ -56,6 +56,7 @@ class FilterConfig(NamedTuple):
     proposal_points: int = FilterSection.proposal_points
     proposal_span: float = FilterSection.proposal_span
     proposal_stages: int = FilterSection.proposal_stages
+    proposal_cell_stride: int = FilterSection.proposal_cell_stride
 
     @property
     def update_block(self) -> int:
@@ -130,6 +131,8 @@ class FilterConfig(NamedTuple):
             raise ValueError(f"proposal_points {self.proposal_points} must be odd and >= 1")
         if not self.proposal_span > 0 or self.proposal_stages < 1:
             raise ValueError("proposal_span must be positive and proposal_stages at least 1")
+        if self.proposal_cell_stride < 1:
+            raise ValueError(f"proposal_cell_stride {self.proposal_cell_stride} must be >= 1")
         if self.tile < unknown.BLOCK or self.tile % unknown.BLOCK:
             raise ValueError(f"tile {self.tile} must be a positive multiple of {unknown.BLOCK}")
         if self.pool_tiles < 0:
