@@ -31,7 +31,9 @@ particles themselves, all at their prior means, do not show; or 1) and used by b
 and the weights. The candidates
 are scored for all particles at once, one candidate after another (``lax.map``), by the update's
 eq. 26 kernel on footprints gathered from one read of each particle's map around its prior mean
-(``candidate_scorer``, once per update for every stage).
+(``candidate_scorer``, once per update for every stage); with ``proposal_cell_stride`` s > 1 on
+every s-th observed cell only (``thin_observation``: the fit sees fewer cells, the weight at the
+drawn pose all of them).
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
-           "candidate_window", "WINDOW_BYTES", "score_candidates", "candidate_scorer",
+           "candidate_window", "WINDOW_BYTES", "thin_observation", "score_candidates", "candidate_scorer",
            "fit_proposal", "draw", "quadratic_design", "quadratic_hessian", "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
