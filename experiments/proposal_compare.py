@@ -9,7 +9,9 @@ calibrated value (robustness), on Run files and simulated courses.
         --noise-scale 0.3 1 10 --config configs/table1.toml --max-frames 600 --json out.json
 
 Each line: source, noise scale, proposal, particles, filter seed, VO RMS, SLAM RMS, their ratio,
-final drift of both (% of the true distance), filter seconds (after compilation).
+final drift of both (% of the true distance), the rotation of the rigid fit of each path to the
+ground truth (a path rotated as a whole drifts at its end while its RMS after the fit stays
+small), filter seconds (after compilation).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 
@@ -24,7 +27,7 @@ from gslam_jax import metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.machine import environment
-from gslam_jax.run import load_run
+from gslam_jax.run import known_positions, load_run
 from gslam_jax.vo.localmap import localmap_params
 
 
@@ -44,10 +47,15 @@ def _row(name, run, config, scale, proposal, seed) -> dict:
     paths = {"vo": res.vo_path, "slam": res.path}
     err = metrics.errors_over_known_frames(paths, run.ground_truth)
     drift = metrics.drift_over_known_frames(paths, run.ground_truth)
+    known = known_positions(run.ground_truth)
+    turn = {name: math.degrees(metrics.rigid_fit_2d(p[known], run.ground_truth[known]).angle)
+            for name, p in paths.items()}
     return {"source": name, "noise_scale": scale, "proposal": proposal,
             "particles": cfg.filter.particles, "seed": seed, "vo_rms_m": err["vo_rms_m"],
             "slam_rms_m": err["slam_rms_m"], "ratio": err["slam_rms_m"] / err["vo_rms_m"],
-            "vo_drift_pct": drift.get("vo_drift_pct"), "slam_drift_pct": drift.get("slam_drift_pct"),
+            "vo_drift_pct": drift.get("vo_drift_pct"),
+            "slam_drift_pct": drift.get("slam_drift_pct"),
+            "vo_fit_turn_deg": turn["vo"], "slam_fit_turn_deg": turn["slam"],
             "filter_seconds": res.seconds, "wall_seconds": wall,
             "resampling_events": int(res.resampled.sum())}
 
@@ -86,7 +94,9 @@ def main() -> int:
                     print(f"{name:>22} x{scale:<4g} {proposal:>8} J={row['particles']:<4} "
                           f"seed {seed}: VO {row['vo_rms_m']:.3f} SLAM {row['slam_rms_m']:.3f} "
                           f"({row['ratio']:.2f}x) drift VO {row['vo_drift_pct']:.2f} % SLAM "
-                          f"{row['slam_drift_pct']:.2f} %  {row['wall_seconds']:.1f} s",
+                          f"{row['slam_drift_pct']:.2f} % fit turn VO "
+                          f"{row['vo_fit_turn_deg']:+.2f} "
+                          f"SLAM {row['slam_fit_turn_deg']:+.2f} deg  {row['wall_seconds']:.1f} s",
                           flush=True)
                     if out:
                         out.write(json.dumps(row) + "\n")

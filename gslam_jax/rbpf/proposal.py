@@ -53,8 +53,9 @@ from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
-           "candidate_window", "WINDOW_BYTES", "thin_observation", "score_candidates", "candidate_scorer",
-           "fit_proposal", "draw", "quadratic_design", "quadratic_hessian", "JITTER"]
+           "candidate_window", "WINDOW_BYTES", "thin_observation", "score_candidates",
+           "candidate_scorer", "fit_proposal", "draw", "quadratic_design", "quadratic_hessian",
+           "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
 # moves the position along-track only, so the covariance is singular until the heading noise
