@@ -211,17 +211,20 @@ def test_one_candidate_reduces_to_the_motion_proposals_update():
     assert float(info_i.log_lik) == float(info_m.log_lik)
 
 
-def test_informed_weights_are_the_tempered_score_plus_the_correction():
+@pytest.mark.parametrize("stride", [1, 3])
+def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     """The update's weights with the informed proposal: phi log lambda at the drawn pose (eq.
-    26, brute force) plus the proposal's correction, normalised."""
+    26, brute force, every observed cell even when the fit scored every third) plus the
+    proposal's correction, normalised."""
     from gslam_jax.rbpf import kernel
     from gslam_jax.rbpf.footprint import compact_observation
 
     cfg, state, local, (k, S) = _small_case(points=3)
+    cfg = cfg._replace(proposal_cell_stride=stride)
     z = jax.random.normal(jax.random.key(4), (cfg.num_particles, 3))
     params = kernel.FilterParams()
     new, info = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
-    d = proposal.draw(state.maps, state.pose, state.prior_cov, z, lambda l, p: jnp.float32(1.0),
+    d = proposal.draw(state.maps, state.pose, state.prior_cov, z, lambda lam, p: jnp.float32(1.0),
                       jnp.zeros((cfg.num_particles, 0)), compact_observation(local, cfg),
                       params, cfg)
     np.testing.assert_allclose(new.pose, d.pose, atol=1e-6)
