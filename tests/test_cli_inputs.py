@@ -232,6 +232,28 @@ def test_table1_particles_default_to_the_config(tmp_path, monkeypatch, capsys):
     assert used == [("mars-yard-a", 200), ("maze", 200)]
 
 
+def test_table1_set_overrides_every_course_after_its_course_tables(tmp_path, monkeypatch,
+                                                                   capsys):
+    from gslam_jax.app import table1
+
+    used = []
+
+    def fake_course(course, seed, config, progress=None):
+        used.append((course, config.filter.proposal, config.filter.beta_prev,
+                     config.filter.proposal_cell_stride))
+        return {"course": course, "seed": seed, "distance_m": 1.0, "vo_rms_m": 1.0,
+                "slam_rms_m": 0.5, "filter_seconds": 0.0}
+    monkeypatch.setattr(table1, "run_course", fake_course)
+    cfg = tmp_path / "t.toml"
+    cfg.write_text("[course.maze.filter]\nbeta_prev = 0.2\nproposal_cell_stride = 2\n")
+    argv = ["table1", "--courses", "mars-yard-a", "maze", "--seeds", "0", "--config", str(cfg),
+            "--set", "filter.proposal=informed", "--set", "filter.proposal_cell_stride=8"]
+    assert main(argv) == 0
+    assert used == [("mars-yard-a", "informed", 0.05, 8), ("maze", "informed", 0.2, 8)]
+    assert main([*argv[:-1], "filter.proposal_cell_stride=0"]) == 2
+    assert "proposal_cell_stride" in capsys.readouterr().err
+
+
 def test_compare_accepts_a_table1_config(tmp_path, monkeypatch, capsys):
     from gslam_jax.app import compare as compare_module
 

@@ -285,7 +285,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def cmd_table1(args: argparse.Namespace) -> int:
     from gslam_jax.app.table1 import main as table1_main
-    return table1_main(args.courses, args.seeds, args.particles, args.config, args.json, args.quick)
+    return table1_main(args.courses, args.seeds, args.particles, args.config, args.json, args.quick,
+                       args.set or [])
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -460,6 +461,9 @@ def _build_rest(sub) -> None:
                    help="particles (default: the config's filter.particles, per course; 200 if "
                    "the config does not set it)")
     p.add_argument("--config", type=Path, help="TOML config, may hold [course.<name>.*] tables")
+    p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
+                   help="override one config value on every course, after the config's course "
+                   "tables (repeatable)")
     p.add_argument("--json", type=Path)
     p.add_argument("--quick", action="store_true", help="Mars Yard A, one seed, J <= 100")
     p.set_defaults(func=cmd_table1)

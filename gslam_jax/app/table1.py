@@ -15,7 +15,8 @@ import numpy as np
 
 from gslam_jax import metrics, slam
 from gslam_jax.app.outfile import check_output_file, write_text_atomic
-from gslam_jax.config import Config, ConfigError, config_to_toml, load_table_config
+from gslam_jax.config import (Config, ConfigError, apply_overrides, config_to_toml,
+                              load_table_config)
 
 __all__ = ["PAPER_TABLE1", "run_course", "main"]
 
@@ -49,9 +50,10 @@ def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
 
 def main(courses: list[str], seeds: list[int], particles: int | None = None,
          config_path: Path | None = None, json_path: Path | None = None,
-         quick: bool = False) -> int:
+         quick: bool = False, overrides: list[str] | None = None) -> int:
     """Run and print Table I; ``particles`` None takes each course's filter.particles from the
-    config (200 where it does not set it); ``quick``: Mars Yard A, one seed, J <= 100.
+    config (200 where it does not set it); ``quick``: Mars Yard A, one seed, J <= 100;
+    ``overrides`` (``section.key=value``) apply to every course after its course tables.
     Every course's config gets the checks of ``gslam run`` and ``json_path`` is checked
     before any course runs; the JSON is written atomically."""
     from gslam_jax.app.pipeline import Source, check_inputs
@@ -62,7 +64,7 @@ def main(courses: list[str], seeds: list[int], particles: int | None = None,
         courses, seeds = ["mars-yard-a"], [0]
 
     def course_config(course: str) -> Config:
-        c = per_course.get(course, shared)
+        c = apply_overrides(per_course.get(course, shared), overrides or [])
         j = c.filter.particles if particles is None else particles
         j = min(j, 100) if quick else j
         return dataclasses.replace(c, filter=dataclasses.replace(c.filter, particles=j))
