@@ -4,8 +4,11 @@ the maps (``read_footprints`` per candidate, as before), and the whole informed 
 the motion proposal's, in one process on synthetic maps (``gslam bench``'s state: particles
 scattered 1 m around the map centre, maps filled by a few updates first).
 
-    python -m experiments.proposal_speed --particles 200 --local 64 --map 640
+    python -m experiments.proposal_speed --particles 200 --local 64 --map 640 \
+        [--cell-stride 1 4 8]
 
+With several ``--cell-stride`` values the informed update is also timed at each
+``[filter] proposal_cell_stride`` (the candidates scored on every n-th observed cell).
 Prints the machine and versions, milliseconds per call (best of --repeats) and the ratios.
 """
 
@@ -65,6 +68,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--prior-std", type=float, default=0.2,
                     help="position std (m) of the particles' accumulated prior")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--cell-stride", type=int, nargs="+", default=[1],
+                    help="proposal_cell_stride values to time the informed update at")
     args = ap.parse_args(argv)
 
     J, L, side = args.particles, args.local, args.map
@@ -100,6 +105,11 @@ def main(argv: list[str] | None = None) -> dict:
                                            params, cfg._replace(proposal="motion"))[0])
     sec_informed, _ = best_seconds(informed, state, repeats=args.repeats)
     sec_motion, _ = best_seconds(motion, state, repeats=args.repeats)
+    by_stride = {}
+    for stride in args.cell_stride:
+        c = cfg._replace(proposal_cell_stride=stride).validate()
+        fn = jax.jit(lambda s, c=c: rbpf.update(s, local, noise.unknown_u, params, c, z)[0])
+        by_stride[stride] = 1e3 * best_seconds(fn, state, repeats=args.repeats)[0]
     K = grid.shape[0]
     result = {
         "environment": environment(), "particles": J, "local": L, "map": side,
@@ -112,6 +122,9 @@ def main(argv: list[str] | None = None) -> dict:
         "speedup_windowed": sec_each / sec_window,
         "ms_update_informed": 1e3 * sec_informed, "ms_update_motion": 1e3 * sec_motion,
         "informed_over_motion": sec_informed / sec_motion,
+        "ms_update_informed_by_cell_stride": by_stride,
+        "informed_over_motion_by_cell_stride": {k: v / (1e3 * sec_motion)
+                                                for k, v in by_stride.items()},
     }
     print(json.dumps(result, indent=2))
     return result
