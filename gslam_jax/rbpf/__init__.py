@@ -13,15 +13,17 @@ Modules, one idea each:
 * ``maps``: the map-store seam (allocate, read, write, copy on resampling, sizing) in front
   of the dense store (``densestore``) and the shared-tile store (``tilestore``);
 * ``kernel``: ``init``, ``predict``, ``update`` (weigh, write, normalise), ``resample``
-  (ESS-gated), ``step`` (one frame), ``scan_frames`` and ``run_filter``.
+  (ESS-gated), ``step`` (one frame), ``scan_frames`` and ``run_filter``;
+* ``paths``: trajectory estimates (the best particle's path, the smoother's mean path).
 
 This package exports what a user of the filter calls; the rest is imported from its module.
 """
 
-from gslam_jax.rbpf.kernel import (Proposal, Resampler, backtrack_path, frame_keys, init,
-                                   motion_noise, observe, predict, resample, run_filter,
-                                   scan_frames, smoothed_mean_path, step, update, update_noise)
+from gslam_jax.rbpf.kernel import (Proposal, Resampler, frame_keys, init, motion_noise, observe,
+                                   predict, resample, run_filter, scan_frames, step, update,
+                                   update_noise)
 from gslam_jax.rbpf.maps import particle_map
+from gslam_jax.rbpf.paths import backtrack_path, smoothed_mean_path
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, RunOutput, StepInfo,
                                   UpdateInfo, UpdateNoise)
 

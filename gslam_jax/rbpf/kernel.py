@@ -14,7 +14,7 @@ The proposal and the resampler are arguments of ``step``, so the tuner's Scibior
 estimator (``tuning``) runs this very frame with its stop-gradient versions of both. The whole
 Run is a ``lax.scan`` of ``step`` (``scan_frames``, ``run_filter``); poses and resampling
 ancestors are kept per frame so the best particle's full path survives resampling
-(``backtrack_path``). Random numbers come from ``motion_noise`` and ``update_noise`` so that
+(``paths``). Random numbers come from ``motion_noise`` and ``update_noise`` so that
 another implementation can be driven with exactly the same draws. The maps are touched only
 through ``rbpf.maps`` (the map-store seam): nothing here knows which store holds them.
 """
@@ -31,6 +31,7 @@ from jax import Array, lax
 
 from gslam_jax.rbpf import cells, maps, proposal, resampling, tempering
 from gslam_jax.rbpf.motion import apply_motion
+from gslam_jax.rbpf.paths import backtrack_path, weighted_mean_pose
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import log_lambda
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Observation,
@@ -38,7 +39,7 @@ from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Obser
 
 __all__ = ["Proposal", "Resampler", "init", "motion_noise", "update_noise", "predict",
            "propagate", "propagate_mean", "update", "ancestors", "resample", "observe", "step",
-           "scan_frames", "frame_keys", "run_filter", "backtrack_path", "smoothed_mean_path",
+           "scan_frames", "frame_keys", "run_filter",
            "best_slot"]
 
 Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
@@ -326,47 +327,8 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
     return lax.cond(has_obs, observe_frame, lambda s: (s, _no_update_info(s, cfg)), state)
 
 
-def _weighted_mean_pose(w: Array, pose: Array) -> Array:
-    """Mean of poses [J, 3] under normalised weights w [J] (circular mean for the heading)."""
-    xy = w @ pose[:, :2]
-    th = jnp.arctan2(w @ jnp.sin(pose[:, 2]), w @ jnp.cos(pose[:, 2]))
-    return jnp.concatenate([xy, th[None]])
-
-
 def _summaries(info: StepInfo) -> tuple[Array, Array]:
-    return info.pose[info.best], _weighted_mean_pose(jnp.exp(info.log_w), info.pose)
-
-
-def backtrack_path(poses: Array, ancestors: Array, last: Array) -> Array:
-    """Follow ancestry back from particle ``last`` at the final frame: [T, J, 3] -> [T, 3]."""
-
-    def back(j, xs):
-        pose_t, anc_t = xs
-        return anc_t[j], pose_t[j]
-
-    _, path = lax.scan(back, last, (poses, ancestors), reverse=True)
-    return path
-
-
-@jax.jit
-def smoothed_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
-    """The particle smoother's posterior mean trajectory (Kitagawa 1996; Doucet and Johansen
-    2011, sec. 4.3): every final particle's path through its ancestry, averaged with the final
-    normalised weights ``log_w`` [J] (heading by circular mean): [T, J, 3] -> [T, 3].
-
-    Walks back once, carrying each slot's share of the final weight (a parent's share is the
-    sum of its children's), so the J paths are never materialised: O(J) memory besides the
-    inputs. Frames where all surviving paths share one ancestor give that ancestor's pose, as
-    the best path does; where many lineages survive it averages them."""
-    J = log_w.shape[0]
-
-    def back(w, xs):
-        pose_t, anc_t = xs
-        return jax.ops.segment_sum(w, anc_t, num_segments=J), _weighted_mean_pose(w, pose_t)
-
-    _, path = lax.scan(back, jnp.exp(log_w - jax.nn.logsumexp(log_w)), (poses, ancestors),
-                       reverse=True)
-    return path
+    return info.pose[info.best], weighted_mean_pose(jnp.exp(info.log_w), info.pose)
 
 
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
