@@ -18,7 +18,7 @@ from gslam_jax.run import Run, known_positions
 __all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
            "drift_per_distance", "path_length", "trajectory_metrics", "errors_over_known_frames",
            "drift_over_known_frames", "ground_truth_in_map_frame", "ess_summary", "GridMap",
-           "pose_map", "vo_only_map"]
+           "pose_map", "pose_lattice", "place_local_map", "vo_only_map"]
 
 
 class RigidFit(NamedTuple):
@@ -228,29 +228,45 @@ def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
     poses = np.asarray(poses, dtype=np.float64)
     if poses.shape != (run.num_frames, 3):
         raise ValueError(f"poses must have shape [{run.num_frames}, 3], got {poses.shape}")
+    lattice = pose_lattice(run, poses, margin)
+    k_map = np.zeros(lattice.k.size)
+    s_map = np.zeros_like(k_map)
+    for t in np.flatnonzero(run.obs_index >= 0):
+        flat, k, S = place_local_map(run, t, poses[t], lattice)
+        k_map += np.bincount(flat, weights=k, minlength=k_map.size)
+        s_map += np.bincount(flat, weights=S, minlength=s_map.size)
+    return lattice._replace(k=k_map.reshape(lattice.shape), S=s_map.reshape(lattice.shape))
+
+
+def pose_lattice(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
+    """An empty map (k = S = 0) on the lattice that holds every local map of ``run`` placed at
+    ``poses`` [T, 3]: every pose plus the local-map half-width and ``margin`` metres."""
     res = float(run.resolution)
-    L = run.local_maps.shape[1]
-    half = 0.5 * L * res * math.sqrt(2.0) + margin
+    half = 0.5 * run.local_maps.shape[1] * res * math.sqrt(2.0) + margin
     lo = np.floor((poses[:, :2].min(0) - half) / res) * res
     hi = poses[:, :2].max(0) + half
     shape = tuple(int(v) for v in np.ceil((hi - lo) / res))
-    k_map = np.zeros(shape[0] * shape[1])
-    s_map = np.zeros_like(k_map)
+    return GridMap(np.zeros(shape), np.zeros(shape), (float(lo[0]), float(lo[1])), res)
+
+
+def place_local_map(run: Run, t: int, pose: np.ndarray, lattice: GridMap
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame ``t``'s local map placed at ``pose`` [3] on ``lattice`` (``pose_lattice``): the flat
+    index of the lattice cell each of its known cells falls in (nearest cell centre), and
+    their k and S."""
+    L = run.local_maps.shape[1]
+    res = lattice.resolution
     centres = (np.arange(L) - L // 2 + 0.5) * res
     cx, cy = np.meshgrid(centres, centres, indexing="ij")
-    for t in np.flatnonzero(run.obs_index >= 0):
-        k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[run.obs_index[t]]), -1, 0)
-        m = k > 0
-        x, y, th = poses[t]
-        c, s = math.cos(th), math.sin(th)
-        wx = x + c * cx[m] - s * cy[m]
-        wy = y + s * cx[m] + c * cy[m]
-        i = np.floor((wx - lo[0]) / res).astype(np.int64)
-        j = np.floor((wy - lo[1]) / res).astype(np.int64)
-        flat = i * shape[1] + j
-        k_map += np.bincount(flat, weights=k[m], minlength=k_map.size)
-        s_map += np.bincount(flat, weights=S[m], minlength=s_map.size)
-    return GridMap(k_map.reshape(shape), s_map.reshape(shape), (float(lo[0]), float(lo[1])), res)
+    k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[run.obs_index[t]]), -1, 0)
+    m = k > 0
+    x, y, th = pose
+    c, s = math.cos(th), math.sin(th)
+    wx = x + c * cx[m] - s * cy[m]
+    wy = y + s * cx[m] + c * cy[m]
+    i = np.floor((wx - lattice.origin[0]) / res).astype(np.int64)
+    j = np.floor((wy - lattice.origin[1]) / res).astype(np.int64)
+    return i * lattice.shape[1] + j, np.asarray(k[m]), np.asarray(S[m])
 
 
 def vo_only_map(run: Run, margin: float = 2.0) -> GridMap:

@@ -46,6 +46,9 @@ def test_run_on_npz_writes_results(mean_run):
         assert (out / name).exists()
     assert len((out / "trajectory_robot_kitti.txt").read_text().splitlines()) == FRAMES
     assert not (out / "trajectory_kitti.txt").exists()  # KITTI's frame: KITTI runs
+    # the map checked against itself: a short drive that never comes back has nothing to check
+    check = summary["map_consistency"]
+    assert check["consistent"] is True and check["revisits_checked"] == 0
 
 
 def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
@@ -141,8 +144,9 @@ def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
         (v["alpha_d"], v["beta_new"], v["min_variance"])
     assert v["alpha_d"] != 0.05 and cfg.filter.particles == 8
     rc = main(["run", str(tmp_path / "r.npz"), "--config", str(tmp_path / "t" / "tuned.toml"),
-               "--out", str(tmp_path / "run")])
+               "--out", str(tmp_path / "run"), "--no-map-check"])
     assert rc == 0
+    assert "map_consistency" not in json.loads((tmp_path / "run" / "summary.json").read_text())
     assert (tmp_path / "run" / "config.toml").read_text() == \
         (tmp_path / "t" / "tuned.toml").read_text()
 

@@ -286,3 +286,36 @@ def test_gslam_merge_writes_the_merge_or_refuses_it(maps, align, tmp_path, capsy
     assert main(["merge", str(runs / "a"), str(runs / "c"), "--out", str(refused)]) == 2
     assert "cannot align the maps" in capsys.readouterr().err
     assert not refused.exists()
+
+
+def test_merge_refuses_a_map_its_own_run_found_doubled(maps, align, tmp_path, capsys) -> None:
+    """A run folder whose summary.json records a failed self-check (``map_consistency``) is
+    refused before any alignment, naming the run and the stretch; --allow-inconsistent merges
+    it as the check-free folder would be."""
+    import shutil
+
+    from gslam_jax.app.cli import main
+
+    doubled = tmp_path / "b-doubled"
+    shutil.copytree(maps.folder / "b", doubled)
+    check = {"consistent": False, "revisits_checked": 5, "worst_offset_m": 2.4,
+             "doubled": [{"frames": [310, 352], "offset_m": 2.4, "z_best": 30.0,
+                          "z_as_mapped": 2.0}]}
+    (doubled / "summary.json").write_text(json.dumps({"map_consistency": check}))
+    run = merge_mod.load_run_folder(doubled)
+    assert run.consistency == check
+    with pytest.raises(merge_mod.InconsistentMap, match=r"b-doubled: .*frames 310-352, 2\.40 m"):
+        merge_mod.merge_runs([merge_mod.load_run_folder(maps.folder / "a"), run])
+    out = tmp_path / "refused"
+    assert main(["merge", str(maps.folder / "a"), str(doubled), "--out", str(out)]) == 2
+    assert "not consistent with itself" in capsys.readouterr().err and not out.exists()
+    out = tmp_path / "allowed"
+    assert main(["merge", str(maps.folder / "a"), str(doubled), "--out", str(out),
+                 "--allow-inconsistent"]) == 0
+    pose = np.array(json.loads((out / "summary.json").read_text())["runs"][1]
+                    ["pose_in_merged_frame"])
+    assert _pose_error(pose, TRUTH)[0] < 0.5 * RES
+    # a consistent check does not stand in the way
+    (doubled / "summary.json").write_text(json.dumps({"map_consistency": {
+        "consistent": True, "revisits_checked": 5, "doubled": [], "worst_offset_m": 0.0}}))
+    merge_mod.check_consistent(merge_mod.load_run_folder(doubled))

@@ -154,7 +154,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     with view.RunWatch.open(args.viewer, args.viewer_save, args.viewer_every) as watch:
         out, _ = run_pipeline(_source(args), config, args.out, overwrite=args.overwrite,
                               gps=args.gps, save_run=args.save_run, progress=ProgressBar,
-                              prior=prior, on_chunk=watch.on_chunk, chunk=watch.chunk)
+                              prior=prior, on_chunk=watch.on_chunk, chunk=watch.chunk,
+                              map_check=not args.no_map_check)
         watch.finish(out)
     print(f"results: {out}")
     return 0
@@ -336,6 +337,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start-sigma", type=_pose_sigma, metavar="SX,SY,STHETA", help="with "
                    "--prior-map: standard deviations of the start pose (metres, radians); the "
                    "particles start spread by them (default 0,0,0: all at --start)")
+    p.add_argument("--no-map-check", action="store_true", help="skip checking the finished map "
+                   "against itself (gridmap.consistency: each revisited stretch of the path "
+                   "scored against the map built before it; terrain mapped twice is reported and "
+                   "recorded in summary.json's map_consistency, and gslam merge refuses it)")
     p.add_argument("--out", type=Path, help="results directory (default results/run-<time>); "
                    "the results appear there only when complete (marker file COMPLETE); an "
                    "existing, non-empty folder is refused unless --overwrite")

@@ -24,6 +24,9 @@ def add_parser(sub) -> None:
     p.add_argument("--no-gps", action="store_true",
                    help="ignore the runs' GPS alignments (by default, where both runs have one "
                         "it is a prior that narrows the search)")
+    p.add_argument("--allow-inconsistent", action="store_true",
+                   help="merge a run whose map failed its own run's consistency check (terrain "
+                        "mapped twice; summary.json's map_consistency); refused by default")
     p.add_argument("--out", help="results directory (default results/merge-<time>); refused "
                    "when it exists and is not empty, unless --overwrite")
     p.add_argument("--overwrite", action="store_true",
@@ -36,10 +39,16 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
     if len(args.runs) < 2:
         raise SystemExit("gslam merge: error: give at least two runs")
+    from gslam_jax.gridmap.merge import check_consistent
+
     runs = [load_run_folder(r) for r in args.runs]
+    if not args.allow_inconsistent:  # before any folder is made
+        for run in runs:
+            check_consistent(run)
     with results_folder(args.out, "merge", overwrite=args.overwrite,
                         command="gslam merge") as folder:
         merged = merge_runs(runs, use_gps=not args.no_gps,
+                            allow_inconsistent=args.allow_inconsistent,
                             progress=lambda i, n: print(f"merge: aligned {i}/{n}", flush=True))
         with writing(folder):
             summary = write_merge(folder.staging, runs, merged)

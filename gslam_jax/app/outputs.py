@@ -148,9 +148,10 @@ def _motion_check(run, config: Config) -> dict:
 
 
 def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
-                  gps_input=None, prior=None) -> dict:
+                  gps_input=None, prior=None, consistency=None) -> dict:
     """Every output file of a run into ``out`` (a staging folder); returns the summary. With a
-    ``prior`` map (``map_reuse.PriorMap``) the summary records it (``prior_summary``).
+    ``prior`` map (``map_reuse.PriorMap``) the summary records it (``prior_summary``); with
+    the map's check against itself (``gridmap.consistency.Consistency``), that.
 
     The TUM files carry the dataset's own clock (``Run.time_origin_ns`` added, e.g. EuRoC's
     nanosecond timestamps); ``ground_truth_tum.txt`` holds the frames with a finite
@@ -192,6 +193,8 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
                              config.filter.resample_ratio)
     if prior is not None:
         summary["prior_map"] = prior_summary(prior, result)
+    if consistency is not None:
+        summary["map_consistency"] = consistency.summary()
     if gps_input is not None:
         from gslam_jax.app.geotiff import write_run_geotiff
         from gslam_jax.gps import georeference

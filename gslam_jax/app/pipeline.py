@@ -141,8 +141,8 @@ def load_prior(path: Path, start, start_sigma, config: Config):
 def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
                  overwrite: bool = False, gps: str | None = None, save_run: Path | None = None,
                  progress: ProgressFactory | None = None, prior=None,
-                 on_chunk: Callable | None = None, chunk: int | None = None
-                 ) -> tuple[Path, dict]:
+                 on_chunk: Callable | None = None, chunk: int | None = None,
+                 map_check: bool = True) -> tuple[Path, dict]:
     """``gslam run``: check every input, load the source, run Gamma-SLAM, write the results.
 
     Everything that can be checked before the work is (source options, local-map size, the
@@ -150,7 +150,9 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
     ``out`` only when complete (``results.results_folder``). Returns (folder, summary). With a
     ``prior`` map (``load_prior``) the run starts in it and the results are in its frame.
     ``on_chunk`` and ``chunk`` go to ``slam.run_slam`` (e.g. ``app.viewer``: a callback after
-    every ``chunk`` frames; the results do not depend on ``chunk``).
+    every ``chunk`` frames; the results do not depend on ``chunk``). With ``map_check`` the
+    map is checked against itself (``gridmap.consistency``: terrain the run mapped twice) and the
+    verdict printed and recorded in ``summary.json`` (``map_consistency``).
     """
     from gslam_jax import map_reuse, slam
 
@@ -178,14 +180,21 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
                   f"{[round(float(v), 3) for v in prior.start_sigma]}")
         result = slam.run_slam(run, config, progress=bar("gamma-slam"), prior=prior,
                                on_chunk=on_chunk, **({"chunk": chunk} if chunk else {}))
+        consistency = None
+        if map_check:
+            from gslam_jax.gridmap.consistency import check_consistency
+            consistency = check_consistency(run, result.path, progress=bar("map self-check"))
         if prior is not None:  # the VO-only map and the figures in the prior's frame too
             loaded = loaded._replace(run=map_reuse.rebase(run, prior.start))
         try:
-            summary = write_outputs(folder.staging, loaded, result, config, gps_input, prior)
+            summary = write_outputs(folder.staging, loaded, result, config, gps_input, prior,
+                                    consistency)
         except OSError as err:
             raise ResultsError(f"{folder.name}: cannot write the results ({err}); nothing "
                                f"was written to {folder.target}") from err
         print_summary(summary, run, result)
+        if consistency is not None:
+            print(consistency.describe())
         if prior is not None:
             p = summary["prior_map"]
             print(f"prior map: {p['prior_known_cells']} known cells, {p['cells_added']} added "

@@ -300,10 +300,14 @@ def _score_poses(moving: _Moving, poses: Array, lvl: _Level) -> tuple[Array, Arr
 
 
 def score_poses(a: GridMap, b: GridMap, poses: np.ndarray, factor: int = 1,
-                max_dof: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                max_dof: int = 8, pad: int | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(score, z, overlap) [n] of B placed at each of ``poses`` [n, 3] in A's frame, at the
-    lattice of ``factor`` x ``factor`` A cells (the module's score)."""
-    moving, lvl = _prepare(a, b, factor, max_dof)
+    lattice of ``factor`` x ``factor`` A cells (the module's score). A's lattice is padded by
+    ``pad`` cells (default: B's reach from its frame origin); B's cells placed off A's padded
+    lattice lie over unknown cells either way, so the padding changes only the compiled shape
+    (a fixed ``pad`` and A's shape: one compilation for many calls)."""
+    moving, lvl = _prepare(a, b, factor, max_dof, pad)
     score, var, overlap = _score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)
     score, var = np.asarray(score, np.float64), np.asarray(var, np.float64)
     return score, score / np.sqrt(np.maximum(var, 1e-12)), np.asarray(overlap)
@@ -322,9 +326,11 @@ def _radius(b: GridMap) -> float:
     return float(np.max(np.hypot(centres[:, 0], centres[:, 1]))) + b.resolution
 
 
-def _prepare(a: GridMap, b: GridMap, factor: int, max_dof: int) -> tuple[_Moving, _Level]:
+def _prepare(a: GridMap, b: GridMap, factor: int, max_dof: int, pad: int | None = None
+             ) -> tuple[_Moving, _Level]:
     moving = _moving(b, factor, max_dof)
-    pad = int(math.ceil(_radius(b) / (a.resolution * factor))) + 2
+    if pad is None:
+        pad = int(math.ceil(_radius(b) / (a.resolution * factor))) + 2
     return moving, _level(a, factor, pad, max_dof, _log_v_range(a, b))
 
 

@@ -16,18 +16,21 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from gslam_jax.gridmap.align import AlignParams, Alignment, PosePrior, align_maps
+from gslam_jax.gridmap.align import (AlignParams, Alignment, AlignmentRefused, PosePrior,
+                                     align_maps)
 from gslam_jax.gridmap.grid import (GridMap, MapFileError, add, compose, invert_pose, load_map,
                                     transform)
 
-__all__ = ["MapRun", "Merged", "load_run_folder", "gps_prior", "merge_maps", "merge_runs",
-           "place_path"]
+__all__ = ["MapRun", "Merged", "InconsistentMap", "check_consistent", "load_run_folder",
+           "gps_prior", "merge_maps", "merge_runs", "place_path"]
 
 
 class MapRun(NamedTuple):
     """A finished run as merging sees it: a name, its map, its reported path (times [T],
-    poses [T, 3]; None when the folder has none) and, when it was aligned to GPS, the pose of
-    its map frame in the GPS site frame with the fit's residual RMS (metres)."""
+    poses [T, 3]; None when the folder has none), when it was aligned to GPS, the pose of its
+    map frame in the GPS site frame with the fit's residual RMS (metres), and its own run's
+    check of the map against itself (``summary.json``'s ``map_consistency``, written by
+    ``gridmap.consistency``; None when not checked)."""
 
     name: str
     grid: GridMap
@@ -35,6 +38,15 @@ class MapRun(NamedTuple):
     path: np.ndarray | None = None
     gps_frame: np.ndarray | None = None
     gps_rms_m: float | None = None
+    consistency: dict | None = None
+
+
+class InconsistentMap(AlignmentRefused):
+    """A run's map failed its own run's consistency check (terrain mapped twice): merging it
+    would carry the doubled terrain into the merge."""
+
+    def __init__(self, message: str):
+        super().__init__(message, None)
 
 
 class Merged(NamedTuple):
@@ -48,12 +60,13 @@ class Merged(NamedTuple):
 
 def load_run_folder(folder: str | Path) -> MapRun:
     """A ``gslam run`` results folder: map.npz, trajectory_tum.txt (if present) and the GPS
-    frame from gps_alignment.npz with summary.json's residual (if present)."""
+    frame from gps_alignment.npz with summary.json's residual, and summary.json's
+    ``map_consistency`` (if present)."""
     from gslam_jax.io import read_tum
 
     folder = Path(folder)
     grid = load_map(folder)
-    times = path = gps_frame = gps_rms = None
+    times = path = gps_frame = gps_rms = consistency = None
     if folder.is_dir():
         tum = folder / "trajectory_tum.txt"
         if tum.is_file():
@@ -68,10 +81,16 @@ def load_run_folder(folder: str | Path) -> MapRun:
                 site = np.asarray(gps["site_origin"], np.float64)
             gps_frame = np.array([shift[0] + site[0], shift[1] + site[1],
                                   math.atan2(R[1, 0], R[0, 0])])
-            summary = folder / "summary.json"
-            if summary.is_file():
-                gps_rms = json.loads(summary.read_text()).get("gps", {}).get("residual_rms_m")
-    return MapRun(folder.name, grid, times, path, gps_frame, gps_rms)
+        summary_file = folder / "summary.json"
+        if summary_file.is_file():
+            try:
+                summary = json.loads(summary_file.read_text())
+            except ValueError as err:
+                raise MapFileError(f"{summary_file}: not JSON ({err})") from err
+            consistency = summary.get("map_consistency")
+            if gps_frame is not None:
+                gps_rms = summary.get("gps", {}).get("residual_rms_m")
+    return MapRun(folder.name, grid, times, path, gps_frame, gps_rms, consistency)
 
 
 def gps_prior(a: MapRun, b: MapRun, min_std_m: float = 1.0) -> PosePrior | None:
@@ -118,10 +137,29 @@ def merge_maps(grids: Sequence[GridMap], params: AlignParams = AlignParams(),
     return Merged(merged, poses, alignments)
 
 
+def check_consistent(run: MapRun) -> None:
+    """Raise ``InconsistentMap`` when ``run``'s own check found its map doubled somewhere."""
+    check = run.consistency
+    if check is None or check.get("consistent", True):
+        return
+    worst = max(check["doubled"], key=lambda r: r["offset_m"])
+    raise InconsistentMap(
+        f"{run.name}: its map is not consistent with itself (its run found "
+        f"{len(check['doubled'])} of {check['revisits_checked']} revisited stretches fitting its "
+        f"earlier map better elsewhere; worst: frames {worst['frames'][0]}-{worst['frames'][1]}, "
+        f"{worst['offset_m']:.2f} m off): that terrain is mapped twice and would be doubled in "
+        "the merge; refused (allow it with --allow-inconsistent)")
+
+
 def merge_runs(runs: Sequence[MapRun], params: AlignParams = AlignParams(),
                use_gps: bool = True,
-               progress: Callable[[int, int], None] | None = None) -> Merged:
+               progress: Callable[[int, int], None] | None = None,
+               allow_inconsistent: bool = False) -> Merged:
     """``merge_maps`` over runs' maps, with GPS priors (``gps_prior`` against the first run)
-    where both runs have a GPS alignment and ``use_gps``."""
+    where both runs have a GPS alignment and ``use_gps``. A run whose map failed its own run's
+    consistency check is refused (``InconsistentMap``) unless ``allow_inconsistent``."""
+    if not allow_inconsistent:
+        for run in runs:
+            check_consistent(run)
     priors = [None] + [gps_prior(runs[0], r) if use_gps else None for r in runs[1:]]
     return merge_maps([r.grid for r in runs], params, priors, progress)
