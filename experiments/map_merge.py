@@ -14,7 +14,9 @@ estimated path on A's frame by frame (they drive the same true poses): the best 
 alignment of these two maps can do. Each trial reports the alignment's error against both,
 its standard deviation, z and runner-up, whether ``align_maps`` would refuse it, and the
 error of the GPS-only alignment (each run's path aligned to its own simulated WAAS-like
-receiver, paper appendix, then composed). Then A of each course is aligned to B of the next
+receiver, paper appendix, then composed); with ``--self-check``, whether B's map passes its
+own run's check against itself (``gridmap.consistency``; ``gslam merge`` refuses it when not).
+Then A of each course is aligned to B of the next
 course (no overlap), ``--cross`` pairs in all: each should be refused.
 """
 
@@ -121,6 +123,21 @@ def _run_maps(course: str, noise_seed: int | None, start: np.ndarray | None, con
                 "world_resolution": info.world.resolution})}
 
 
+def _self_check(course: str, trial: int, path: np.ndarray, config: Config) -> dict:
+    """Trial ``trial``'s B map checked against itself at its own path (the Run simulated again:
+    the local maps do not depend on the start pose), as ``gslam run`` checks it; a doubled map
+    is refused as ``gslam merge`` refuses it."""
+    from gslam_jax.gridmap.consistency import check_consistency
+
+    run, _ = simulate_run(course, seed=0, params=localmap_params(config),
+                          noise_seed=100 + trial)
+    check = check_consistency(run, path)
+    return {"self_consistent": check.consistent, "self_revisits": len(check.revisits),
+            "self_doubled": len(check.doubled),
+            "self_worst_offset_m": max((r.offset_m for r in check.doubled), default=0.0),
+            "merge_refused": not check.consistent}
+
+
 def _true_std(a: dict, grid: GridMap) -> np.ndarray:
     """The simulated world's true spread of heights in each cell of ``grid`` (a map in the
     world frame): the spread of the world's pixel heights in the cell with each pixel's own
@@ -169,6 +186,9 @@ def main(argv: list[str] | None = None) -> dict:
                     help="only align pairs of different courses (the trials' maps from --cache)")
     ap.add_argument("--figures", default=None, help="write A, B placed and the merge of each "
                     "course's first trial here")
+    ap.add_argument("--self-check", action="store_true",
+                    help="also check each B's map against itself (gridmap.consistency, as gslam "
+                         "run does); a doubled map is refused as gslam merge refuses it")
     ap.add_argument("--cross", type=int, default=10,
                     help="pairs of different courses to align (each should be refused)")
     args = ap.parse_args(argv)
@@ -220,6 +240,8 @@ def main(argv: list[str] | None = None) -> dict:
                    "runner_up_z": al.runner_up_z, "overlap": al.overlap, "refused": refused,
                    "cycle_m": al.cycle_m, "cycle_deg": math.degrees(al.cycle_rad),
                    "gps_error_m": gdist, "gps_error_deg": ghead, "seconds": seconds, **corr}
+            if args.self_check:
+                row.update(_self_check(course, i, b["path"], config))
             report["trials"].append(row)
             print(json.dumps(row), flush=True)
             if args.figures and i == 0:

@@ -24,6 +24,7 @@ rigid fit, over every frame).
 from __future__ import annotations
 
 import argparse
+import math
 import json
 import time
 from pathlib import Path
@@ -62,9 +63,11 @@ def gslam(args: list[str], log: Path) -> dict:
 
 
 def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
-        b_set: tuple[str, ...] = ()) -> dict:
+        b_set: tuple[str, ...] = (), located: bool = False) -> dict:
     """A, B plain, B on A's map (exact start, then spread by ``sigma``) for one course/seed;
-    ``b_set``: ``--set KEY=VALUE`` settings of B's three runs (A's map is the default run's)."""
+    ``b_set``: ``--set KEY=VALUE`` settings of B's runs (A's map is the default run's). With
+    ``located``, also B on A's map with no --start (the start located from B's first metres:
+    ``relocalise``), and the located start's error against B's true start in A's frame."""
     from gslam_jax.run import load_run
 
     d = out / f"{course}-{seed}"
@@ -91,6 +94,21 @@ def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
     spread = gslam(["run", str(b_file), *settings, "--prior-map", str(d / "A"), "--start",
                     start_text, "--start-sigma", sigma, "--out", str(d / "B-prior-sigma"),
                     "--overwrite"], log)
+    if located:
+        found = gslam(["run", str(b_file), *settings, "--prior-map", str(d / "A"), "--out",
+                       str(d / "B-located"), "--overwrite"], log)
+        got = np.asarray(found["prior_map"]["start"], np.float64)
+        row.update(b_located_rms=found["slam_rms_m"],
+                   located_start_error_m=float(np.hypot(*(got[:2] - start[:2]))),
+                   located_start_error_deg=abs(math.degrees(math.remainder(
+                       float(got[2] - start[2]), 2 * math.pi))),
+                   located_sigma=found["prior_map"]["start_sigma"])
+    for name in ("A", "B-plain", "B-prior", "B-located"):
+        summary = d / name / "summary.json"
+        if summary.is_file():  # the run's own map checked against itself (gslam run)
+            check = json.loads(summary.read_text()).get("map_consistency")
+            if check is not None:
+                row[f"consistent_{name}"] = check["consistent"]
     row.update(frames=a["frames"], a_rms=a["slam_rms_m"], a_vo_rms=a["vo_rms_m"],
                b_vo_rms=plain["vo_rms_m"], b_plain_rms=plain["slam_rms_m"],
                b_prior_rms=prior["slam_rms_m"], b_prior_sigma_rms=spread["slam_rms_m"],
@@ -126,6 +144,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--sigma", default="0.5,0.5,0.1", help="--start-sigma of the spread runs")
+    ap.add_argument("--located", action="store_true",
+                    help="also run B on A's map without --start (the start located)")
     ap.add_argument("--b-set", action="append", default=[], metavar="KEY=VALUE",
                     help="--set of B's runs (repeatable), e.g. filter.proposal=informed")
     args = ap.parse_args(argv)
@@ -140,7 +160,7 @@ def main(argv: list[str] | None = None) -> None:
             if (course, seed) in done:
                 continue
             rows.append(one(course, seed, args.out, args.max_frames, args.sigma,
-                            tuple(args.b_set)))
+                            tuple(args.b_set), args.located))
             table.write_text(json.dumps(rows, indent=1))
     rows = [{**r, **agreement(args.out, r)} for r in rows]
     table.write_text(json.dumps(rows, indent=1))

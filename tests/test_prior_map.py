@@ -232,6 +232,24 @@ def test_load_prior_names_a_missing_map_and_another_resolution(tmp_path):
     assert load_prior(tmp_path, None, None, ok).start is None  # located from the run later
 
 
+def test_a_prior_its_own_run_found_doubled_is_used_with_a_warning(tmp_path, capsys):
+    import json
+
+    config = Config()
+    save_map(tmp_path / "map.npz", GridMap(np.ones((8, 8)), np.ones((8, 8)), (0.0, 0.0), 0.16))
+    check = {"consistent": False, "revisits_checked": 4, "worst_offset_m": 3.1,
+             "doubled": [{"frames": [120, 170], "offset_m": 3.1}]}
+    (tmp_path / "summary.json").write_text(json.dumps({"map_consistency": check}))
+    prior = load_prior(tmp_path, (0.0, 0.0, 0.0), None, config)
+    err = capsys.readouterr().err
+    assert prior.grid.known.all()
+    assert "warning: --prior-map" in err and "frames 120-170, 3.10 m off" in err
+    check.update(consistent=True, doubled=[])
+    (tmp_path / "summary.json").write_text(json.dumps({"map_consistency": check}))
+    load_prior(tmp_path, (0.0, 0.0, 0.0), None, config)
+    assert "warning" not in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("args, message", [
     (["--start", "1,2"], "argument --start: expected three numbers separated by commas, got '1,2'"),
     (["--start", "1,x,3"], "argument --start: expected three numbers"),

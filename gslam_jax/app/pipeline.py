@@ -12,6 +12,7 @@ target only once every file is written.
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import Callable
 
@@ -135,6 +136,12 @@ def load_prior(path: Path, start, start_sigma, config: Config):
     start = None if start is None else np.asarray(start, np.float64)  # None: located later
     prior = PriorMap(grid, start, sigma, str(file.resolve()))
     check_prior(prior, config)
+    if path.is_dir():  # a map its own run found doubled is reused, with a warning
+        from gslam_jax.gridmap.merge import consistency_problem, load_run_folder
+        problem = consistency_problem(load_run_folder(path))
+        if problem is not None:
+            print(f"warning: --prior-map {problem}; this run localises in it as it is",
+                  file=sys.stderr)
     return prior
 
 

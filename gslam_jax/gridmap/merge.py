@@ -21,8 +21,8 @@ from gslam_jax.gridmap.align import (AlignParams, Alignment, AlignmentRefused, P
 from gslam_jax.gridmap.grid import (GridMap, MapFileError, add, compose, invert_pose, load_map,
                                     transform)
 
-__all__ = ["MapRun", "Merged", "InconsistentMap", "check_consistent", "load_run_folder",
-           "gps_prior", "merge_maps", "merge_runs", "place_path"]
+__all__ = ["MapRun", "Merged", "InconsistentMap", "check_consistent", "consistency_problem",
+           "load_run_folder", "gps_prior", "merge_maps", "merge_runs", "place_path"]
 
 
 class MapRun(NamedTuple):
@@ -137,18 +137,25 @@ def merge_maps(grids: Sequence[GridMap], params: AlignParams = AlignParams(),
     return Merged(merged, poses, alignments)
 
 
-def check_consistent(run: MapRun) -> None:
-    """Raise ``InconsistentMap`` when ``run``'s own check found its map doubled somewhere."""
+def consistency_problem(run: MapRun) -> str | None:
+    """What ``run``'s own check found wrong with its map (terrain mapped twice), or None when
+    it found nothing or did not check."""
     check = run.consistency
     if check is None or check.get("consistent", True):
-        return
+        return None
     worst = max(check["doubled"], key=lambda r: r["offset_m"])
-    raise InconsistentMap(
-        f"{run.name}: its map is not consistent with itself (its run found "
-        f"{len(check['doubled'])} of {check['revisits_checked']} revisited stretches fitting its "
-        f"earlier map better elsewhere; worst: frames {worst['frames'][0]}-{worst['frames'][1]}, "
-        f"{worst['offset_m']:.2f} m off): that terrain is mapped twice and would be doubled in "
-        "the merge; refused (allow it with --allow-inconsistent)")
+    return (f"{run.name}: its map is not consistent with itself (its run found "
+            f"{len(check['doubled'])} of {check['revisits_checked']} revisited stretches fitting "
+            f"its earlier map better elsewhere; worst: frames {worst['frames'][0]}-"
+            f"{worst['frames'][1]}, {worst['offset_m']:.2f} m off): that terrain is mapped twice")
+
+
+def check_consistent(run: MapRun) -> None:
+    """Raise ``InconsistentMap`` when ``run``'s own check found its map doubled somewhere."""
+    problem = consistency_problem(run)
+    if problem is not None:
+        raise InconsistentMap(f"{problem} and would be doubled in the merge; refused (allow it "
+                              "with --allow-inconsistent)")
 
 
 def merge_runs(runs: Sequence[MapRun], params: AlignParams = AlignParams(),
