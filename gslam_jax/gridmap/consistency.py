@@ -29,6 +29,7 @@ import numpy as np
 
 from gslam_jax.gridmap.align import score_poses
 from gslam_jax.gridmap.grid import GridMap, apply_pose, known_cells
+from gslam_jax.loops import arc_length
 from gslam_jax.metrics import place_local_map, pose_lattice
 from gslam_jax.run import Run
 
@@ -107,10 +108,6 @@ class Consistency(NamedTuple):
                 "mapped that terrain twice")
 
 
-def _arc(poses: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))])
-
-
 def _window(flat_k: np.ndarray, flat_s: np.ndarray, lattice: GridMap, i0: int, j0: int,
             side: int) -> GridMap:
     """The ``side`` x ``side`` cells of ``lattice`` from cell (i0, j0), zero (unknown) beyond it:
@@ -144,7 +141,7 @@ def check_consistency(run: Run, poses: np.ndarray,
         raise ValueError(f"poses must have shape [{run.num_frames}, 3], got {poses.shape}")
     lattice = pose_lattice(run, poses, margin=params.search_m + 1.0)
     res = lattice.resolution
-    arc = _arc(poses)
+    arc = arc_length(poses)
     frames = np.flatnonzero(np.asarray(run.obs_index) >= 0)
     stretch = np.floor(arc / params.stretch_m).astype(np.int64)
     earlier_k = np.zeros(lattice.k.size)
@@ -158,8 +155,8 @@ def check_consistency(run: Run, poses: np.ndarray,
         start = arc[group[0]]
         while added < len(frames) and arc[frames[added]] < start - params.gap_m:
             flat, k, S = place_local_map(run, frames[added], poses[frames[added]], lattice)
-            earlier_k += np.bincount(flat, weights=k, minlength=earlier_k.size)
-            earlier_s += np.bincount(flat, weights=S, minlength=earlier_s.size)
+            np.add.at(earlier_k, flat, k)  # eq. 14, without a lattice-sized array per frame
+            np.add.at(earlier_s, flat, S)
             added += 1
         if added:
             found = _check_stretch(run, poses, group, lattice, earlier_k, earlier_s, half,
@@ -180,8 +177,8 @@ def _check_stretch(run: Run, poses: np.ndarray, group: np.ndarray, lattice: Grid
     s_b = np.zeros(lattice.k.size)
     for t in group:
         flat, k, S = place_local_map(run, t, poses[t], lattice)
-        k_b += np.bincount(flat, weights=k, minlength=k_b.size)
-        s_b += np.bincount(flat, weights=S, minlength=s_b.size)
+        np.add.at(k_b, flat, k)
+        np.add.at(s_b, flat, S)
     known = (k_b > 0).reshape(lattice.shape)
     rows_b, cols_b = np.flatnonzero(known.any(1)), np.flatnonzero(known.any(0))
     # one square window about the stretch for every stretch (the scorer compiles once per
