@@ -94,9 +94,14 @@ def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
     spread = gslam(["run", str(b_file), *settings, "--prior-map", str(d / "A"), "--start",
                     start_text, "--start-sigma", sigma, "--out", str(d / "B-prior-sigma"),
                     "--overwrite"], log)
-    if located:
-        found = gslam(["run", str(b_file), *settings, "--prior-map", str(d / "A"), "--out",
-                       str(d / "B-located"), "--overwrite"], log)
+    if located:  # a start the map cannot tell unambiguously is refused (exit code 2)
+        try:
+            found = gslam(["run", str(b_file), *settings, "--prior-map", str(d / "A"), "--out",
+                           str(d / "B-located"), "--overwrite"], log)
+        except SystemExit as refused:
+            found = None
+            row.update(b_located_refused=str(refused))
+    if located and found is not None:
         got = np.asarray(found["prior_map"]["start"], np.float64)
         row.update(b_located_rms=found["slam_rms_m"],
                    located_start_error_m=float(np.hypot(*(got[:2] - start[:2]))),
