@@ -50,8 +50,13 @@ def run_prefix(run: Run, frames: int) -> Run:
         vo_failed=None if run.vo_failed is None else run.vo_failed[cut])
 
 
+# Not mutual: the reverse search (the whole prior map onto the run's first metres) has almost
+# nothing to overlap and lands anywhere; the refusals by chance, ambiguity and flatness stay.
+LOCATE_PARAMS = AlignParams(mutual=False)
+
+
 def locate_start(prior: GridMap, run: Run, travel: float = 15.0,
-                 params: AlignParams = AlignParams()) -> StartEstimate:
+                 params: AlignParams = LOCATE_PARAMS) -> StartEstimate:
     """The start of ``run`` in ``prior``'s frame from its first ``travel`` metres (all of it
     when shorter). Raises ``AlignmentRefused`` (an InputError) with a message naming the
     prefix when the prior map does not hold that stretch unambiguously."""
