@@ -15,7 +15,7 @@ alignment of these two maps can do. Each trial reports the alignment's error aga
 its standard deviation, z and runner-up, whether ``align_maps`` would refuse it, and the
 error of the GPS-only alignment (each run's path aligned to its own simulated WAAS-like
 receiver, paper appendix, then composed); with ``--self-check``, whether B's map passes its
-own run's check against itself (``gridmap.consistency``; ``gslam merge`` refuses it when not).
+own run's check against itself (``consistency``; ``gslam merge`` refuses it when not).
 Then A of each course is aligned to B of the next
 course (no overlap), ``--cross`` pairs in all: each should be refused.
 """
@@ -127,7 +127,7 @@ def _self_check(course: str, trial: int, path: np.ndarray, config: Config) -> di
     """Trial ``trial``'s B map checked against itself at its own path (the Run simulated again:
     the local maps do not depend on the start pose), as ``gslam run`` checks it; a doubled map
     is refused as ``gslam merge`` refuses it."""
-    from gslam_jax.gridmap.consistency import check_consistency
+    from gslam_jax.consistency import check_consistency
 
     run, _ = simulate_run(course, seed=0, params=localmap_params(config),
                           noise_seed=100 + trial)
@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--figures", default=None, help="write A, B placed and the merge of each "
                     "course's first trial here")
     ap.add_argument("--self-check", action="store_true",
-                    help="also check each B's map against itself (gridmap.consistency, as gslam "
+                    help="also check each B's map against itself (consistency, as gslam "
                          "run does); a doubled map is refused as gslam merge refuses it")
     ap.add_argument("--cross", type=int, default=10,
                     help="pairs of different courses to align (each should be refused)")

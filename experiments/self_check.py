@@ -1,4 +1,4 @@
-"""The map's check against itself (``gridmap.consistency``) against the truth, on the simulator.
+"""The map's check against itself (``consistency``) against the truth, on the simulator.
 
     python -m experiments.self_check --cache maps --courses mars-yard-a arroyo-a maze \
         --trials 10 --json self_check.json
@@ -23,7 +23,7 @@ import numpy as np
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
-from gslam_jax.gridmap.consistency import check_consistency
+from gslam_jax.consistency import check_consistency
 from gslam_jax.loops import arc_length, revisit_error
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params

@@ -10,11 +10,12 @@ Where things live, lowest layer first (``tests/test_layers.py`` keeps imports go
 * ``vo``: the stereo front-end, images -> VO increments -> points -> ``localmap``;
 * ``sim``: the simulator; ``tiled``: the independent copy-on-write reference;
   ``gridmap``: finished maps as values (``GridMap``), their global alignment by the gamma
-  likelihood (``align_maps``), merging (``merge_maps``, ``merge_runs``) and a run's map checked
-  against itself (``check_consistency``: terrain mapped twice);
+  likelihood (``align_maps``) and merging (``merge_maps``, ``merge_runs``);
 * ``metrics``: RMS after the rigid fit, drift, maps at given poses;
 * ``datasets``: the sources of frames, one module each (``datasets.registry``);
   ``relocalise``: where a run starts in an earlier map (``locate_start``);
+  ``consistency``: a run's map checked against itself (``check_consistency``: terrain mapped
+  twice);
 * ``slam``: the host driver, ``run_slam(run, config)``;
 * ``online``: the same filter one frame at a time for a live robot (``Online``);
 * ``gps``: alignment to GPS, UTM, georeferenced outputs; ``tuning``: parameter search, optax
@@ -54,7 +55,7 @@ _EXPORTS = {
     "merge_runs": "gslam_jax.gridmap.merge",
     "load_run_folder": "gslam_jax.gridmap.merge",
     "locate_start": "gslam_jax.relocalise",
-    "check_consistency": "gslam_jax.gridmap.consistency",
+    "check_consistency": "gslam_jax.consistency",
     "Source": "gslam_jax.datasets.registry",
     "load_source": "gslam_jax.app.pipeline",
     "run_pipeline": "gslam_jax.app.pipeline",

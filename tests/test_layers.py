@@ -21,7 +21,7 @@ LAYERS = {
     "vo": 3, "tiled": 3, "gridmap": 3,
     "sim": 4, "metrics": 4,
     "datasets": 5, "loops": 5, "relocalise": 5, "observations": 5,
-    "map_reuse": 6,
+    "map_reuse": 6, "consistency": 6,
     "sizing": 7,
     "slam": 8,
     "gps": 9, "tuning": 9, "online": 9,

@@ -338,7 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "--prior-map: standard deviations of the start pose (metres, radians); the "
                    "particles start spread by them (default 0,0,0: all at --start)")
     p.add_argument("--no-map-check", action="store_true", help="skip checking the finished map "
-                   "against itself (gridmap.consistency: each revisited stretch of the path "
+                   "against itself (consistency: each revisited stretch of the path "
                    "scored against the map built before it; terrain mapped twice is reported and "
                    "recorded in summary.json's map_consistency, and gslam merge refuses it)")
     p.add_argument("--out", type=Path, help="results directory (default results/run-<time>); "

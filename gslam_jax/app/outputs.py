@@ -151,7 +151,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
                   gps_input=None, prior=None, consistency=None) -> dict:
     """Every output file of a run into ``out`` (a staging folder); returns the summary. With a
     ``prior`` map (``map_reuse.PriorMap``) the summary records it (``prior_summary``); with
-    the map's check against itself (``gridmap.consistency.Consistency``), that.
+    the map's check against itself (``consistency.Consistency``), that.
 
     The TUM files carry the dataset's own clock (``Run.time_origin_ns`` added, e.g. EuRoC's
     nanosecond timestamps); ``ground_truth_tum.txt`` holds the frames with a finite

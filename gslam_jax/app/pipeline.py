@@ -158,7 +158,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
     ``prior`` map (``load_prior``) the run starts in it and the results are in its frame.
     ``on_chunk`` and ``chunk`` go to ``slam.run_slam`` (e.g. ``app.viewer``: a callback after
     every ``chunk`` frames; the results do not depend on ``chunk``). With ``map_check`` the
-    map is checked against itself (``gridmap.consistency``: terrain the run mapped twice) and the
+    map is checked against itself (``consistency``: terrain the run mapped twice) and the
     verdict printed and recorded in ``summary.json`` (``map_consistency``).
     """
     from gslam_jax import map_reuse, slam
@@ -189,7 +189,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
                                on_chunk=on_chunk, **({"chunk": chunk} if chunk else {}))
         consistency = None
         if map_check:
-            from gslam_jax.gridmap.consistency import check_consistency
+            from gslam_jax.consistency import check_consistency
             consistency = check_consistency(run, result.path, progress=bar("map self-check"))
         if prior is not None:  # the VO-only map and the figures in the prior's frame too
             loaded = loaded._replace(run=map_reuse.rebase(run, prior.start))

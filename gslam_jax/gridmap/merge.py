@@ -30,7 +30,7 @@ class MapRun(NamedTuple):
     poses [T, 3]; None when the folder has none), when it was aligned to GPS, the pose of its
     map frame in the GPS site frame with the fit's residual RMS (metres), and its own run's
     check of the map against itself (``summary.json``'s ``map_consistency``, written by
-    ``gridmap.consistency``; None when not checked)."""
+    ``consistency``; None when not checked)."""
 
     name: str
     grid: GridMap
