@@ -6,6 +6,7 @@ All NumPy, float64.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -249,15 +250,23 @@ def pose_lattice(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
     return GridMap(np.zeros(shape), np.zeros(shape), (float(lo[0]), float(lo[1])), res)
 
 
+@functools.lru_cache(maxsize=8)
+def _local_centres(L: int, res: float) -> tuple[np.ndarray, np.ndarray]:
+    """x, y [L, L] of a local map's cell centres in the robot frame (computed once per shape,
+    not once per frame)."""
+    centres = (np.arange(L) - L // 2 + 0.5) * res
+    cx, cy = np.meshgrid(centres, centres, indexing="ij")
+    cx.flags.writeable = cy.flags.writeable = False  # shared between calls
+    return cx, cy
+
+
 def place_local_map(run: Run, t: int, pose: np.ndarray, lattice: GridMap
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frame ``t``'s local map placed at ``pose`` [3] on ``lattice`` (``pose_lattice``): the flat
     index of the lattice cell each of its known cells falls in (nearest cell centre), and
     their k and S."""
-    L = run.local_maps.shape[1]
     res = lattice.resolution
-    centres = (np.arange(L) - L // 2 + 0.5) * res
-    cx, cy = np.meshgrid(centres, centres, indexing="ij")
+    cx, cy = _local_centres(run.local_maps.shape[1], res)
     k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[run.obs_index[t]]), -1, 0)
     m = k > 0
     x, y, th = pose
