@@ -234,8 +234,10 @@ def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
     s_map = np.zeros_like(k_map)
     for t in np.flatnonzero(run.obs_index >= 0):
         flat, k, S = place_local_map(run, t, poses[t], lattice)
-        k_map += np.bincount(flat, weights=k, minlength=k_map.size)
-        s_map += np.bincount(flat, weights=S, minlength=s_map.size)
+        # unbuffered adds: work in the local map's cells, not in the lattice's (a bincount
+        # with minlength would allocate the whole lattice at every frame)
+        np.add.at(k_map, flat, k)
+        np.add.at(s_map, flat, S)
     return lattice._replace(k=k_map.reshape(lattice.shape), S=s_map.reshape(lattice.shape))
 
 
