@@ -11,7 +11,7 @@ from __future__ import annotations
 __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJECTIVES",
            "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "PROPOSALS",
            "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS", "SENSORS",
-           "AUTO_ESS_TARGET"]
+           "AUTO_ESS_TARGET", "RANGE_NOISE"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
@@ -19,6 +19,9 @@ MAP_STORES = ("dense", "shared", "auto")  # ``[map] store``; "auto" resolves to 
 # ``[filter] proposal``: the motion model alone (eq. 24) or informed by the local map
 # (``rbpf.proposal``)
 PROPOSALS = ("motion", "informed")
+# ``[filter] range_noise``: none (eq. 26 as in the paper), or a measurement variance per range
+# estimated from the run (``observations.range_noise_profile``) added to each weighed cell
+RANGE_NOISE = ("none", "profile")
 TEMPERING = ("fixed", "adaptive")  # ``[filter] tempering`` (paper's beta / ``tempering``)
 TUNE_OBJECTIVES = ("loglik", "supervised")  # ``gslam tune --objective``
 SEARCH_OBJECTIVES = ("rms", "loglik")  # ``gslam search --objective``

@@ -71,6 +71,10 @@ class FilterSection:
     # "informed": the fit scores every n-th observed cell (as GMapping's lskip skips beams in
     # its scan matching); the weights always use every cell
     proposal_cell_stride: int = 1
+    # "none": eq. 26 as in the paper; "profile": a cell seen from afar has the measurement
+    # variance of its range added to what its map cell predicts (observations.
+    # range_noise_profile, from the run's own local maps; rbpf.importance)
+    range_noise: str = "none"
     seed: int = 0
     # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
     # a CPU, all particles on an accelerator; resolved on the host, sizing.filter_config)
@@ -225,6 +229,8 @@ class Config:
             (f.proposal_span > 0, "filter", "proposal_span", "must be positive"),
             (f.proposal_stages >= 1, "filter", "proposal_stages", "must be at least 1"),
             (f.proposal_cell_stride >= 1, "filter", "proposal_cell_stride", "must be at least 1"),
+            (f.range_noise in choices.RANGE_NOISE, "filter", "range_noise",
+             f"must be one of {', '.join(choices.RANGE_NOISE)}"),
             (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             *((getattr(self.motion, k) >= 0, "motion", k, "must be non-negative")

@@ -15,7 +15,11 @@ from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, RunError, describe_cells
 
 __all__ = ["local_observations", "raw_observations", "ObsSettings", "obs_settings",
-           "refine_observations", "map_observations"]
+           "refine_observations", "map_observations", "range_noise_profile"]
+
+RING_M = 0.5          # width of the range rings of ``range_noise_profile``
+RING_MIN_CELLS = 200  # a ring with fewer observed cells takes the nearer ring's value
+PROFILE_MAPS = 256    # local maps sampled (evenly) for the profile
 
 
 def local_observations(run: Run, min_variance: float, weight: float = 1.0,
@@ -75,3 +79,43 @@ def map_observations(run: Run, config: Config) -> jax.Array:
     """The filter's observations of ``run`` under the config's ``[map]`` settings:
     ``raw_observations`` refined on the device (``refine_observations``)."""
     return refine_observations(jnp.asarray(raw_observations(run)), obs_settings(config))
+
+
+def range_noise_profile(obs: np.ndarray, resolution: float) -> np.ndarray:
+    """[L * L] float32: the variance (m^2) measurement adds to a cell seen at the range of each
+    local cell, estimated from the run's own observations ``obs`` [M, L, L, 2] (k, S).
+
+    Over rings of ``RING_M`` metres of range (from the local map's centre, the robot), the
+    median observed variance S / k of the cells with k >= 1 (at most ``PROFILE_MAPS`` local
+    maps, evenly spaced); the profile is that median made non-decreasing with range, less its
+    value in the nearest ring. The terrain is the same at every range on average, so what grows
+    is the measurement's share: stereo depth noise, and the blur of a local map fused over
+    metres of travel. A ring with fewer than ``RING_MIN_CELLS`` cells takes the nearer ring's
+    value. All zero when no ring has enough cells.
+    """
+    obs = np.asarray(obs, np.float64)
+    L = obs.shape[1]
+    centres = (np.arange(L) - L // 2 + 0.5) * resolution
+    rng = np.hypot(centres[:, None], centres[None, :]).reshape(-1)
+    ring = (rng // RING_M).astype(np.int64)
+    pick = np.unique(np.linspace(0, obs.shape[0] - 1, min(PROFILE_MAPS, obs.shape[0])).astype(int))
+    k = obs[pick, ..., 0].reshape(len(pick), -1)
+    S = obs[pick, ..., 1].reshape(len(pick), -1)
+    seen = k >= 1
+    v = np.where(seen, S / np.where(seen, k, 1.0), np.nan)
+    rings = int(ring.max()) + 1
+    median = np.full(rings, np.nan)
+    for r in range(rings):
+        vals = v[:, ring == r]
+        vals = vals[np.isfinite(vals)]
+        if vals.size >= RING_MIN_CELLS:
+            median[r] = np.median(vals)
+    if not np.isfinite(median).any():
+        return np.zeros(L * L, np.float32)
+    first = int(np.flatnonzero(np.isfinite(median))[0])
+    median[:first] = median[first]
+    for r in range(first + 1, rings):  # a sparse ring: the nearer ring's value
+        if not np.isfinite(median[r]):
+            median[r] = median[r - 1]
+    rising = np.maximum.accumulate(median)
+    return (rising - rising[0])[ring].astype(np.float32)

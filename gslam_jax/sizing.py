@@ -16,6 +16,7 @@ from gslam_jax.config import Config, ConfigError
 from gslam_jax.gridmap import place
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.map_reuse import PriorMap, check_prior, known_box
+from gslam_jax.observations import local_observations, range_noise_profile
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.run import Run, RunError, coordinate_limit, float32_spacing
@@ -204,10 +205,22 @@ def _check_steps(run: Run, memory: str) -> None:
                        f"{memory.split(';')[0]}; check the Run's controls (units?)")
 
 
-def filter_params(config: Config) -> rbpf.FilterParams:
+def filter_params(config: Config, run: Run | None = None) -> rbpf.FilterParams:
+    """The filter's continuous parameters: ``[motion]``, ``[filter]`` beta_prev / beta_new,
+    and with ``[filter] range_noise = "profile"`` the measurement variance per local cell
+    estimated from ``run`` (``observations.range_noise_profile``; ConfigError without a run)."""
     m = config.motion
+    noise = None
+    if config.filter.range_noise == "profile":
+        if run is None:
+            raise ConfigError("[filter] range_noise = \"profile\" is estimated from a whole "
+                              "run's local maps, and none was given up front (the online "
+                              "filter sees frames one at a time); set range_noise = \"none\"")
+        noise = jnp.asarray(range_noise_profile(
+            local_observations(run, config.map.min_variance, config.map.obs_weight,
+                               config.map.min_points), run.resolution))
     return rbpf.FilterParams(
         motion=MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
                             jnp.float32(m.alpha_theta)),
         beta_prev=jnp.float32(config.filter.beta_prev),
-        beta_new=jnp.float32(config.filter.beta_new))
+        beta_new=jnp.float32(config.filter.beta_new), range_noise=noise)

@@ -189,7 +189,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     if prior is not None:
         run = rebase(run, prior.start)
     cfg = filter_config(config, run, prior)
-    params = filter_params(config)
+    params = filter_params(config, run)
     obs = map_observations(run, config)
     T = run.num_frames
     key = jax.random.key(config.filter.seed) if key is None else key

@@ -30,7 +30,7 @@ import numpy as np
 
 from gslam_jax import rbpf
 from gslam_jax.app.results import results_folder
-from gslam_jax.config import Config
+from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.rbpf import maps
 from gslam_jax.run import Run
@@ -334,6 +334,10 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     from gslam_jax.sizing import filter_config, filter_params
 
     config = config or Config()
+    if config.filter.range_noise != "none":
+        raise ConfigError(f"[filter] range_noise = \"{config.filter.range_noise}\": the tiled "
+                          f"reference implements eq. 26 as the paper has it; compare with "
+                          f"range_noise = \"none\"")
     run = run if run is not None else _default_run()
     config = dataclasses.replace(
         config,

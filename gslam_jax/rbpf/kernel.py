@@ -33,7 +33,7 @@ from gslam_jax.rbpf import cells, maps, proposal, resampling, tempering
 from gslam_jax.rbpf.motion import apply_motion
 from gslam_jax.rbpf.paths import backtrack_path, weighted_mean_pose
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
-from gslam_jax.rbpf.importance import log_lambda
+from gslam_jax.rbpf.importance import cell_noise, log_lambda
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Observation,
                                   RunOutput, StepInfo, UpdateInfo, UpdateNoise)
 
@@ -125,14 +125,14 @@ class _Weighed(NamedTuple):
 
 
 def _weigh_block(w: _Weighed, j0: Array, n: int, state: FilterState, obs: Observation,
-                 log_v: Array, unknown_u: Array, params: FilterParams, cfg: FilterConfig
-                 ) -> _Weighed:
+                 log_v: Array, noise: Array | None, unknown_u: Array, params: FilterParams,
+                 cfg: FilterConfig) -> _Weighed:
     """Particles j0 .. j0+n-1: read their footprints, weigh them, add the local map."""
     rows = j0 + jnp.arange(n, dtype=jnp.int32)
     take = partial(lax.dynamic_slice_in_dim, start_index=j0, slice_size=n)
     f = read_footprints(w.maps, maps.known_bits(w.maps, j0, n, cfg), take(state.pose), rows,
                         take(unknown_u), obs, cfg)
-    log_lam = log_lambda(f, log_v, params, cfg)
+    log_lam = log_lambda(f, log_v, params, cfg, noise)
     new = w.maps
     if cfg.update_map:
         # Write only after every read of these maps (the known-cell draws included): the
@@ -152,9 +152,11 @@ def _weigh_and_write(state: FilterState, obs: Observation, unknown_u: Array,
     J = cfg.num_particles
     B = cfg.update_block
     w = _Weighed(state.maps, jnp.zeros((J,), state.log_w.dtype), jnp.zeros((J,), bool))
-    # log v of each observed cell is shared by every particle: computed once, not J times.
+    # log v and the measurement variance of each observed cell are shared by every particle:
+    # computed once, not J times.
     block = partial(_weigh_block, state=state, obs=obs, log_v=cells.log_v_obs(obs.k, obs.S),
-                    unknown_u=unknown_u, params=params, cfg=cfg)
+                    noise=cell_noise(obs.index, params), unknown_u=unknown_u, params=params,
+                    cfg=cfg)
     full, tail = divmod(J, B)
     if full == 1:
         w = block(w, jnp.int32(0), B)

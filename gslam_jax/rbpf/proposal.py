@@ -48,7 +48,7 @@ from jax import Array, lax
 
 from gslam_jax.rbpf import cells, maps
 from gslam_jax.rbpf.footprint import footprint_at, read_borrowed
-from gslam_jax.rbpf.importance import log_lambda
+from gslam_jax.rbpf.importance import cell_noise, log_lambda
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
@@ -157,6 +157,7 @@ def candidate_scorer(store: maps.Maps, mean: Array, chol: Array, unknown_u: Arra
                              unknown_u, cfg)
     obs = thin_observation(obs, cfg.proposal_cell_stride)
     log_v = cells.log_v_obs(obs.k, obs.S)
+    noise = cell_noise(obs.index, params)
 
     def read_maps(flat: Array, on_map: Array) -> tuple[Array, Array]:
         return maps.read(store, rows, flat, on_map, cfg)
@@ -189,7 +190,7 @@ def candidate_scorer(store: maps.Maps, mean: Array, chol: Array, unknown_u: Arra
     def one(g_k: Array) -> Array:
         pose = mean + jnp.einsum("jab,jb->ja", chol, g_k)
         return log_lambda(footprint_at(pose, obs, borrowed, read_cells, cfg), log_v, params,
-                          cfg)
+                          cfg, noise)
 
     def score(g: Array) -> Array:
         return lax.map(one, jnp.swapaxes(g, 0, 1)).T

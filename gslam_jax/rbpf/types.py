@@ -152,6 +152,10 @@ class FilterParams(NamedTuple):
                                         MotionSection.alpha_theta)
     beta_prev: Array | float = FilterSection.beta_prev
     beta_new: Array | float = FilterSection.beta_new
+    # [L * L] variance (m^2) that measurement adds to a cell seen at each local cell's range
+    # (``observations.range_noise_profile``), added to the map's predicted variance when an
+    # observation is weighed (``importance.log_importance``); None: none (the paper)
+    range_noise: Array | None = None
 
 
 class FilterState(NamedTuple):

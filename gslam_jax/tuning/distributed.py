@@ -41,7 +41,7 @@ def evaluate_chunk(values: np.ndarray, run: Run, config: Config, names: tuple[st
     in one call (``evaluation.evaluate`` with ``batch`` = B)."""
     inputs, cfg = slam.run_arrays(run, config)
     key = jax.random.wrap_key_data(np.asarray(key_data))
-    return evaluate(values, key, inputs, sizing.filter_params(config), names, cfg, objective,
+    return evaluate(values, key, inputs, sizing.filter_params(config, run), names, cfg, objective,
                     path, batch=len(values))
 
 

@@ -270,7 +270,7 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     inputs, cfg = slam.run_arrays(run, config)
     if objective == "supervised":
         slam.require_ground_truth(inputs.mask, objective, TuneError)
-    base = sizing.filter_params(config)
+    base = sizing.filter_params(config, run)
     cur = base_values(config)
     cur.update(start or {})
     for n in names:

@@ -138,7 +138,7 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     """
     values = design_values(run, space, design, n, objective, path, seed, values)
     inputs, cfg = slam.run_arrays(run, config)  # evaluate() checks "rms"'s truth
-    base = sizing.filter_params(config)
+    base = sizing.filter_params(config, run)
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:
         raise SearchError("crn=False is not supported by the batched search: every set uses "
