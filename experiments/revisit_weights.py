@@ -16,6 +16,13 @@ map of its own path, and each keeps the weight the likelihood gives it. For ever
 
 This is the measurement behind "more particles close the 100 m Mars Yard circle less often"
 (docs/results.md, "How long a loop closes").
+
+``--at-truth M`` measures instead, with no filter, why: the local maps of the first M metres
+fused at the true poses (eq. 14), and every later local map from 40 m before the revisit scored
+against that map cell by cell, at its true pose and 1 m to its left, as a log-likelihood ratio
+against chance (eq. 26, float64 SciPy, minus its mean over 64 random known cells), per band of
+range; without and with ``[filter] range_noise = "profile"`` (``observations.
+range_noise_profile``: the map cell's S' gets k' n(r)).
 """
 
 from __future__ import annotations
@@ -29,8 +36,9 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from experiments.loop_closure import START_M, circle_file
-from gslam_jax import loops, slam
+from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
+from gslam_jax.observations import local_observations, range_noise_profile
 from gslam_jax.datasets.sim_path import simulate_path
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
@@ -66,6 +74,66 @@ def window_rows(P: np.ndarray, log_w: np.ndarray, truth: np.ndarray, revisit: lo
     return rows
 
 
+def eq26(k, S, kp, Sp):
+    """Eq. 26 in float64 (SciPy's gammaln): log density of v = S / k given the cell (k', S')."""
+    from scipy.special import gammaln
+
+    k2, S2 = k + kp, S + Sp
+    return (gammaln(k2 / 2) - gammaln(k / 2) - gammaln(kp / 2)
+            + 0.5 * (k * np.log(S) + kp * np.log(Sp) - k2 * np.log(S2)) - np.log(S / k))
+
+
+def truth_scores(run, config, revisit: loops.Revisit, map_m: float, bands=(0, 4, 7, 11),
+                 chance_cells: int = 64) -> list[dict]:
+    """Per local map from 40 m of travel before the revisit to the end: the log-likelihood
+    ratio against chance of its cells on the map of the first ``map_m`` metres, at the true
+    pose (per cell, by range band, and summed) and summed 1 m to the left, without and with
+    the range profile. See the module docstring."""
+    truth = run.ground_truth
+    arc = loops.arc_length(truth)
+    obs = local_observations(run, config.map.min_variance, config.map.obs_weight,
+                             config.map.min_points)
+    noise = range_noise_profile(obs, run.resolution).reshape(obs.shape[1:3])
+    lattice = metrics.pose_lattice(run, truth, 2.0)
+    K, S = np.zeros(lattice.k.size), np.zeros(lattice.k.size)
+    frames = np.flatnonzero(run.obs_index >= 0)
+    for t in frames[arc[frames] < map_m]:
+        flat, k, s = metrics.place_local_map(run, t, truth[t], lattice)
+        np.add.at(K, flat, k)
+        np.add.at(S, flat, s)
+    known = np.flatnonzero(K > 0)
+    chance = np.random.default_rng(0).choice(known, chance_cells)
+    L = obs.shape[1]
+    centres = (np.arange(L) - L // 2 + 0.5) * run.resolution
+    rng = np.hypot(centres[:, None], centres[None, :])
+
+    def lr(t, pose, with_noise):
+        flat, k, s = metrics.place_local_map(run, t, pose, lattice)
+        seen = obs[run.obs_index[t], ..., 0] > 0
+        n = noise[seen] if with_noise else np.zeros(int(seen.sum()))
+        on = K[flat] > 0
+        k, s, n, r = k[on], s[on], n[on], rng[seen][on]
+        lam = eq26(k, s, K[flat][on], S[flat][on] + K[flat][on] * n)
+        base = np.mean([eq26(k, s, K[c], S[c] + K[c] * n) for c in chance], axis=0)
+        return lam - base, r
+
+    rows = []
+    for t in frames[(arc[frames] > arc[revisit.j] - 40.0)]:
+        pose = truth[t]
+        left = pose + np.array([-np.sin(pose[2]), np.cos(pose[2]), 0.0])
+        row = {"frame": int(t), "travel_m": float(arc[t])}
+        for name, with_noise in (("none", False), ("profile", True)):
+            g, r = lr(t, pose, with_noise)
+            g_left, _ = lr(t, left, with_noise)
+            row[name] = {"cells": int(g.size), "total": float(g.sum()),
+                         "total_1m_left": float(g_left.sum()),
+                         "per_cell_by_band": [float(g[(r >= a) & (r < b)].mean())
+                                              if np.any((r >= a) & (r < b)) else None
+                                              for a, b in zip(bands[:-1], bands[1:])]}
+        rows.append(row)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--circle", type=float, default=100.0, help="perimeter, m")
@@ -77,6 +145,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--window", type=float, default=5.0, help="metres of travel per window")
     ap.add_argument("--from-m", type=float, default=None,
                     help="first window's start (default: 40 m before the revisit)")
+    ap.add_argument("--at-truth", type=float, metavar="M",
+                    help="no filter: score later local maps at the truth against the map of "
+                         "the first M metres (see the module docstring)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
 
@@ -92,6 +163,22 @@ def main(argv: list[str] | None = None) -> None:
         revisit = loops.find_revisit(run.ground_truth, START_M, 0.5 * args.circle)
         if revisit is None:
             raise SystemExit(f"seed {seed}: the driven circle has no revisit within 2 m")
+        if args.at_truth is not None:
+            rows = truth_scores(run, config, revisit, args.at_truth)
+            print(f"seed {seed}: local maps scored at the truth against the map of the first "
+                  f"{args.at_truth:g} m (log-likelihood ratio against chance)")
+            print("  travel   cells | none: per cell 0-4/4-7/7-11 m   total  1 m left | "
+                  "profile: per cell 0-4/4-7/7-11 m   total  1 m left")
+            fmt = lambda v: "   -  " if v is None else f"{v:+6.2f}"  # noqa: E731
+            for r in rows[::3]:
+                a, b = r["none"], r["profile"]
+                print(f"  {r['travel_m']:6.1f}  {a['cells']:5d} | "
+                      f"{' '.join(fmt(v) for v in a['per_cell_by_band'])} "
+                      f"{a['total']:+8.0f} {a['total_1m_left']:+8.0f} | "
+                      f"{' '.join(fmt(v) for v in b['per_cell_by_band'])} "
+                      f"{b['total']:+8.0f} {b['total_1m_left']:+8.0f}")
+            out.append({"seed": seed, "revisit": list(revisit), "at_truth": rows})
+            continue
         cfg = apply_overrides(config, [f"filter.particles={args.particles}",
                                        f"filter.seed={seed}", "filter.resample_ratio=0",
                                        "filter.tempering=fixed"])
