@@ -15,7 +15,7 @@ from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, RunError, describe_cells
 
 __all__ = ["local_observations", "raw_observations", "ObsSettings", "obs_settings",
-           "refine_observations", "map_observations", "range_noise_profile"]
+           "refine_observations", "map_observations", "range_noise_profile", "run_range_noise"]
 
 RING_M = 0.5          # width of the range rings of ``range_noise_profile``
 RING_MIN_CELLS = 200  # a ring with fewer observed cells takes the nearer ring's value
@@ -83,24 +83,23 @@ def map_observations(run: Run, config: Config) -> jax.Array:
 
 def range_noise_profile(obs: np.ndarray, resolution: float) -> np.ndarray:
     """[L * L] float32: the variance (m^2) measurement adds to a cell seen at the range of each
-    local cell, estimated from the run's own observations ``obs`` [M, L, L, 2] (k, S).
+    local cell, estimated from observations ``obs`` [M, L, L, 2] (k, S) of a run.
 
     Over rings of ``RING_M`` metres of range (from the local map's centre, the robot), the
-    median observed variance S / k of the cells with k >= 1 (at most ``PROFILE_MAPS`` local
-    maps, evenly spaced); the profile is that median made non-decreasing with range, less its
-    value in the nearest ring. The terrain is the same at every range on average, so what grows
-    is the measurement's share: stereo depth noise, and the blur of a local map fused over
-    metres of travel. A ring with fewer than ``RING_MIN_CELLS`` cells takes the nearer ring's
-    value. All zero when no ring has enough cells.
+    median observed variance S / k of the cells with k >= 1; the profile is that median made
+    non-decreasing with range, less its value in the nearest ring. The terrain is the same at
+    every range on average, so what grows is the measurement's share: stereo depth noise, and
+    the blur of a local map fused over metres of travel. A ring with fewer than
+    ``RING_MIN_CELLS`` cells takes the nearer ring's value. All zero when no ring has enough
+    cells.
     """
     obs = np.asarray(obs, np.float64)
     L = obs.shape[1]
     centres = (np.arange(L) - L // 2 + 0.5) * resolution
     rng = np.hypot(centres[:, None], centres[None, :]).reshape(-1)
     ring = (rng // RING_M).astype(np.int64)
-    pick = np.unique(np.linspace(0, obs.shape[0] - 1, min(PROFILE_MAPS, obs.shape[0])).astype(int))
-    k = obs[pick, ..., 0].reshape(len(pick), -1)
-    S = obs[pick, ..., 1].reshape(len(pick), -1)
+    k = obs[..., 0].reshape(obs.shape[0], -1)
+    S = obs[..., 1].reshape(obs.shape[0], -1)
     seen = k >= 1
     v = np.where(seen, S / np.where(seen, k, 1.0), np.nan)
     rings = int(ring.max()) + 1
@@ -119,3 +118,18 @@ def range_noise_profile(obs: np.ndarray, resolution: float) -> np.ndarray:
             median[r] = median[r - 1]
     rising = np.maximum.accumulate(median)
     return (rising - rising[0])[ring].astype(np.float32)
+
+
+def run_range_noise(run: Run, config: Config) -> np.ndarray:
+    """``range_noise_profile`` of ``run`` under the config's ``[map]`` settings, from at most
+    ``PROFILE_MAPS`` of its local maps, evenly spaced (converted alone, in float64; a cell not
+    finite there is left out, as the profile's medians skip NaN)."""
+    if run.num_local_maps == 0:
+        return np.zeros(run.local_maps.shape[1] ** 2, np.float32)
+    pick = np.unique(np.linspace(0, run.num_local_maps - 1,
+                                 min(PROFILE_MAPS, run.num_local_maps)).astype(int))
+    m = config.map
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        obs = cells.obs_from_stats(run.local_maps[pick], m.min_variance, m.obs_weight,
+                                   m.min_points)
+    return range_noise_profile(obs, run.resolution)

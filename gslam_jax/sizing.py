@@ -16,7 +16,7 @@ from gslam_jax.config import Config, ConfigError
 from gslam_jax.gridmap import place
 from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
 from gslam_jax.map_reuse import PriorMap, check_prior, known_box
-from gslam_jax.observations import local_observations, range_noise_profile
+from gslam_jax.observations import run_range_noise
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.run import Run, RunError, coordinate_limit, float32_spacing
@@ -216,9 +216,7 @@ def filter_params(config: Config, run: Run | None = None) -> rbpf.FilterParams:
             raise ConfigError("[filter] range_noise = \"profile\" is estimated from a whole "
                               "run's local maps, and none was given up front (the online "
                               "filter sees frames one at a time); set range_noise = \"none\"")
-        noise = jnp.asarray(range_noise_profile(
-            local_observations(run, config.map.min_variance, config.map.obs_weight,
-                               config.map.min_points), run.resolution))
+        noise = jnp.asarray(run_range_noise(run, config))
     return rbpf.FilterParams(
         motion=MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
                             jnp.float32(m.alpha_theta)),

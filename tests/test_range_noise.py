@@ -127,6 +127,10 @@ def test_filter_params_estimates_the_profile_only_when_asked():
     prof = apply_overrides(config, ["filter.range_noise=profile"])
     noise = sizing.filter_params(prof, run).range_noise
     assert noise.shape == (run.local_maps.shape[1] ** 2,)
+    # a short run: every local map is used, as the filter converts them
+    from gslam_jax.observations import local_observations
+    whole = range_noise_profile(local_observations(run, config.map.min_variance), run.resolution)
+    np.testing.assert_allclose(np.asarray(noise), whole, rtol=1e-5, atol=1e-12)
     with pytest.raises(ConfigError, match="range_noise"):
         sizing.filter_params(prof)  # no run: named, not silently dropped
 
