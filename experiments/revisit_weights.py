@@ -20,9 +20,9 @@ This is the measurement behind "more particles close the 100 m Mars Yard circle 
 ``--at-truth M`` measures instead, with no filter, why: the local maps of the first M metres
 fused at the true poses (eq. 14), and every later local map from 40 m before the revisit scored
 against that map cell by cell, at its true pose and 1 m to its left, as a log-likelihood ratio
-against chance (eq. 26, float64 SciPy, minus its mean over 64 random known cells), per band of
-range; without and with ``[filter] range_noise = "profile"`` (``observations.
-range_noise_profile``: the map cell's S' gets k' n(r)).
+against chance (the filter's eq. 26, ``cells.log_predictive_integer``, minus its mean over 64
+random known cells), per band of range; without and with ``[filter] range_noise = "profile"``
+(``observations.run_range_noise``: the map cell's S' gets k' n(r)).
 """
 
 from __future__ import annotations
@@ -32,13 +32,15 @@ import json
 import tempfile
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 from scipy.stats import spearmanr
 
 from experiments.loop_closure import START_M, circle_file
 from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
-from gslam_jax.observations import local_observations, range_noise_profile
+from gslam_jax.observations import run_range_noise
+from gslam_jax.rbpf import cells
 from gslam_jax.datasets.sim_path import simulate_path
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
@@ -74,15 +76,6 @@ def window_rows(P: np.ndarray, log_w: np.ndarray, truth: np.ndarray, revisit: lo
     return rows
 
 
-def eq26(k, S, kp, Sp):
-    """Eq. 26 in float64 (SciPy's gammaln): log density of v = S / k given the cell (k', S')."""
-    from scipy.special import gammaln
-
-    k2, S2 = k + kp, S + Sp
-    return (gammaln(k2 / 2) - gammaln(k / 2) - gammaln(kp / 2)
-            + 0.5 * (k * np.log(S) + kp * np.log(Sp) - k2 * np.log(S2)) - np.log(S / k))
-
-
 def truth_scores(run, config, revisit: loops.Revisit, map_m: float, bands=(0, 4, 7, 11),
                  chance_cells: int = 64) -> list[dict]:
     """Per local map from 40 m of travel before the revisit to the end: the log-likelihood
@@ -91,9 +84,8 @@ def truth_scores(run, config, revisit: loops.Revisit, map_m: float, bands=(0, 4,
     the range profile. See the module docstring."""
     truth = run.ground_truth
     arc = loops.arc_length(truth)
-    obs = local_observations(run, config.map.min_variance, config.map.obs_weight,
-                             config.map.min_points)
-    noise = range_noise_profile(obs, run.resolution).reshape(obs.shape[1:3])
+    L = run.local_maps.shape[1]
+    noise = run_range_noise(run, config).reshape(L, L)
     lattice = metrics.pose_lattice(run, truth, 2.0)
     K, S = np.zeros(lattice.k.size), np.zeros(lattice.k.size)
     frames = np.flatnonzero(run.obs_index >= 0)
@@ -103,18 +95,22 @@ def truth_scores(run, config, revisit: loops.Revisit, map_m: float, bands=(0, 4,
         np.add.at(S, flat, s)
     known = np.flatnonzero(K > 0)
     chance = np.random.default_rng(0).choice(known, chance_cells)
-    L = obs.shape[1]
     centres = (np.arange(L) - L // 2 + 0.5) * run.resolution
     rng = np.hypot(centres[:, None], centres[None, :])
 
     def lr(t, pose, with_noise):
         flat, k, s = metrics.place_local_map(run, t, pose, lattice)
-        seen = obs[run.obs_index[t], ..., 0] > 0
+        seen = cells.obs_from_stats(run.local_maps[run.obs_index[t]])[..., 0] > 0  # as placed
         n = noise[seen] if with_noise else np.zeros(int(seen.sum()))
         on = K[flat] > 0
         k, s, n, r = k[on], s[on], n[on], rng[seen][on]
-        lam = eq26(k, s, K[flat][on], S[flat][on] + K[flat][on] * n)
-        base = np.mean([eq26(k, s, K[c], S[c] + K[c] * n) for c in chance], axis=0)
+
+        def eq26(kp, Sp):  # the filter's float32 form, with the map cell's S' + k' n
+            return np.asarray(cells.log_predictive_integer(
+                jnp.float32(k), jnp.float32(s), jnp.float32(kp), jnp.float32(Sp + kp * n)))
+
+        lam = eq26(K[flat][on], S[flat][on])
+        base = eq26(K[chance][:, None], S[chance][:, None]).mean(axis=0)  # [chance, cells]
         return lam - base, r
 
     rows = []
