@@ -30,8 +30,10 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
+from functools import partial
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.stats import spearmanr
@@ -39,10 +41,10 @@ from scipy.stats import spearmanr
 from experiments.loop_closure import START_M, circle_file
 from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
-from gslam_jax.observations import run_range_noise
-from gslam_jax.rbpf import cells
 from gslam_jax.datasets.sim_path import simulate_path
 from gslam_jax.machine import environment
+from gslam_jax.observations import run_range_noise
+from gslam_jax.rbpf import cells
 from gslam_jax.vo.localmap import localmap_params
 
 
@@ -95,6 +97,7 @@ def truth_scores(run, config, revisit: loops.Revisit, map_m: float, bands=(0, 4,
         np.add.at(S, flat, s)
     known = np.flatnonzero(K > 0)
     chance = np.random.default_rng(0).choice(known, chance_cells)
+    log_predictive = jax.jit(cells.log_predictive_integer)
     centres = (np.arange(L) - L // 2 + 0.5) * run.resolution
     rng = np.hypot(centres[:, None], centres[None, :])
 
@@ -105,9 +108,15 @@ def truth_scores(run, config, revisit: loops.Revisit, map_m: float, bands=(0, 4,
         on = K[flat] > 0
         k, s, n, r = k[on], s[on], n[on], rng[seen][on]
 
-        def eq26(kp, Sp):  # the filter's float32 form, with the map cell's S' + k' n
-            return np.asarray(cells.log_predictive_integer(
-                jnp.float32(k), jnp.float32(s), jnp.float32(kp), jnp.float32(Sp + kp * n)))
+        def eq26(kp, Sp):
+            """The filter's float32 eq. 26 of these cells against map cells (k', S' + k' n),
+            padded to L * L cells so that one compilation serves every local map."""
+            kp, Sp = np.broadcast_arrays(kp, Sp + kp * n)
+            pad = [(0, 0)] * (kp.ndim - 1) + [(0, L * L - k.size)]
+            one = partial(np.pad, pad_width=pad, constant_values=1.0)
+            out = log_predictive(*(jnp.float32(one(np.broadcast_to(x, kp.shape)))
+                                   for x in (k, s, kp, Sp)))
+            return np.asarray(out)[..., :k.size]
 
         lam = eq26(K[flat][on], S[flat][on])
         base = eq26(K[chance][:, None], S[chance][:, None]).mean(axis=0)  # [chance, cells]
