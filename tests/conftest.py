@@ -1,0 +1,31 @@
+"""Test-session set-up: one persistent JAX compilation cache for the whole session.
+
+Most of the suite's time is XLA compiling the same filter programs again: in each xdist worker,
+and in each ``gslam`` command a test runs as a subprocess. JAX's persistent cache keys an
+executable on its HLO, the compiler flags, the JAX version and the device, so a hit is the same
+program as a fresh compilation, and the numbers are unchanged (the determinism tests compare
+bits). The cache goes to ``GSLAM_TEST_JAX_CACHE`` (unset: a folder under the system's temporary
+directory; empty: no cache), and is handed to subprocesses through the environment. A cache the
+user set (``JAX_COMPILATION_CACHE_DIR``) is left as it is.
+"""
+
+from __future__ import annotations
+
+import getpass
+import os
+import tempfile
+from pathlib import Path
+
+
+def _cache_dir() -> str:
+    chosen = os.environ.get("GSLAM_TEST_JAX_CACHE")
+    if chosen is not None:
+        return chosen
+    return str(Path(tempfile.gettempdir()) / f"gslam-jax-test-cache-{getpass.getuser()}")
+
+
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ and _cache_dir():
+    # Environment variables, before JAX is imported: this process and every subprocess read them.
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _cache_dir()
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
