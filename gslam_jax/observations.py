@@ -15,7 +15,8 @@ from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, RunError, describe_cells
 
 __all__ = ["local_observations", "raw_observations", "ObsSettings", "obs_settings",
-           "refine_observations", "map_observations", "range_noise_profile", "run_range_noise"]
+           "refine_observations", "map_observations", "range_noise_profile", "run_range_noise",
+           "RunningRangeNoise"]
 
 RING_M = 0.5          # width of the range rings of ``range_noise_profile``
 RING_MIN_CELLS = 200  # a ring with fewer observed cells takes the nearer ring's value
@@ -133,3 +134,44 @@ def run_range_noise(run: Run, config: Config) -> np.ndarray:
         obs = cells.obs_from_stats(run.local_maps[pick], m.min_variance, m.obs_weight,
                                    m.min_points)
     return range_noise_profile(obs, run.resolution)
+
+
+class RunningRangeNoise:
+    """``range_noise_profile`` kept up to date as local maps arrive one at a time, for a filter
+    that has no whole run up front (``online.Online``).
+
+    It keeps the observations of at most ``PROFILE_MAPS`` of the maps seen so far, evenly
+    spaced: every map until the buffer is full, then every other one kept and every second
+    map taken, and so on. The profile is estimated again when the count of maps seen is a power
+    of two or a multiple of ``PROFILE_MAPS`` (1, 2, 4, ..., 256, 512, 768, ...), so its cost
+    per map stays bounded. It is causal: a map is weighed with the profile of the maps up to
+    and including it, where the batch run (``run_range_noise``) uses the maps of the whole run.
+    After n maps, n a power of two up to ``PROFILE_MAPS``, the two profiles are equal.
+    """
+
+    def __init__(self, config: Config, local_size: int, resolution: float):
+        self._map = config.map
+        self._resolution = float(resolution)
+        self._kept: list[np.ndarray] = []  # [L, L, 2] float64 of maps 0, stride, 2 stride, ...
+        self._stride = 1
+        self.seen = 0
+        self.profile = np.zeros(int(local_size) ** 2, np.float32)
+
+    def add(self, stats: np.ndarray) -> bool:
+        """Take the statistics [L, L, 3] (n, sum z, sum z^2) of the next local map; True when
+        the profile was estimated again."""
+        if self.seen % self._stride == 0:
+            m = self._map
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                obs = cells.obs_from_stats(np.asarray(stats, np.float64)[None], m.min_variance,
+                                           m.obs_weight, m.min_points)[0]
+            self._kept.append(obs)
+            if len(self._kept) > PROFILE_MAPS:
+                self._kept = self._kept[::2]
+                self._stride *= 2
+        self.seen += 1
+        n = self.seen
+        if n & (n - 1) == 0 or n % PROFILE_MAPS == 0:
+            self.profile = range_noise_profile(np.stack(self._kept), self._resolution)
+            return True
+        return False

@@ -1,12 +1,14 @@
 """Gamma-SLAM on a live robot: frames pushed one at a time, the estimate after each.
 
 ``Online`` drives the same kernel as ``slam.run_slam`` (``rbpf.scan_frames`` over one frame,
-``observations.refine_observations``, ``sizing.filter_params``, ``sizing.extent_filter_config``), one
-jitted call per frame, compiled at the first frame and never again: every frame has the same
-shapes (a frame without a local map carries a zero one and is not updated). Frame t's PRNG key
-is ``fold_in(key, t)``, which under JAX's partitionable threefry (the default) is
-``rbpf.frame_keys(key, T)[t]``: on the same frames, the same seed and the same map, the poses
-are the batch run's.
+``observations.refine_observations``, ``sizing.filter_params``,
+``sizing.extent_filter_config``), one jitted call per frame, compiled at the first frame and
+never again: every frame has the same shapes (a frame without a local map carries a zero one
+and is not updated). Frame t's PRNG key is ``fold_in(key, t)``, which under JAX's partitionable
+threefry (the default) is ``rbpf.frame_keys(key, T)[t]``: on the same frames, the same seed and
+the same map, the poses are the batch run's. With ``[filter] range_noise = "profile"`` the
+profile is a running estimate from the maps pushed so far (``observations.RunningRangeNoise``;
+the batch run's is from the whole run), so there the two differ.
 
 A live robot has no path yet, so the map cannot be sized from it: its extent is given (a
 ``sizing.MapExtent``, or the side in metres of the square the robot drives in, centred on the
@@ -146,7 +148,11 @@ class Online:
                                                        f" x {W * cfg.resolution:.4g} m)")
         self._check_reach(cfg)
         self.cfg = cfg
-        self.params = sizing.filter_params(config)
+        self._range_noise = (
+            observations.RunningRangeNoise(config, cfg.local_size, cfg.resolution)
+            if config.filter.range_noise == "profile" else None)
+        self.params = sizing.filter_params(
+            config, range_noise=None if self._range_noise is None else self._range_noise.profile)
         self.settings = observations.obs_settings(config)
         self.key = jax.random.key(config.filter.seed if seed is None else seed)
         self.state = rbpf.init(cfg, jnp.asarray(self.start, jnp.float32))
@@ -174,6 +180,12 @@ class Online:
     @property
     def frames(self) -> int:
         return len(self._times)
+
+    @property
+    def range_noise(self) -> np.ndarray | None:
+        """[L * L] the running ``[filter] range_noise = "profile"`` estimate the weights use
+        now (``observations.RunningRangeNoise``); None with "none"."""
+        return None if self._range_noise is None else self._range_noise.profile
 
     def _observation(self, stats: np.ndarray) -> jax.Array:
         """Raw observation [L, L, 2] of local-map statistics [L, L, 3], as ``run_slam``'s."""
@@ -208,6 +220,9 @@ class Online:
                              f"{self._times[-1]} s")
         raw = self._zero_obs if local_map is None else self._observation(local_map)
         t0 = time.perf_counter()
+        if local_map is not None and self._range_noise is not None \
+                and self._range_noise.add(local_map):  # same shape: no recompilation
+            self.params = self.params._replace(range_noise=jnp.asarray(self._range_noise.profile))
         self.state, (info, best, mean) = online_step(
             self.state, self.key, jnp.int32(t), jnp.asarray(u, jnp.float32), raw,
             jnp.bool_(local_map is not None), self.settings, self.params, self.cfg)

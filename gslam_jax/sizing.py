@@ -205,18 +205,22 @@ def _check_steps(run: Run, memory: str) -> None:
                        f"{memory.split(';')[0]}; check the Run's controls (units?)")
 
 
-def filter_params(config: Config, run: Run | None = None) -> rbpf.FilterParams:
+def filter_params(config: Config, run: Run | None = None,
+                  range_noise: np.ndarray | None = None) -> rbpf.FilterParams:
     """The filter's continuous parameters: ``[motion]``, ``[filter]`` beta_prev / beta_new,
-    and with ``[filter] range_noise = "profile"`` the measurement variance per local cell
-    estimated from ``run`` (``observations.range_noise_profile``; ConfigError without a run)."""
+    and with ``[filter] range_noise = "profile"`` the measurement variance per local cell:
+    ``range_noise`` [L * L] when given (``online.Online``'s running estimate), else estimated
+    from ``run`` (``observations.run_range_noise``; ConfigError with neither)."""
     m = config.motion
     noise = None
     if config.filter.range_noise == "profile":
-        if run is None:
-            raise ConfigError("[filter] range_noise = \"profile\" is estimated from a whole "
-                              "run's local maps, and none was given up front (the online "
-                              "filter sees frames one at a time); set range_noise = \"none\"")
-        noise = jnp.asarray(run_range_noise(run, config))
+        if range_noise is not None:
+            noise = jnp.asarray(range_noise, jnp.float32)
+        elif run is None:
+            raise ConfigError("[filter] range_noise = \"profile\" is estimated from the run's "
+                              "local maps, and neither the run nor a profile was given")
+        else:
+            noise = jnp.asarray(run_range_noise(run, config))
     return rbpf.FilterParams(
         motion=MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
                             jnp.float32(m.alpha_theta)),

@@ -121,3 +121,40 @@ def test_bad_frames_are_refused_before_the_filter(frames, batch):
         Online(CONFIG, 10.0, start_pose=[0.0, 1.0])
     with pytest.raises(ConfigError, match="either filter_config or map_extent"):
         Online(CONFIG, 10.0, filter_config=batch[1])
+
+
+def test_a_range_noise_profile_is_estimated_as_the_frames_come(frames, batch, monkeypatch):
+    """``[filter] range_noise = "profile"`` online: no whole run up front, so the profile is a
+    running estimate (``RunningRangeNoise``). After n maps, n a power of two, it is the batch
+    estimate of a run cut after those n maps; it changes the weights; one compilation."""
+    import dataclasses
+
+    from gslam_jax import observations
+    from gslam_jax.observations import run_range_noise
+
+    # 64 x 64 local maps, 15 of them; this world's variance does not grow with range, so the
+    # profile is noise (not zero after 1, 2 and 4 maps, zero after 8)
+    monkeypatch.setattr(observations, "RING_MIN_CELLS", 50)
+    run, _ = frames
+    _, cfg = batch
+    config = dataclasses.replace(CONFIG, filter=dataclasses.replace(CONFIG.filter,
+                                                                    range_noise="profile"))
+    live, plain = Online(config, filter_config=cfg), Online(CONFIG, filter_config=cfg)
+    assert live.range_noise is not None and not live.range_noise.any()
+    assert plain.range_noise is None
+    compiled, checked, nonzero = None, 0, 0
+    for t in range(run.num_frames):
+        m = int(run.obs_index[t])
+        local = run.local_maps[m] if m >= 0 else None
+        live.push(run.controls[t], local, run.timestamps[t])
+        plain.push(run.controls[t], local, run.timestamps[t])
+        compiled = compiled or online_step._cache_size()
+        n = m + 1
+        if m >= 0 and n & (n - 1) == 0:
+            cut = run._replace(local_maps=run.local_maps[:n])
+            np.testing.assert_array_equal(live.range_noise, run_range_noise(cut, config))
+            checked += 1
+            nonzero += bool(live.range_noise.any())
+    assert checked == 4 and nonzero >= 1
+    assert online_step._cache_size() == compiled  # a new profile is a new value, not a shape
+    assert not np.array_equal(live.particles().weight, plain.particles().weight)

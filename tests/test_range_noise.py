@@ -149,3 +149,41 @@ def test_compare_refuses_a_noise_the_tiled_reference_lacks():
     with pytest.raises(ConfigError, match="tiled reference"):
         _compare(None, config, print, particles=2, unknown_cells=None, tile_size=None, seed=0,
                  store=None, pool_tiles=None)
+
+
+def test_running_profile_keeps_evenly_spaced_maps_and_is_causal(monkeypatch):
+    """``RunningRangeNoise`` with room for 4 maps, fed 12 distinct ones: it keeps maps 0, 4, 8
+    (every map, then every other, then every fourth) and estimates again at 1, 2, 4, 8 and 12
+    maps, each time the profile of exactly the maps kept so far (computed here directly)."""
+    import gslam_jax.observations as observations
+    from gslam_jax.rbpf import cells
+
+    monkeypatch.setattr(observations, "PROFILE_MAPS", 4)
+    monkeypatch.setattr(observations, "RING_MIN_CELLS", 20)
+    config, L, res = Config(), 32, 0.16
+    centres = (np.arange(L) - L // 2 + 0.5) * res
+    r2 = centres[:, None] ** 2 + centres[None, :] ** 2
+    rng = np.random.default_rng(4)
+    maps = []
+    for m in range(12):  # variance a + b_m r^2, with a slope of its own per map
+        var = 1e-4 + (m + 1) * 1e-5 * r2
+        n = rng.integers(3, 9, (L, L)).astype(np.float64)
+        z = rng.normal(0, 1, (L, L, 9)) * np.sqrt(var)[..., None]
+        z = np.where(np.arange(9) < n[..., None], z, 0.0)
+        maps.append(np.stack([n, z.sum(-1), (z ** 2).sum(-1)], -1))
+
+    def direct(picked):
+        obs = cells.obs_from_stats(np.stack([maps[i] for i in picked]), config.map.min_variance,
+                                   config.map.obs_weight, config.map.min_points)
+        return range_noise_profile(obs, res)
+
+    running = observations.RunningRangeNoise(config, L, res)
+    assert not running.profile.any() and running.profile.shape == (L * L,)
+    estimated_at, expect = [], {1: [0], 2: [0, 1], 4: [0, 1, 2, 3], 8: [0, 2, 4, 6],
+                                12: [0, 4, 8]}
+    for m in range(12):
+        if running.add(maps[m]):
+            estimated_at.append(m + 1)
+            np.testing.assert_array_equal(running.profile, direct(expect[m + 1]))
+    assert estimated_at == [1, 2, 4, 8, 12]
+    assert running.profile.any() and running.seen == 12
