@@ -98,8 +98,7 @@ def truth_scores(run, config, revisit: loops.Revisit, map_m: float, bands=(0, 4,
     known = np.flatnonzero(K > 0)
     chance = np.random.default_rng(0).choice(known, chance_cells)
     log_predictive = jax.jit(cells.log_predictive_integer)
-    centres = (np.arange(L) - L // 2 + 0.5) * run.resolution
-    rng = np.hypot(centres[:, None], centres[None, :])
+    rng = np.hypot(*metrics.local_cell_centres(L, float(run.resolution)))
 
     def lr(t, pose, with_noise):
         flat, k, s = metrics.place_local_map(run, t, pose, lattice)

@@ -19,7 +19,7 @@ from gslam_jax.run import Run, known_positions
 __all__ = ["RigidFit", "rigid_fit_2d", "apply_rigid", "rms_after_fit", "final_position_error",
            "drift_per_distance", "path_length", "trajectory_metrics", "errors_over_known_frames",
            "drift_over_known_frames", "ground_truth_in_map_frame", "ess_summary", "GridMap",
-           "pose_map", "pose_lattice", "place_local_map", "vo_only_map"]
+           "pose_map", "pose_lattice", "place_local_map", "vo_only_map", "local_cell_centres"]
 
 
 class RigidFit(NamedTuple):
@@ -253,7 +253,7 @@ def pose_lattice(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
 
 
 @functools.lru_cache(maxsize=8)
-def _local_centres(L: int, res: float) -> tuple[np.ndarray, np.ndarray]:
+def local_cell_centres(L: int, res: float) -> tuple[np.ndarray, np.ndarray]:
     """x, y [L, L] of a local map's cell centres in the robot frame (computed once per shape,
     not once per frame)."""
     centres = (np.arange(L) - L // 2 + 0.5) * res
@@ -268,7 +268,7 @@ def place_local_map(run: Run, t: int, pose: np.ndarray, lattice: GridMap
     index of the lattice cell each of its known cells falls in (nearest cell centre), and
     their k and S."""
     res = lattice.resolution
-    cx, cy = _local_centres(run.local_maps.shape[1], res)
+    cx, cy = local_cell_centres(run.local_maps.shape[1], res)
     k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[run.obs_index[t]]), -1, 0)
     m = k > 0
     x, y, th = pose

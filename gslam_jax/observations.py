@@ -10,7 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax.config import Config
+from gslam_jax.config import Config, MapSection
+from gslam_jax.metrics import local_cell_centres
 from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, RunError, describe_cells
 
@@ -96,8 +97,7 @@ def range_noise_profile(obs: np.ndarray, resolution: float) -> np.ndarray:
     """
     obs = np.asarray(obs, np.float64)
     L = obs.shape[1]
-    centres = (np.arange(L) - L // 2 + 0.5) * resolution
-    rng = np.hypot(centres[:, None], centres[None, :]).reshape(-1)
+    rng = np.hypot(*local_cell_centres(L, float(resolution))).reshape(-1)
     ring = (rng // RING_M).astype(np.int64)
     k = obs[..., 0].reshape(obs.shape[0], -1)
     S = obs[..., 1].reshape(obs.shape[0], -1)
@@ -123,17 +123,22 @@ def range_noise_profile(obs: np.ndarray, resolution: float) -> np.ndarray:
 
 def run_range_noise(run: Run, config: Config) -> np.ndarray:
     """``range_noise_profile`` of ``run`` under the config's ``[map]`` settings, from at most
-    ``PROFILE_MAPS`` of its local maps, evenly spaced (converted alone, in float64; a cell not
-    finite there is left out, as the profile's medians skip NaN)."""
+    ``PROFILE_MAPS`` of its local maps, evenly spaced (only those converted)."""
     if run.num_local_maps == 0:
         return np.zeros(run.local_maps.shape[1] ** 2, np.float32)
     pick = np.unique(np.linspace(0, run.num_local_maps - 1,
                                  min(PROFILE_MAPS, run.num_local_maps)).astype(int))
-    m = config.map
+    return range_noise_profile(_profile_observations(run.local_maps[pick], config.map),
+                               run.resolution)
+
+
+def _profile_observations(stats: np.ndarray, m: MapSection) -> np.ndarray:
+    """Observations (k, S) [..., 2] in float64 of statistics [..., 3] under the ``[map]``
+    settings ``m``, for the profile (a cell not finite here is left out, as its medians skip
+    NaN)."""
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        obs = cells.obs_from_stats(run.local_maps[pick], m.min_variance, m.obs_weight,
-                                   m.min_points)
-    return range_noise_profile(obs, run.resolution)
+        return cells.obs_from_stats(np.asarray(stats, np.float64), m.min_variance, m.obs_weight,
+                                    m.min_points)
 
 
 class RunningRangeNoise:
@@ -161,11 +166,7 @@ class RunningRangeNoise:
         """Take the statistics [L, L, 3] (n, sum z, sum z^2) of the next local map; True when
         the profile was estimated again."""
         if self.seen % self._stride == 0:
-            m = self._map
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                obs = cells.obs_from_stats(np.asarray(stats, np.float64)[None], m.min_variance,
-                                           m.obs_weight, m.min_points)[0]
-            self._kept.append(obs)
+            self._kept.append(_profile_observations(stats, self._map))
             if len(self._kept) > PROFILE_MAPS:
                 self._kept = self._kept[::2]
                 self._stride *= 2
