@@ -6,9 +6,9 @@ executable on its HLO, the compiler flags, the JAX version and the device, so a 
 program as a fresh compilation, and the numbers are unchanged (the determinism tests compare
 bits). The cache goes to ``GSLAM_TEST_JAX_CACHE`` (unset: a folder under the system's temporary
 directory; empty: no cache), and is handed to subprocesses through the environment. A cache the
-user set (``JAX_COMPILATION_CACHE_DIR``) is left as it is. Compilations under 0.2 s are not cached: caching
-every one was faster on two CLI-heavy files (84 s against 93 s) but not on the whole suite in
-fresh-clone CI here (951 and 991 s against 904 s).
+user set (``JAX_COMPILATION_CACHE_DIR``) is left as it is. Compilations under 0.2 s are not
+cached: caching every one was faster on two CLI-heavy files (84 s against 93 s) but not on the
+whole suite in fresh-clone CI here (951 and 991 s against 904 s).
 """
 
 from __future__ import annotations
