@@ -81,7 +81,7 @@ def physical_memory() -> int:
         total = 1 << 62
     for path in CGROUP_LIMITS:
         try:
-            text = open(path).read().strip()
+            text = Path(path).read_text().strip()
         except OSError:
             continue
         if text.isdigit():  # "max" (v2) means no limit; v1 writes a huge number instead

@@ -101,6 +101,47 @@ def test_writes_and_resampling_match_dense_model(bits):
     assert int(ts.live_tiles(store)) < int(np.sum(np.asarray(store.page) < P))
 
 
+def test_a_grown_pool_holds_the_same_maps_and_goes_on_like_the_dense_model():
+    """``grow`` mid-run, with some tiles shared and some freed: the maps read the same, the
+    bookkeeping holds, and writes and resamplings after it match the NumPy model. (The shapes
+    after growing are the previous test's, so its compilations are reused.)"""
+    rng = np.random.default_rng(1)
+    J, M, block = 7, 60, 3
+    store = ts.init(J, (H, W), T, 40, True)
+    kmap = np.zeros((J, H, W), np.float32)
+    smap = np.zeros((J, H, W), np.float32)
+    for it in range(8):
+        if it == 2:
+            assert int(store.status) == 0
+            before = [np.asarray(x) for x in to_dense(store, (H, W))]
+            free = int(store.n_free)
+            assert 0 < free < 40  # some tiles taken, some free
+            store = ts.grow(store, 300)
+            check_invariants(store)
+            assert int(store.n_free) == free + 260
+            for a, b in zip(before, to_dense(store, (H, W))):
+                np.testing.assert_array_equal(np.asarray(b), a)
+        for j0 in range(0, J, block):
+            parts = np.arange(j0, min(j0 + block, J), dtype=np.int32)
+            cells, on_map, k, S = footprints(rng, len(parts), M)
+            store = write(store, jnp.asarray(parts), jnp.asarray(cells), jnp.asarray(on_map),
+                          jnp.asarray(k), jnp.asarray(S), width=W, window=WINDOW)
+            np_add(kmap, smap, parts, cells, on_map, k, S)
+        if it % 3 == 1:
+            anc = np.sort(rng.choice(J, J, p=rng.dirichlet(np.ones(J) * 0.5))).astype(np.int32)
+            store = resample(store, jnp.asarray(anc))
+            kmap, smap = kmap[anc], smap[anc]
+    assert int(store.status) == 0
+    check_invariants(store)
+    assert int(store.peak) > 40  # the grown tiles were used
+    k_d, s_d, b_d = to_dense(store, (H, W))
+    np.testing.assert_array_equal(np.asarray(k_d), kmap)
+    np.testing.assert_array_equal(np.asarray(s_d), smap)
+    np.testing.assert_array_equal(np.asarray(b_d), np_bits(kmap))
+    with pytest.raises(ValueError, match="cannot shrink"):
+        ts.grow(store, 299)
+
+
 def _write_one(store: ts.TileStore, j: int, cell: int, v: float) -> ts.TileStore:
     """Add (k, S) = (v, v) to one cell of particle j's map."""
     return write(store, jnp.array([j], jnp.int32), jnp.array([[cell]], jnp.int32),
@@ -256,6 +297,30 @@ def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
     run, config = _pool_run_and_config()
     with pytest.raises(ts.PoolExhaustedError, match=r"^frame \d+: .*\[map\] pool_tiles = 30"):
         slam.run_slam(run, config)
+
+
+def test_run_slam_grows_an_automatic_pool_and_gets_the_dense_stores_numbers(monkeypatch):
+    """An automatic pool that starts too small for the run (100 tiles; the run's first
+    frames take about 90, and it ends holding several hundred) grows between chunks, says so,
+    and the run is the dense store's bit for bit."""
+    import dataclasses
+
+    from gslam_jax import slam
+    from gslam_jax.rbpf import maps
+
+    run, config = _pool_run_and_config()
+    automatic = dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
+    real = maps.pool_tiles
+    monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 100))
+    with pytest.warns(maps.MapStoreNotice, match=r"^frame 1: .*pool grew from 100 to \d+ tiles"):
+        shared = slam.run_slam(run, automatic, chunk=1)
+    dense = slam.run_slam(run, dataclasses.replace(
+        config, map=dataclasses.replace(config.map, store="dense")), chunk=1)
+    np.testing.assert_array_equal(shared.best_path, dense.best_path)
+    np.testing.assert_array_equal(shared.kmap, dense.kmap)
+    np.testing.assert_array_equal(shared.smap, dense.smap)
+    np.testing.assert_array_equal(shared.ess, dense.ess)
+    assert shared.map_bytes > maps.map_bytes(slam.filter_config(automatic, run))
 
 
 def test_auto_store_is_dense_when_it_fits_and_shared_with_a_notice_otherwise():

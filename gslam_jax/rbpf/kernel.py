@@ -287,7 +287,8 @@ def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fi
                            ess=upd.ess, resampled=resampled, updated=jnp.bool_(True),
                            log_lik=upd.log_lik, extent_violations=upd.extent_violations,
                            empty_obs=upd.empty_obs, dropped_cells=upd.dropped_cells,
-                           map_status=maps.status(state.maps), exponent=upd.exponent)
+                           map_status=maps.status(state.maps), exponent=upd.exponent,
+                           map_free=maps.free_tiles(state.maps))
 
 
 def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
@@ -298,7 +299,7 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
                     updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
                     extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False),
                     dropped_cells=jnp.int32(0), map_status=maps.status(state.maps),
-                    exponent=jnp.float32(1.0))
+                    exponent=jnp.float32(1.0), map_free=maps.free_tiles(state.maps))
 
 
 def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,

@@ -11,8 +11,9 @@ the host driver reach it only through the functions here, which dispatch to the 
   writes), ``resample`` (each particle takes its ancestor's maps), ``particle_map``,
   ``to_dense``, ``status``;
 * on the host: ``choose_store`` (``store = "auto"``), ``pool_tiles``, ``map_bytes`` (what a
-  store allocates), ``peak_bytes``, ``check_memory`` (before allocating) and ``check_status``
-  (the shared store's error bits, after a run).
+  store allocates), ``peak_bytes``, ``check_memory`` (before allocating), ``check_status``
+  (the shared store's error bits, after a run) and ``grow_pool`` (an automatic pool that is
+  running low, between chunks of frames).
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from gslam_jax.rbpf.types import FilterConfig, FilterState
 
 __all__ = ["Maps", "DenseMaps", "TileStore", "MapStoreNotice", "init", "read", "write",
            "known_bits", "finish_update", "resample", "particle_map", "to_dense", "status",
-           "page_window", "pool_tiles", "map_bytes", "peak_bytes", "choose_store",
-           "check_memory", "check_status"]
+           "free_tiles", "page_window", "pool_tiles", "map_bytes", "peak_bytes", "choose_store",
+           "check_memory", "check_status", "grow_pool"]
 
 Maps = Union[DenseMaps, TileStore]
 """The particles' maps (``FilterState.maps``): the dense store or the shared tile store."""
@@ -41,7 +42,8 @@ AUTO_POOL_MAPS = 4  # ``pool_tiles``: whole maps of shared history an automatic 
 
 
 class MapStoreNotice(UserWarning):
-    """``[map] store = "auto"`` chose the shared tile store: the dense maps would not fit."""
+    """A note on the map store: ``[map] store = "auto"`` chose the shared tile store (the dense
+    maps would not fit), or an automatic pool grew (``grow_pool``)."""
 
 
 def _shared(maps: Maps) -> bool:
@@ -134,6 +136,11 @@ def status(maps: Maps) -> Array:
     return maps.status if _shared(maps) else jnp.int32(0)
 
 
+def free_tiles(maps: Maps) -> Array:
+    """[] int32 free tiles in the shared store's pool; 0 for the dense store."""
+    return maps.n_free if _shared(maps) else jnp.int32(0)
+
+
 def page_window(cfg: FilterConfig) -> int:
     """Pages per side one particle's update can write in the shared store (its reach)."""
     return tilestore.window_tiles(cfg.reach, cfg.tile)
@@ -222,3 +229,25 @@ def check_status(status_bits: int | Array, cfg: FilterConfig, where: str = "") -
     """Raise the host-side error for a store's ``status`` bits (0: fine); ``where`` prefixes
     the message (the frame, the tuning step)."""
     tilestore.check_status(status_bits, pool_tiles(cfg), where)
+
+
+def grow_pool(maps_: Maps, cfg: FilterConfig, need_free: int, available: int
+              ) -> tuple[Maps, FilterConfig] | None:
+    """The shared store with at least ``need_free`` free tiles (host side, between chunks of
+    frames): its pool doubled, or more where that is not enough, but never past every
+    particle's whole map (a pool that size cannot run out). Returns the grown maps and the
+    config with the new ``pool_tiles`` (a new static shape: the filter step recompiles), or
+    None when nothing is to be done: the dense store, enough free tiles already, a pool at
+    that cap, or no room in ``available`` bytes for the grown pool beside the old one."""
+    if not _shared(maps_):
+        return None
+    have, free = pool_tiles(cfg), int(maps_.n_free)
+    ty, tx = tilestore.pages_per_side(cfg.map_shape, cfg.tile)
+    cap = cfg.num_particles * ty * tx
+    if free >= need_free or have >= cap:
+        return None
+    new = min(max(2 * have, have - free + need_free), cap)
+    grown = cfg._replace(pool_tiles=new)
+    if map_bytes(cfg) + map_bytes(grown) > available:  # both live while the pool is copied
+        return None
+    return tilestore.grow(maps_, new), grown

@@ -38,7 +38,7 @@ from gslam_jax.errors import InputError
 __all__ = ["TileStore", "POOL_EXHAUSTED", "WINDOW_EXCEEDED", "PoolExhaustedError", "init",
            "with_prior", "prior_tiles",
            "pages_per_side", "window_tiles", "pool_index", "read", "known_bits", "prepare",
-           "add", "write", "resample", "to_dense", "live_tiles", "tile_bytes", "nbytes",
+           "add", "write", "resample", "grow", "to_dense", "live_tiles", "tile_bytes", "nbytes",
            "peak_bytes", "check_status"]
 
 POOL_EXHAUSTED = 1   # status bit: a block needed more fresh tiles than the pool had free
@@ -324,6 +324,33 @@ def resample(store: TileStore, ancestors: Array) -> TileStore:
     free = jnp.nonzero(unused, size=P, fill_value=0)[0].astype(jnp.int32)
     return store._replace(page=page, refcount=refcount, free=free,
                           n_free=jnp.sum(unused, dtype=jnp.int32))
+
+
+def grow(store: TileStore, pool_tiles: int) -> TileStore:
+    """The same maps in a pool of ``pool_tiles`` tiles (at least the present pool's): the new
+    tiles go on the free stack, below the tiles already free, and the zero sentinel moves to
+    the new end (unwritten pages follow it). Every tile keeps its index and contents, so
+    ``to_dense`` is unchanged, and so is every later read and write's value."""
+    P, new = store.refcount.shape[0], int(pool_tiles)
+    T = _tile(store)
+    if new < P:
+        raise ValueError(f"pool_tiles {new}: a pool cannot shrink (it has {P} tiles)")
+    if (new + 1) * T * T >= 2 ** 31:
+        raise ValueError(f"pool_tiles {new} of {T} x {T} cells exceeds the int32 cell index")
+    if new == P:
+        return store
+    extra = new - P
+
+    def pool(x: Array) -> Array:  # tiles 0 .. P-1, the new ones (zero), the sentinel
+        return jnp.concatenate([x[:P], jnp.zeros((extra,) + x.shape[1:], x.dtype), x[P:]])
+
+    # free[:n_free] is a stack popped from the top: the new tiles go under the old free ones
+    free = jnp.concatenate([jnp.arange(P, new, dtype=jnp.int32), store.free])
+    return store._replace(
+        kpool=pool(store.kpool), spool=pool(store.spool), bpool=pool(store.bpool),
+        page=jnp.where(store.page == P, new, store.page),
+        refcount=jnp.concatenate([store.refcount, jnp.zeros((extra,), jnp.int32)]),
+        free=free, n_free=store.n_free + extra)
 
 
 def to_dense(store: TileStore, map_shape: tuple[int, int]) -> tuple[Array, Array, Array]:

@@ -222,6 +222,8 @@ class StepInfo(NamedTuple):
                          # raised on the host by ``maps.check_status``
     exponent: Array      # exponent applied to the update's log importance factors (1: the
                          # paper's fixed beta or no update; < 1: adaptive tempering flattened them)
+    map_free: Array      # [] int32 free tiles in the shared store's pool at the frame's end
+                         # (dense: 0); ``run_slam`` grows an automatic pool from it
 
 
 class RunOutput(NamedTuple):
