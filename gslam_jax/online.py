@@ -156,6 +156,8 @@ class Online:
         self.settings = observations.obs_settings(config)
         self.key = jax.random.key(config.filter.seed if seed is None else seed)
         self.state = rbpf.init(cfg, jnp.asarray(self.start, jnp.float32))
+        self._growth = slam.PoolGrowth(cfg) if cfg.store == "shared" and not cfg.pool_tiles \
+            else None
         self._zero_obs = jnp.zeros((cfg.local_size, cfg.local_size, 2), jnp.float32)
         self._builder = LocalMapBuilder(self.localmap)
         self._vo_pose = self.start.copy()
@@ -219,6 +221,8 @@ class Online:
             raise InputError(f"frame {t}: time {stamp} s is not after the previous frame's "
                              f"{self._times[-1]} s")
         raw = self._zero_obs if local_map is None else self._observation(local_map)
+        if self._growth is not None:
+            self._growth.before(self.state)
         t0 = time.perf_counter()
         if local_map is not None and self._range_noise is not None \
                 and self._range_noise.add(local_map):  # same shape: no recompilation
@@ -251,6 +255,8 @@ class Online:
                 f"(x {lo[0]:.2f} .. {hi[0]:.2f} m, y {lo[1]:.2f} .. {hi[1]:.2f} m) for "
                 f"{int(info.extent_violations)} particles, whose cells beyond it were skipped; "
                 "the map does not grow: give Online a larger map_extent")
+        if self._growth is not None:  # an automatic shared pool running low grows (recompiles)
+            self.state, self.cfg = self._growth.after(self.state, batch, t + 1)
         return OnlineFrame(pose=best, mean=mean, ess=float(info.ess), updated=bool(info.updated),
                            resampled=bool(info.resampled), seconds=seconds)
 

@@ -73,6 +73,26 @@ def test_online_reproduces_the_batch_run_with_one_compilation(frames, batch):
     assert len(s.update_latency) == int(np.sum(run.obs_index[1:] >= 0))
 
 
+def test_an_automatic_shared_pool_grows_as_the_frames_come(frames, batch, monkeypatch):
+    """On the shared store with an automatic pool that starts too small (200 tiles of 16 x 16
+    cells; the run holds more at once), Online grows it between frames, says so, and still
+    reproduces the (dense) batch run."""
+    from gslam_jax.rbpf import maps
+
+    run, _ = frames
+    res, cfg = batch
+    real = maps.pool_tiles
+    monkeypatch.setattr(maps, "pool_tiles", lambda c: c.pool_tiles or min(real(c), 200))
+    live = Online(CONFIG, filter_config=cfg._replace(store="shared", tile=16, pool_tiles=0))
+    with pytest.warns(maps.MapStoreNotice, match=r"^frame \d+: .*pool grew from 200 to"):
+        for t in range(run.num_frames):
+            m = run.obs_index[t]
+            live.push(run.controls[t], run.local_maps[m] if m >= 0 else None, run.timestamps[t])
+    assert live.cfg.pool_tiles > 200 and int(live.state.maps.peak) > 200  # and was needed
+    np.testing.assert_array_equal(np.stack(live.best), res.best_pose)
+    np.testing.assert_array_equal(live.map().k, res.kmap)
+
+
 def test_a_given_extent_sizes_the_filter_as_the_batch_run(frames, batch):
     run, _ = frames
     _, cfg = batch
