@@ -156,8 +156,7 @@ class Online:
         self.settings = observations.obs_settings(config)
         self.key = jax.random.key(config.filter.seed if seed is None else seed)
         self.state = rbpf.init(cfg, jnp.asarray(self.start, jnp.float32))
-        self._growth = slam.PoolGrowth(cfg) if cfg.store == "shared" and not cfg.pool_tiles \
-            else None
+        self._growth = maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, available, what)
         self._zero_obs = jnp.zeros((cfg.local_size, cfg.local_size, 2), jnp.float32)
         self._builder = LocalMapBuilder(self.localmap)
         self._vo_pose = self.start.copy()
@@ -222,7 +221,7 @@ class Online:
                              f"{self._times[-1]} s")
         raw = self._zero_obs if local_map is None else self._observation(local_map)
         if self._growth is not None:
-            self._growth.before(self.state)
+            self._growth.before(self.state.maps)
         t0 = time.perf_counter()
         if local_map is not None and self._range_noise is not None \
                 and self._range_noise.add(local_map):  # same shape: no recompilation
@@ -256,7 +255,8 @@ class Online:
                 f"{int(info.extent_violations)} particles, whose cells beyond it were skipped; "
                 "the map does not grow: give Online a larger map_extent")
         if self._growth is not None:  # an automatic shared pool running low grows (recompiles)
-            self.state, self.cfg = self._growth.after(self.state, batch, t + 1)
+            grown, self.cfg = self._growth.after(self.state.maps, self.cfg, batch.map_free, t + 1)
+            self.state = self.state._replace(maps=grown)
         return OnlineFrame(pose=best, mean=mean, ess=float(info.ess), updated=bool(info.updated),
                            resampled=bool(info.resampled), seconds=seconds)
 

@@ -105,44 +105,6 @@ def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.n
             f"{float(log_lik[i])}, not finite); {check}")
 
 
-class PoolGrowth:
-    """An automatic (``[map] pool_tiles = 0``) shared store's pool grown between chunks of
-    frames (``maps.grow_pool``), so that a long run does not run out of tiles: after each
-    chunk the pool keeps at least twice the most tiles any chunk has taken so far (its free
-    count at the start less the lowest at a frame's end), plus one update's worth for every
-    particle (taken and given back within a frame). Growing changes no value; the filter step
-    recompiles for the new pool, and ``MapStoreNotice`` says so."""
-
-    def __init__(self, cfg: rbpf.FilterConfig):
-        self.cfg = cfg
-        self.most_taken = 0
-        self.free_before = 0
-
-    def before(self, state: rbpf.FilterState) -> None:
-        """Note the pool's free tiles as a chunk starts."""
-        self.free_before = int(maps.free_tiles(state.maps))
-
-    def after(self, state: rbpf.FilterState, info: rbpf.StepInfo, frames: int
-              ) -> tuple[rbpf.FilterState, rbpf.FilterConfig]:
-        """The state and filter config for the next chunk, after the chunk whose per-frame
-        ``info`` ended at frame ``frames``: grown when the pool is running low."""
-        cfg = self.cfg
-        self.most_taken = max(self.most_taken,
-                              self.free_before - int(np.min(np.asarray(info.map_free))))
-        need = 2 * self.most_taken + cfg.num_particles * maps.page_window(cfg) ** 2
-        available, what = map_memory()
-        grown = maps.grow_pool(state.maps, cfg, need, available)
-        if grown is None:
-            return state, cfg
-        new_maps, self.cfg = grown
-        warnings.warn(f"frame {frames}: the shared map store's automatic pool grew from "
-                      f"{maps.pool_tiles(cfg)} to {maps.pool_tiles(self.cfg)} tiles "
-                      f"({maps.map_bytes(self.cfg) / 2**20:.1f} MiB of {what}); the filter "
-                      f"step compiles again for it. [map] pool_tiles = N fixes the pool's size",
-                      maps.MapStoreNotice, stacklevel=3)
-        return state._replace(maps=new_maps), self.cfg
-
-
 def _check_map_status(info: rbpf.StepInfo, start: int, cfg: rbpf.FilterConfig) -> None:
     """The map store's error (``maps.check_status``) at the first frame it flagged."""
     status = np.asarray(info.map_status)
@@ -245,13 +207,13 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     else:
         state = prior_state(prior, cfg, key)
     outputs = []
-    growth = PoolGrowth(cfg) if cfg.store == "shared" and not config.map.pool_tiles else None
+    growth = maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, *map_memory())
     t0 = time.perf_counter()
     compile_s = hook_s = 0.0
     for start in range(0, T + pad, chunk):
         sl = slice(start, start + chunk)
         if growth is not None:
-            growth.before(state)
+            growth.before(state.maps)
         c0 = time.perf_counter()
         state, out = rbpf.scan_frames(state, keys[sl], jnp.asarray(controls[sl]),
                                       jnp.asarray(obs_index[sl]), obs, params, cfg)
@@ -269,7 +231,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         if progress is not None:
             progress(min(start + chunk, T), T)
         if growth is not None and start + chunk < T:
-            state, cfg = growth.after(state, out[0], start + chunk)
+            grown, cfg = growth.after(state.maps, cfg, out[0].map_free, start + chunk)
+            state = state._replace(maps=grown)
     seconds = time.perf_counter() - t0 - compile_s - hook_s
     infos = jax.tree.map(lambda *xs: np.concatenate(xs)[:T], *[o[0] for o in outputs])
     best = np.concatenate([o[1] for o in outputs])[:T]

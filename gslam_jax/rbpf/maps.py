@@ -12,8 +12,8 @@ the host driver reach it only through the functions here, which dispatch to the 
   ``to_dense``, ``status``;
 * on the host: ``choose_store`` (``store = "auto"``), ``pool_tiles``, ``map_bytes`` (what a
   store allocates), ``peak_bytes``, ``check_memory`` (before allocating), ``check_status``
-  (the shared store's error bits, after a run) and ``grow_pool`` (an automatic pool that is
-  running low, between chunks of frames).
+  (the shared store's error bits, after a run), ``grow_pool`` and ``PoolGrowth`` (an automatic
+  pool that is running low, grown between chunks of frames).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ import warnings
 from typing import Union
 
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from gslam_jax.config import ConfigError
@@ -33,7 +34,7 @@ from gslam_jax.rbpf.types import FilterConfig, FilterState
 __all__ = ["Maps", "DenseMaps", "TileStore", "MapStoreNotice", "init", "read", "write",
            "known_bits", "finish_update", "resample", "particle_map", "to_dense", "status",
            "free_tiles", "page_window", "pool_tiles", "map_bytes", "peak_bytes", "choose_store",
-           "check_memory", "check_status", "grow_pool"]
+           "check_memory", "check_status", "grow_pool", "PoolGrowth"]
 
 Maps = Union[DenseMaps, TileStore]
 """The particles' maps (``FilterState.maps``): the dense store or the shared tile store."""
@@ -251,3 +252,47 @@ def grow_pool(maps_: Maps, cfg: FilterConfig, need_free: int, available: int
     if map_bytes(cfg) + map_bytes(grown) > available:  # both live while the pool is copied
         return None
     return tilestore.grow(maps_, new), grown
+
+
+class PoolGrowth:
+    """An automatic (``[map] pool_tiles = 0``) shared pool grown between chunks of frames
+    (``grow_pool``; ``slam.run_slam``, and ``online.Online`` with one-frame chunks), so that a
+    long run does not run out of tiles. After each chunk the pool keeps at least twice the most
+    tiles any chunk has taken so far (its free count at the start less the lowest at a frame's
+    end, ``StepInfo.map_free``), plus one update's worth for every particle (taken and given
+    back within a frame). Growing changes no value; the filter step recompiles for the new
+    pool, and ``MapStoreNotice`` says so."""
+
+    def __init__(self, available: int, what: str):
+        self.available, self.what = available, what
+        self.most_taken = 0
+        self.free_before = 0
+
+    @classmethod
+    def automatic(cls, cfg: FilterConfig, pool_tiles_setting: int, available: int, what: str
+                  ) -> "PoolGrowth | None":
+        """A PoolGrowth for the shared store when ``[map] pool_tiles`` (``pool_tiles_setting``)
+        is 0, the memory being ``available`` bytes of ``what``; None otherwise."""
+        if cfg.store != "shared" or pool_tiles_setting:
+            return None
+        return cls(available, what)
+
+    def before(self, maps_: Maps) -> None:
+        """Note the pool's free tiles as a chunk starts."""
+        self.free_before = int(free_tiles(maps_))
+
+    def after(self, maps_: Maps, cfg: FilterConfig, map_free: Array | np.ndarray, frame: int
+              ) -> tuple[Maps, FilterConfig]:
+        """The maps and filter config for the next chunk, after the chunk whose per-frame
+        free counts were ``map_free`` and which ended at ``frame``: grown when running low."""
+        self.most_taken = max(self.most_taken, self.free_before - int(np.min(map_free)))
+        need = 2 * self.most_taken + cfg.num_particles * page_window(cfg) ** 2
+        grown = grow_pool(maps_, cfg, need, self.available)
+        if grown is None:
+            return maps_, cfg
+        warnings.warn(f"frame {frame}: the shared map store's automatic pool grew from "
+                      f"{pool_tiles(cfg)} to {pool_tiles(grown[1])} tiles "
+                      f"({map_bytes(grown[1]) / 2**20:.1f} MiB of {self.what}); the filter "
+                      f"step compiles again for it. [map] pool_tiles = N fixes the pool's size",
+                      MapStoreNotice, stacklevel=3)
+        return grown
