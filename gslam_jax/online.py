@@ -242,7 +242,7 @@ class Online:
         batch = jax.tree.map(lambda x: np.asarray(x)[None], info)  # a one-frame chunk
         maps_so_far = int(sum(self._updated))
         slam._check_weights(batch, t, 1, {t: maps_so_far - 1 if local_map is not None else -1})
-        slam._check_map_status(batch, t, self.cfg)
+        slam._check_map_status(batch, t, self.cfg, automatic=self._growth is not None)
         if int(info.dropped_cells):
             raise InputError(f"frame {t}: the local map has more informative cells than "
                              f"observed_cells = {self.cfg.max_observed}; raise it (0: no cap)")

@@ -105,12 +105,14 @@ def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.n
             f"{float(log_lik[i])}, not finite); {check}")
 
 
-def _check_map_status(info: rbpf.StepInfo, start: int, cfg: rbpf.FilterConfig) -> None:
-    """The map store's error (``maps.check_status``) at the first frame it flagged."""
+def _check_map_status(info: rbpf.StepInfo, start: int, cfg: rbpf.FilterConfig,
+                      automatic: bool = False) -> None:
+    """The map store's error (``maps.check_status``) at the first frame it flagged;
+    ``automatic``: the pool is grown by a ``maps.PoolGrowth``."""
     status = np.asarray(info.map_status)
     if status.any():
         i = int(np.argmax(status != 0))
-        maps.check_status(status[i], cfg, where=f"frame {start + i}: ")
+        maps.check_status(status[i], cfg, where=f"frame {start + i}: ", automatic=automatic)
 
 
 class SlamResult(NamedTuple):
@@ -221,7 +223,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         if start == 0:
             compile_s = time.perf_counter() - c0  # first chunk includes compilation
         _check_weights(out[0], start, min(chunk, T - start), obs_index)
-        _check_map_status(out[0], start, cfg)
+        _check_map_status(out[0], start, cfg, automatic=growth is not None)
         outputs.append(out)
         if on_chunk is not None:  # its time (e.g. a viewer's logging) is not the filter's
             h0, n = time.perf_counter(), min(chunk, T - start)

@@ -299,6 +299,24 @@ def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
         slam.run_slam(run, config)
 
 
+def test_an_automatic_pool_that_one_chunk_exhausts_says_it_is_automatic(monkeypatch):
+    """The whole run as one chunk leaves an automatic pool (30 tiles here) no chance to grow:
+    the error says the pool was automatic and to fix its size, not that a setting of 30 was."""
+    import dataclasses
+
+    from gslam_jax import slam
+    from gslam_jax.rbpf import maps
+
+    run, config = _pool_run_and_config()
+    automatic = dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
+    real = maps.pool_tiles
+    monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 30))
+    with pytest.raises(ts.PoolExhaustedError,
+                       match=r"^frame \d+: .*automatic pool of 30 tiles ran out before it could "
+                             r"grow.*set \[map\] pool_tiles to a fixed size above 30"):
+        slam.run_slam(run, automatic, chunk=run.num_frames)
+
+
 def test_run_slam_grows_an_automatic_pool_and_gets_the_dense_stores_numbers(monkeypatch):
     """An automatic pool that starts too small for the run (100 tiles; the run's first
     frames take about 90, and it ends holding several hundred) grows between chunks, says so,

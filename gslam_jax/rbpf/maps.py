@@ -226,10 +226,11 @@ def check_memory(cfg: FilterConfig, available: int, what: str = "memory",
         f"\"shared\"")
 
 
-def check_status(status_bits: int | Array, cfg: FilterConfig, where: str = "") -> None:
+def check_status(status_bits: int | Array, cfg: FilterConfig, where: str = "",
+                 automatic: bool = False) -> None:
     """Raise the host-side error for a store's ``status`` bits (0: fine); ``where`` prefixes
-    the message (the frame, the tuning step)."""
-    tilestore.check_status(status_bits, pool_tiles(cfg), where)
+    the message (the frame, the tuning step); ``automatic``: the pool is a ``PoolGrowth``'s."""
+    tilestore.check_status(status_bits, pool_tiles(cfg), where, automatic)
 
 
 def grow_pool(maps_: Maps, cfg: FilterConfig, need_free: int, available: int

@@ -402,9 +402,17 @@ def peak_bytes(store: TileStore) -> int:
     return allocated - (P + 1 - int(store.peak)) * tile_bytes(store)
 
 
-def check_status(status: int | Array, pool_tiles: int, where: str = "") -> None:
-    """Raise the host-side error for a store's ``status`` bits (0: fine)."""
+def check_status(status: int | Array, pool_tiles: int, where: str = "",
+                 automatic: bool = False) -> None:
+    """Raise the host-side error for a store's ``status`` bits (0: fine); ``automatic``: the
+    pool was sized (and grown between chunks) by the caller, not by ``[map] pool_tiles``."""
     status = int(status)
+    if status & POOL_EXHAUSTED and automatic:
+        raise PoolExhaustedError(
+            f"{where}the shared map store's automatic pool of {pool_tiles} tiles ran out "
+            f"before it could grow (it grows between chunks of frames, as far as the memory "
+            f"allows); set [map] pool_tiles to a fixed size above {pool_tiles} (or use [map] "
+            f"store = \"dense\")")
     if status & POOL_EXHAUSTED:
         raise PoolExhaustedError(
             f"{where}the shared map store ran out of tiles: [map] pool_tiles = {pool_tiles} "
