@@ -218,10 +218,14 @@ def _level(a: GridMap, factor: int, pad: int, max_dof: int, log_v_range: tuple[f
     if ka.size > samples:  # an even spread of A's known cells, deterministic
         pick = np.linspace(0, ka.size - 1, samples).astype(np.int64)
         ka, Sa = ka[pick], Sa[pick]
+    # fewer cells are padded to ``samples`` with weight 0: one compiled table for every map
+    weight = np.zeros(samples, np.float32)
+    weight[:ka.size] = 1.0
+    ka, Sa = (np.pad(x, (0, samples - x.size), constant_values=1.0) for x in (ka, Sa))
     lo, hi = log_v_range
     grid = np.linspace(lo - 1.0, hi + 1.0, points)
     lam_mean, lam_var = _chance_tables(jnp.asarray(grid, jnp.float32), jnp.asarray(ka, jnp.float32),
-                                       jnp.asarray(Sa, jnp.float32), max_dof)
+                                       jnp.asarray(Sa, jnp.float32), jnp.asarray(weight), max_dof)
     mean = np.zeros((max_dof + 1, points))
     var = np.zeros((max_dof + 1, points))
     mean[1:], var[1:] = np.asarray(lam_mean), np.asarray(lam_var)
@@ -239,15 +243,19 @@ def _level(a: GridMap, factor: int, pad: int, max_dof: int, log_v_range: tuple[f
 
 
 @partial(jax.jit, static_argnames=("max_dof",))
-def _chance_tables(log_v: Array, ka: Array, Sa: Array, max_dof: int) -> tuple[Array, Array]:
-    """Mean and variance over A's cells (ka, Sa [n]) of lambda(b | a) for b of tempered
-    k = 1..max_dof and variance exp(log_v) ([max_dof, V] each)."""
+def _chance_tables(log_v: Array, ka: Array, Sa: Array, weight: Array, max_dof: int
+                   ) -> tuple[Array, Array]:
+    """Mean and variance over A's cells (ka, Sa [n], each counted with its ``weight``, 0 for
+    padding) of lambda(b | a) for b of tempered k = 1..max_dof and variance exp(log_v)
+    ([max_dof, V] each)."""
     kb = jnp.arange(1, max_dof + 1, dtype=jnp.float32)[:, None, None]
     Sb = kb * jnp.exp(log_v)[None, :, None]
     shape = (max_dof, log_v.shape[0], ka.shape[0])
     lam = cells.log_predictive_integer(jnp.broadcast_to(kb, shape), jnp.broadcast_to(Sb, shape),
                                        jnp.broadcast_to(ka, shape), jnp.broadcast_to(Sa, shape))
-    return jnp.mean(lam, axis=2), jnp.var(lam, axis=2)
+    w = weight / jnp.sum(weight)
+    mean = jnp.sum(lam * w, axis=2)
+    return mean, jnp.sum((lam - mean[..., None]) ** 2 * w, axis=2)
 
 
 class _Moving(NamedTuple):
