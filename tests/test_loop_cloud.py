@@ -1,0 +1,39 @@
+"""experiments.loop_cloud: the per-stretch figures of a particle cloud, on a hand-made cloud
+(no filter run)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from experiments.loop_cloud import cloud_rows
+
+
+def test_cloud_rows_on_a_hand_made_cloud():
+    # 21 frames 1 m apart along x; four particles at the corners of a square of side 2 a
+    # around a point 1 m to the left of the truth, a = t / 10; headings +-0.1 rad around pi
+    T = 21
+    truth = np.stack([np.arange(T, dtype=float), np.zeros(T), np.zeros(T)], axis=1)
+    a = np.arange(T) / 10.0
+    corners = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
+    poses = np.zeros((T, 4, 3))
+    poses[:, :, :2] = truth[:, None, :2] + np.array([0.0, 1.0]) + a[:, None, None] * corners
+    poses[:, :, 2] = math.pi + np.array([0.1, -0.1, 0.1, -0.1])  # wraps across +-pi
+    vo = truth + np.array([0.0, 0.5, 0.0])
+    best = poses[:, 0]
+    resampled = np.zeros(T, bool)
+    resampled[[3, 12, 13]] = True
+    updated = np.ones(T, bool)
+    rows = cloud_rows(truth, vo, best, poses, np.full(T, 3.5), resampled, updated, every_m=10.0)
+
+    assert [r["frame"] for r in rows] == [0, 10, 20]
+    r = rows[1]  # t = 10: a = 1
+    np.testing.assert_allclose(r["cloud_rms_m"], math.sqrt(2.0))
+    np.testing.assert_allclose(r["heading_std_deg"], math.degrees(0.1), rtol=1e-9)
+    np.testing.assert_allclose(r["nearest_particle_m"], 1.0)  # the two corners at y = 0
+    np.testing.assert_allclose(r["mean_error_m"], 1.0)
+    np.testing.assert_allclose(r["best_error_m"], math.hypot(1.0, 2.0))
+    np.testing.assert_allclose(r["vo_error_m"], 0.5)
+    assert (r["resampled"], r["updates"]) == (1, 10)  # frames 1-10
+    assert (rows[2]["resampled"], rows[2]["updates"]) == (2, 10)  # frames 11-20
