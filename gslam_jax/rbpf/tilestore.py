@@ -407,17 +407,13 @@ def check_status(status: int | Array, pool_tiles: int, where: str = "",
     """Raise the host-side error for a store's ``status`` bits (0: fine); ``automatic``: the
     pool was sized (and grown between chunks) by the caller, not by ``[map] pool_tiles``."""
     status = int(status)
-    if status & POOL_EXHAUSTED and automatic:
-        raise PoolExhaustedError(
-            f"{where}the shared map store's automatic pool of {pool_tiles} tiles ran out "
-            f"before it could grow (it grows between chunks of frames, as far as the memory "
-            f"allows); set [map] pool_tiles to a fixed size above {pool_tiles} (or use [map] "
-            f"store = \"dense\")")
     if status & POOL_EXHAUSTED:
-        raise PoolExhaustedError(
-            f"{where}the shared map store ran out of tiles: [map] pool_tiles = {pool_tiles} "
-            f"is too small for this run; raise [map] pool_tiles (or use [map] store = "
-            f"\"dense\")")
+        raise PoolExhaustedError(where + (
+            f"the shared map store's automatic pool of {pool_tiles} tiles ran out before it "
+            f"could grow (it grows between chunks of frames, as far as the memory allows); set "
+            f"[map] pool_tiles to a fixed size above {pool_tiles}" if automatic else
+            f"the shared map store ran out of tiles: [map] pool_tiles = {pool_tiles} is too "
+            f"small for this run; raise [map] pool_tiles") + " (or use [map] store = \"dense\")")
     if status & WINDOW_EXCEEDED:
         raise RuntimeError(f"{where}an update wrote cells farther apart than the shared store's "
                            f"page window allows (a bug: the window comes from the local map's "
