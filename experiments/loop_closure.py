@@ -117,6 +117,18 @@ def score(run, res, revisit: loops.Revisit) -> dict:
             "vo_rms_m": metrics.rms_after_fit(res.vo_path, run.ground_truth)}
 
 
+def simulate_loop(file: Path, length_m: float, seed: int, config, course: str = "mars-yard-a",
+                  max_frames: int | None = None, margin_per_m: float = 0.1, vo_noise=None):
+    """(Run, config) of a loop driven by the trajectory ``file``: the config's map margin
+    around the VO path raised to at least ``margin_per_m`` times the loop length, so that a
+    path the filter corrects by the VO's drift stays on the map."""
+    margin = max(config.map.margin, margin_per_m * length_m)
+    config = apply_overrides(config, [f"map.margin={margin:g}"])
+    run, _ = simulate_path(file, seed=seed, course=course, params=localmap_params(config),
+                           max_frames=max_frames, vo_noise=vo_noise)
+    return run, config
+
+
 def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: list[str],
              informed_max: float, informed_particles: list[int] | None = None,
              max_frames: int | None = None, course: str = "mars-yard-a",
@@ -124,10 +136,8 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
     """Every (proposal, J) run of one loop at one seed, as result rows. The map's margin
     around the VO path is at least ``margin_per_m`` times the loop length, so that a path the
     filter corrects by the VO's drift stays on the map. vo_noise: that of ``course`` if None."""
-    margin = max(config.map.margin, margin_per_m * loop.length_m)
-    config = apply_overrides(config, [f"map.margin={margin:g}"])
-    run, _ = simulate_path(loop.file, seed=seed, course=course, params=localmap_params(config),
-                           max_frames=max_frames, vo_noise=vo_noise)
+    run, config = simulate_loop(loop.file, loop.length_m, seed, config, course, max_frames,
+                                margin_per_m, vo_noise)
     revisit = loops.find_revisit(run.ground_truth, START_M, 0.5 * loop.length_m)
     rows = []
     for proposal in proposals:
@@ -144,7 +154,7 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
             else:
                 t0 = time.perf_counter()
                 res = slam.run_slam(run, cfg)
-                row.update(revisit=list(revisit), store=res.store, map_margin_m=margin,
+                row.update(revisit=list(revisit), store=res.store, map_margin_m=config.map.margin,
                            extent_violations=res.extent_violations,
                            filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
                            **score(run, res, revisit))

@@ -16,11 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.loop_closure import START_M, circle_file
+from experiments.loop_closure import START_M, circle_file, simulate_loop
 from gslam_jax import loops, slam
-from gslam_jax.config import apply_overrides, layered_config
-from gslam_jax.datasets.sim_path import simulate_path
-from gslam_jax.vo.localmap import localmap_params
+from gslam_jax.config import layered_config
 
 
 def cloud_rows(truth: np.ndarray, vo: np.ndarray, best: np.ndarray, poses: np.ndarray,
@@ -65,18 +63,13 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     config = layered_config(args.config, args.course,
                             args.set + ["map.store=auto", f"filter.seed={args.seed}"])
-    margin = max(config.map.margin, 0.1 * args.circle)  # as experiments.loop_closure
-    config = apply_overrides(config, [f"map.margin={margin:g}"])
     with tempfile.TemporaryDirectory() as tmp:
-        run, _ = simulate_path(circle_file(Path(tmp), args.circle, 20.0), seed=args.seed,
-                               course=args.course, params=localmap_params(config),
-                               max_frames=args.max_frames)
-    chunks: list = []
+        run, config = simulate_loop(circle_file(Path(tmp), args.circle, 20.0), args.circle,
+                                    args.seed, config, args.course, args.max_frames)
+    chunks: list = []  # per chunk: the host-side StepInfo fields read below
     res = slam.run_slam(run, config, on_chunk=lambda r: chunks.append(
-        (r.start, np.asarray(r.info.pose), np.asarray(r.info.ess),
-         np.asarray(r.info.resampled), np.asarray(r.info.updated))))
-    poses, ess, resampled, updated = (np.concatenate([c[i] for c in chunks])
-                                      for i in range(1, 5))
+        (r.info.pose, r.info.ess, r.info.resampled, r.info.updated)))
+    poses, ess, resampled, updated = (np.concatenate(x) for x in zip(*chunks))
     truth = np.asarray(run.ground_truth, np.float64)
     revisit = loops.find_revisit(truth, START_M, 0.5 * args.circle)
     if revisit is not None:
