@@ -11,7 +11,7 @@ from __future__ import annotations
 __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJECTIVES",
            "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "PROPOSALS",
            "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS", "SENSORS",
-           "AUTO_ESS_TARGET", "RANGE_NOISE"]
+           "AUTO_ESS_TARGET", "RANGE_NOISE", "PROPOSAL_DRAWS"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
@@ -19,6 +19,10 @@ MAP_STORES = ("dense", "shared", "auto")  # ``[map] store``; "auto" resolves to 
 # ``[filter] proposal``: the motion model alone (eq. 24) or informed by the local map
 # (``rbpf.proposal``)
 PROPOSALS = ("motion", "informed")
+# ``[filter] proposal_draws``: the proposals' standard normals drawn independently per particle,
+# or in antithetic pairs (particle j + ceil(J/2) gets the negated draw of particle j), so that
+# the particles' unweighted mean move is the proposal's mean (``rbpf.kernel.standard_normals``)
+PROPOSAL_DRAWS = ("independent", "antithetic")
 # ``[filter] range_noise``: none (eq. 26 as in the paper), or a measurement variance per range
 # estimated from the run (``observations.range_noise_profile``) added to each weighed cell
 RANGE_NOISE = ("none", "profile")

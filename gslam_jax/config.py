@@ -71,6 +71,10 @@ class FilterSection:
     # "informed": the fit scores every n-th observed cell (as GMapping's lskip skips beams in
     # its scan matching); the weights always use every cell
     proposal_cell_stride: int = 1
+    # the proposals' standard normals: "independent" per particle (the paper), or "antithetic"
+    # pairs (particle j + ceil(J/2) moves by the negated draw of particle j), so that where the
+    # weights are flat the particles' mean path is the VO's (choices.PROPOSAL_DRAWS)
+    proposal_draws: str = "independent"
     # "none": eq. 26 as in the paper; "profile": a cell seen from afar has the measurement
     # variance of its range added to what its map cell predicts (observations.
     # range_noise_profile, from the run's own local maps; rbpf.importance)
@@ -229,6 +233,8 @@ class Config:
             (f.proposal_span > 0, "filter", "proposal_span", "must be positive"),
             (f.proposal_stages >= 1, "filter", "proposal_stages", "must be at least 1"),
             (f.proposal_cell_stride >= 1, "filter", "proposal_cell_stride", "must be at least 1"),
+            (f.proposal_draws in choices.PROPOSAL_DRAWS, "filter", "proposal_draws",
+             f"must be one of {', '.join(choices.PROPOSAL_DRAWS)}"),
             (f.range_noise in choices.RANGE_NOISE, "filter", "range_noise",
              f"must be one of {', '.join(choices.RANGE_NOISE)}"),
             (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),

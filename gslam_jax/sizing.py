@@ -161,7 +161,8 @@ def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
         ess_target=resolve_ess_target(f.ess_target, sensor),
         store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles,
         proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
-        proposal_stages=f.proposal_stages, proposal_cell_stride=f.proposal_cell_stride)
+        proposal_stages=f.proposal_stages, proposal_cell_stride=f.proposal_cell_stride,
+        proposal_draws=f.proposal_draws)
     available, what = map_memory()
     cfg = maps.choose_store(cfg, available, what).validate()
     return cfg._replace(particle_block=cfg.update_block)

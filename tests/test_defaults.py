@@ -27,7 +27,8 @@ def test_every_filter_setting_of_the_config_reaches_the_filter():
     run, _ = make_run(seed=1, steps=20)
     changed = {"filter": dict(particles=9, resampler="systematic", resample_ratio=0.3,
                               unknown_cells="sample", unknown_samples=77, particle_block=3,
-                              tempering="fixed", ess_target=0.7, beta_prev=0.2, beta_new=0.3),
+                              tempering="fixed", ess_target=0.7, beta_prev=0.2, beta_new=0.3,
+                              proposal_draws="antithetic"),
                "map": dict(store="shared", tile=16, pool_tiles=900),
                "motion": dict(alpha_d=0.11, alpha_theta_d=0.12, alpha_theta=0.13)}
     config = dataclasses.replace(Config(), **{
@@ -36,7 +37,7 @@ def test_every_filter_setting_of_the_config_reaches_the_filter():
     cfg = sizing.filter_config(config, run)
     shared = [f for f in rbpf.FilterConfig._fields
               if f in changed["filter"] or f in changed["map"]]
-    assert len(shared) == 10  # resampler .. ess_target, store, tile, pool_tiles
+    assert len(shared) == 11  # resampler .. ess_target, proposal_draws, store, tile, pool_tiles
     for name in shared:
         assert getattr(cfg, name) == {**changed["filter"], **changed["map"]}[name], name
     assert cfg.num_particles == 9
@@ -88,7 +89,8 @@ def test_one_list_of_allowed_values_per_setting():
     assert tuple(resampling.RESAMPLERS) == choices.RESAMPLERS
     assert tuple(numerics.RESAMPLERS) == choices.RESAMPLERS
     for setting, allowed in (("resampler", choices.RESAMPLERS),
-                             ("unknown_cells", choices.UNKNOWN_CELLS)):
+                             ("unknown_cells", choices.UNKNOWN_CELLS),
+                             ("proposal_draws", choices.PROPOSAL_DRAWS)):
         for value in allowed:
             apply_overrides(Config(), [f"filter.{setting}={value}"])
             rbpf.FilterConfig(1, (64, 64), (0.0, 0.0), 0.16, 8, **{setting: value}).validate()

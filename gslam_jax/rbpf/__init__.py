@@ -20,8 +20,8 @@ This package exports what a user of the filter calls; the rest is imported from 
 """
 
 from gslam_jax.rbpf.kernel import (Proposal, Resampler, frame_keys, init, motion_noise, observe,
-                                   predict, resample, run_filter, scan_frames, step, update,
-                                   update_noise)
+                                   predict, resample, run_filter, scan_frames, standard_normals,
+                                   step, update, update_noise)
 from gslam_jax.rbpf.maps import particle_map
 from gslam_jax.rbpf.paths import backtrack_path, smoothed_mean_path
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, RunOutput, StepInfo,
@@ -32,8 +32,8 @@ __all__ = [
     "FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "UpdateInfo", "StepInfo",
     "RunOutput", "Proposal", "Resampler",
     # the filter
-    "init", "motion_noise", "update_noise", "predict", "update", "resample", "observe", "step",
-    "scan_frames", "frame_keys", "run_filter",
+    "init", "standard_normals", "motion_noise", "update_noise", "predict", "update", "resample",
+    "observe", "step", "scan_frames", "frame_keys", "run_filter",
     # results
     "backtrack_path", "smoothed_mean_path", "particle_map",
 ]

@@ -37,10 +37,9 @@ from gslam_jax.rbpf.importance import cell_noise, log_lambda
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Observation,
                                   RunOutput, StepInfo, UpdateInfo, UpdateNoise)
 
-__all__ = ["Proposal", "Resampler", "init", "motion_noise", "update_noise", "predict",
-           "propagate", "propagate_mean", "update", "ancestors", "resample", "observe", "step",
-           "scan_frames", "frame_keys", "run_filter",
-           "best_slot"]
+__all__ = ["Proposal", "Resampler", "init", "standard_normals", "motion_noise", "update_noise",
+           "predict", "propagate", "propagate_mean", "update", "ancestors", "resample", "observe",
+           "step", "scan_frames", "frame_keys", "run_filter", "best_slot"]
 
 Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
 """(state, u [3], standard-normal draws [J, 2], params) -> state with the particles moved."""
@@ -81,17 +80,35 @@ def init(cfg: FilterConfig, start_pose: Array | None = None,
                        maps=maps.init(cfg, prior_map), best=jnp.int32(0), prior_cov=cov)
 
 
+def standard_normals(key: Array, shape: tuple[int, int], draws: str) -> Array:
+    """Standard normals [J, d] for a proposal, one row per particle.
+
+    "independent": every row its own draw. "antithetic": rows ``j`` and ``j + ceil(J/2)`` are
+    ``z`` and ``-z`` (an odd J leaves row ``J // 2`` unpaired). Every row is still N(0, I), so
+    each particle's proposal and importance weight are unchanged; but the particles' unweighted
+    mean draw is zero, so where the map's weights are flat the particles' mean move is the
+    proposal's mean (the VO) instead of a Monte Carlo error of O(sigma / sqrt(J)) that a
+    random walk accumulates (antithetic variates; Owen, Monte Carlo theory, methods and
+    examples, 8.2).
+    """
+    J, d = shape
+    if draws == "independent":
+        return jax.random.normal(key, (J, d), jnp.float32)
+    z = jax.random.normal(key, ((J + 1) // 2, d), jnp.float32)
+    return jnp.concatenate([z, -z])[:J]
+
+
 def motion_noise(key: Array, cfg: FilterConfig) -> Array:
     """Standard-normal motion draws [J, 2] for one frame (along-track, heading)."""
-    return jax.random.normal(key, (cfg.num_particles, 2), jnp.float32)
+    return standard_normals(key, (cfg.num_particles, 2), cfg.proposal_draws)
 
 
 def update_noise(key: Array, cfg: FilterConfig) -> UpdateNoise:
     """Uniforms for one update (unknown-cell sampling, then resampling)."""
     k_unknown, k_resample = jax.random.split(key)
     n = cfg.unknown_samples if cfg.unknown_cells == "sample" else 0
-    z = (jax.random.normal(jax.random.fold_in(key, 1), (cfg.num_particles, 3), jnp.float32)
-         if cfg.proposal == "informed" else None)
+    z = (standard_normals(jax.random.fold_in(key, 1), (cfg.num_particles, 3),
+                          cfg.proposal_draws) if cfg.proposal == "informed" else None)
     return UpdateNoise(
         unknown_u=jax.random.uniform(k_unknown, (cfg.num_particles, n), jnp.float32),
         resample_u=resampling.draw_uniforms(k_resample, cfg.num_particles),

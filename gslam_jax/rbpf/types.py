@@ -57,6 +57,7 @@ class FilterConfig(NamedTuple):
     proposal_span: float = FilterSection.proposal_span
     proposal_stages: int = FilterSection.proposal_stages
     proposal_cell_stride: int = FilterSection.proposal_cell_stride
+    proposal_draws: str = FilterSection.proposal_draws  # ``kernel.standard_normals``
 
     @property
     def update_block(self) -> int:
@@ -127,6 +128,9 @@ class FilterConfig(NamedTuple):
         if self.proposal not in choices.PROPOSALS:
             raise ValueError(f"proposal '{self.proposal}' unknown; choose one of "
                              f"{list(choices.PROPOSALS)}")
+        if self.proposal_draws not in choices.PROPOSAL_DRAWS:
+            raise ValueError(f"proposal_draws '{self.proposal_draws}' unknown; choose one of "
+                             f"{list(choices.PROPOSAL_DRAWS)}")
         if self.proposal_points < 1 or self.proposal_points % 2 == 0:
             raise ValueError(f"proposal_points {self.proposal_points} must be odd and >= 1")
         if not self.proposal_span > 0 or self.proposal_stages < 1:
