@@ -52,7 +52,7 @@ class FilterSection:
     # simulated Table I courses adaptive was within 2% of fixed or better (docs/results.md)
     tempering: str = "adaptive"
     # 0: automatic, by how the run's local maps were made (``choices.AUTO_ESS_TARGET``): 0.5
-    # for the simulator's point sensor, 0.98 for stereo, whose correlated cells make eq. 26
+    # for the simulator's point sensor, 0.99 for stereo, whose correlated cells make eq. 26
     # overconfident (0.5 resampled at every update on KITTI and rendered stereo, and the
     # filter was worse than VO-only with the default motion noise; docs/real-data.md)
     ess_target: float = 0.0
@@ -73,8 +73,10 @@ class FilterSection:
     proposal_cell_stride: int = 1
     # the proposals' standard normals: "independent" per particle (the paper), or "antithetic"
     # pairs (particle j + ceil(J/2) moves by the negated draw of particle j), so that where the
-    # weights are flat the particles' mean path is the VO's (choices.PROPOSAL_DRAWS)
-    proposal_draws: str = "independent"
+    # weights are flat the particles' mean path is the VO's; "auto": by the run's sensor,
+    # antithetic for stereo, independent for the simulator's point sensor
+    # (choices.AUTO_PROPOSAL_DRAWS; why: docs/real-data.md)
+    proposal_draws: str = "auto"
     # "none": eq. 26 as in the paper; "profile": a cell seen from afar has the measurement
     # variance of its range added to what its map cell predicts (observations.
     # range_noise_profile, from the run's own local maps; rbpf.importance)

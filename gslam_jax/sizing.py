@@ -22,7 +22,8 @@ from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.run import Run, RunError, coordinate_limit, float32_spacing
 
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "map_memory",
-           "filter_config", "extent_filter_config", "resolve_ess_target", "filter_params"]
+           "filter_config", "extent_filter_config", "resolve_ess_target",
+           "resolve_proposal_draws", "filter_params"]
 
 
 class MapExtent(NamedTuple):
@@ -149,8 +150,9 @@ def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
     """Static filter settings on a given map ``extent`` with local maps of side ``local_size``
     and at most ``observed`` informative cells each (0: L*L): the config's [filter] and [map]
     settings, ``store = "auto"`` resolved for this machine's memory (``maps.choose_store``),
-    ``particle_block = 0`` for the default backend and ``ess_target = 0`` for the local maps'
-    ``sensor`` (``resolve_ess_target``). The memory check is the caller's."""
+    ``particle_block = 0`` for the default backend, and ``ess_target = 0`` and
+    ``proposal_draws = "auto"`` for the local maps' ``sensor`` (``resolve_ess_target``,
+    ``resolve_proposal_draws``). The memory check is the caller's."""
     f = config.filter
     cfg = rbpf.FilterConfig(
         num_particles=f.particles, map_shape=tuple(extent.shape), map_origin=tuple(extent.origin),
@@ -162,18 +164,30 @@ def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
         store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles,
         proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
         proposal_stages=f.proposal_stages, proposal_cell_stride=f.proposal_cell_stride,
-        proposal_draws=f.proposal_draws)
+        proposal_draws=resolve_proposal_draws(f.proposal_draws, sensor))
     available, what = map_memory()
     cfg = maps.choose_store(cfg, available, what).validate()
     return cfg._replace(particle_block=cfg.update_block)
 
 
+def _sensor(sensor: str | None) -> str:
+    """The local maps' sensor (None: "points"). ConfigError naming an unknown one."""
+    if sensor is not None and sensor not in choices.SENSORS:
+        raise ConfigError(f"sensor must be one of {', '.join(choices.SENSORS)}, got {sensor!r}")
+    return "points" if sensor is None else sensor
+
+
 def resolve_ess_target(ess_target: float, sensor: str | None) -> float:
     """``[filter] ess_target``, or for 0 (automatic) ``choices.AUTO_ESS_TARGET`` of the local
     maps' ``sensor`` (None: "points"). ConfigError naming an unknown sensor."""
-    if sensor is not None and sensor not in choices.SENSORS:
-        raise ConfigError(f"sensor must be one of {', '.join(choices.SENSORS)}, got {sensor!r}")
-    return ess_target or choices.AUTO_ESS_TARGET["points" if sensor is None else sensor]
+    return ess_target or choices.AUTO_ESS_TARGET[_sensor(sensor)]
+
+
+def resolve_proposal_draws(draws: str, sensor: str | None) -> str:
+    """``[filter] proposal_draws``, or for "auto" ``choices.AUTO_PROPOSAL_DRAWS`` of the local
+    maps' ``sensor`` (None: "points"). ConfigError naming an unknown sensor."""
+    resolved = choices.AUTO_PROPOSAL_DRAWS[_sensor(sensor)]
+    return resolved if draws == "auto" else draws
 
 
 def _prior_pool(cfg: rbpf.FilterConfig, prior: PriorMap) -> rbpf.FilterConfig:

@@ -15,6 +15,7 @@ from gslam_jax import choices, rbpf, sizing
 from gslam_jax.app.cli import build_parser
 from gslam_jax.config import Config, ConfigError, apply_overrides, load_config
 from gslam_jax.rbpf import resampling
+from gslam_jax.rbpf.types import DRAWS
 from gslam_jax.tiled import numerics
 from gslam_jax.vo.localmap import LocalMapParams
 
@@ -55,14 +56,16 @@ def test_local_map_defaults_are_the_config_defaults():
 
 
 def test_paper_config_file_holds_every_default():
-    """configs/paper.toml lists every field, each the built-in default but for the two it says
-    differ: the paper's fixed tempering and best-particle path."""
+    """configs/paper.toml lists every field, each the built-in default but for the three it says
+    differ: the paper's fixed tempering, best-particle path and independent draws."""
     path = ROOT / "configs" / "paper.toml"
     paper = load_config(path)
+    default = Config().filter
     assert dataclasses.replace(paper, filter=dataclasses.replace(
-        paper.filter, tempering=Config().filter.tempering,
-        estimate=Config().filter.estimate)) == Config()
-    assert (paper.filter.tempering, paper.filter.estimate) == ("fixed", "best")
+        paper.filter, tempering=default.tempering, estimate=default.estimate,
+        proposal_draws=default.proposal_draws)) == Config()
+    assert (paper.filter.tempering, paper.filter.estimate,
+            paper.filter.proposal_draws) == ("fixed", "best", "independent")
     data = tomllib.loads(path.read_text())
     for section in ("filter", "motion", "map", "localmap"):
         assert set(data[section]) == set(dataclasses.asdict(getattr(Config(), section)))
@@ -90,7 +93,7 @@ def test_one_list_of_allowed_values_per_setting():
     assert tuple(numerics.RESAMPLERS) == choices.RESAMPLERS
     for setting, allowed in (("resampler", choices.RESAMPLERS),
                              ("unknown_cells", choices.UNKNOWN_CELLS),
-                             ("proposal_draws", choices.PROPOSAL_DRAWS)):
+                             ("proposal_draws", DRAWS)):
         for value in allowed:
             apply_overrides(Config(), [f"filter.{setting}={value}"])
             rbpf.FilterConfig(1, (64, 64), (0.0, 0.0), 0.16, 8, **{setting: value}).validate()

@@ -9,7 +9,7 @@ import pytest
 from scipy import stats
 from synthetic import make_run
 
-from gslam_jax import observations, rbpf
+from gslam_jax import observations, rbpf, sizing
 from gslam_jax.config import Config, ConfigError, apply_overrides
 
 _make_run = functools.lru_cache(make_run)
@@ -60,3 +60,19 @@ def test_the_config_names_a_bad_proposal_draws():
         apply_overrides(Config(), ["filter.proposal_draws=paired"])
     with pytest.raises(ValueError, match="proposal_draws"):
         rbpf.FilterConfig(1, (64, 64), (0.0, 0.0), 0.16, 8, proposal_draws="paired").validate()
+
+
+def test_auto_draws_follow_the_runs_sensor():
+    assert Config().filter.proposal_draws == "auto"
+    assert sizing.resolve_proposal_draws("auto", "stereo") == "antithetic"
+    assert sizing.resolve_proposal_draws("auto", "points") == "independent"
+    assert sizing.resolve_proposal_draws("auto", None) == "independent"
+    assert sizing.resolve_proposal_draws("independent", "stereo") == "independent"
+    with pytest.raises(ConfigError, match="sensor"):
+        sizing.resolve_proposal_draws("auto", "lidar")
+    run, _ = _make_run(seed=1, steps=10)
+    stereo = run._replace(sensor="stereo")
+    assert sizing.filter_config(Config(), stereo).proposal_draws == "antithetic"
+    assert sizing.filter_config(Config(), run).proposal_draws == "independent"
+    with pytest.raises(ValueError, match="resolved"):
+        rbpf.FilterConfig(1, (64, 64), (0.0, 0.0), 0.16, 8, proposal_draws="auto").validate()

@@ -1,5 +1,6 @@
-"""The automatic ``[filter] ess_target`` (0): picked by how a run's local maps were made
-(``Run.sensor``), stored in Run files, reaching the filter, the live API and the summary."""
+"""The automatic ``[filter] ess_target`` (0) and ``proposal_draws`` ("auto"): picked by how a
+run's local maps were made (``Run.sensor``), stored in Run files, reaching the filter, the live
+API and the summary."""
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ def _small(*overrides: str) -> Config:
     return apply_overrides(Config(), ["filter.particles=16", "map.margin=4", *overrides])
 
 
-@pytest.mark.parametrize("sensor, target", [(None, 0.5), ("points", 0.5), ("stereo", 0.98)])
+@pytest.mark.parametrize("sensor, target", [(None, 0.5), ("points", 0.5), ("stereo", 0.99)])
 def test_the_run_sensor_picks_the_automatic_target(sensor, target):
     run, _ = make_run(steps=12)
     cfg = sizing.filter_config(_small(), run._replace(sensor=sensor))
@@ -25,11 +26,13 @@ def test_the_run_sensor_picks_the_automatic_target(sensor, target):
 
 
 def test_a_stereo_run_is_filtered_as_with_the_target_set_by_hand():
-    """The resolved value reaches the filter: sensor "stereo" under the automatic target gives
-    the poses of an unmarked run with ess_target = 0.98 set, and not those of 0.5."""
+    """The resolved values reach the filter: sensor "stereo" under the automatic target and
+    draws gives the poses of an unmarked run with ess_target = 0.99 and antithetic draws set,
+    and not those of 0.5."""
     run, _ = make_run(steps=24)
     auto = slam.run_slam(run._replace(sensor="stereo"), _small())
-    by_hand = slam.run_slam(run, _small("filter.ess_target=0.98"))
+    by_hand = slam.run_slam(run, _small("filter.ess_target=0.99",
+                                        "filter.proposal_draws=antithetic"))
     points = slam.run_slam(run, _small())
     np.testing.assert_array_equal(auto.path, by_hand.path)
     assert not np.array_equal(auto.path, points.path)
@@ -50,7 +53,7 @@ def test_sensor_round_trips_and_bad_values_are_named(tmp_path):
 
 
 def test_online_takes_the_sensor():
-    assert Online(_small(), 20.0, sensor="stereo").cfg.ess_target == 0.98
+    assert Online(_small(), 20.0, sensor="stereo").cfg.ess_target == 0.99
     assert Online(_small(), 20.0).cfg.ess_target == 0.5
     with pytest.raises(ConfigError, match="sensor must be one of points, stereo, got 'lidar'"):
         Online(_small(), 20.0, sensor="lidar")

@@ -105,6 +105,8 @@ def summarise(run, result, config: Config, description: str) -> dict:
         # the adaptive exponent's target; fixed tempering (the paper's beta) has none
         "ess_target": (sizing.resolve_ess_target(config.filter.ess_target, run.sensor)
                        if config.filter.tempering == "adaptive" else None),
+        "proposal_draws": sizing.resolve_proposal_draws(config.filter.proposal_draws,
+                                                        run.sensor),
         "resampling_events": int(np.sum(result.resampled)),
         "extent_violations": result.extent_violations,
         "empty_observations": result.empty_observations,

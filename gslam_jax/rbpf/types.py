@@ -23,6 +23,7 @@ __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "Update
 
 CPU_BLOCK_CELLS = 102_400  # footprint cells per update pass on CPU (FilterConfig.update_block)
 STORES = tuple(s for s in choices.MAP_STORES if s != "auto")  # "auto" is resolved before
+DRAWS = tuple(d for d in choices.PROPOSAL_DRAWS if d != "auto")  # likewise
 
 
 class FilterConfig(NamedTuple):
@@ -57,7 +58,9 @@ class FilterConfig(NamedTuple):
     proposal_span: float = FilterSection.proposal_span
     proposal_stages: int = FilterSection.proposal_stages
     proposal_cell_stride: int = FilterSection.proposal_cell_stride
-    proposal_draws: str = FilterSection.proposal_draws  # ``kernel.standard_normals``
+    # ``kernel.standard_normals`` ("auto" is resolved before, ``sizing.resolve_proposal_draws``;
+    # this default is a sensorless run's)
+    proposal_draws: str = choices.AUTO_PROPOSAL_DRAWS["points"]
 
     @property
     def update_block(self) -> int:
@@ -128,9 +131,9 @@ class FilterConfig(NamedTuple):
         if self.proposal not in choices.PROPOSALS:
             raise ValueError(f"proposal '{self.proposal}' unknown; choose one of "
                              f"{list(choices.PROPOSALS)}")
-        if self.proposal_draws not in choices.PROPOSAL_DRAWS:
+        if self.proposal_draws not in DRAWS:
             raise ValueError(f"proposal_draws '{self.proposal_draws}' unknown; choose one of "
-                             f"{list(choices.PROPOSAL_DRAWS)}")
+                             f"{list(DRAWS)} (\"auto\" is resolved by the run's sensor before)")
         if self.proposal_points < 1 or self.proposal_points % 2 == 0:
             raise ValueError(f"proposal_points {self.proposal_points} must be odd and >= 1")
         if not self.proposal_span > 0 or self.proposal_stages < 1:
