@@ -76,3 +76,5 @@ def test_auto_draws_follow_the_runs_sensor():
     assert sizing.filter_config(Config(), run).proposal_draws == "independent"
     with pytest.raises(ValueError, match="resolved"):
         rbpf.FilterConfig(1, (64, 64), (0.0, 0.0), 0.16, 8, proposal_draws="auto").validate()
+    with pytest.raises(ValueError, match="resolved"):
+        rbpf.standard_normals(jax.random.key(0), (4, 2), "auto")

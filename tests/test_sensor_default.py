@@ -53,7 +53,8 @@ def test_sensor_round_trips_and_bad_values_are_named(tmp_path):
 
 
 def test_online_takes_the_sensor():
-    assert Online(_small(), 20.0, sensor="stereo").cfg.ess_target == 0.99
-    assert Online(_small(), 20.0).cfg.ess_target == 0.5
+    stereo, unmarked = Online(_small(), 20.0, sensor="stereo").cfg, Online(_small(), 20.0).cfg
+    assert (stereo.ess_target, stereo.proposal_draws) == (0.99, "antithetic")
+    assert (unmarked.ess_target, unmarked.proposal_draws) == (0.5, "independent")
     with pytest.raises(ConfigError, match="sensor must be one of points, stereo, got 'lidar'"):
         Online(_small(), 20.0, sensor="lidar")

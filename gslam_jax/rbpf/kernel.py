@@ -94,6 +94,9 @@ def standard_normals(key: Array, shape: tuple[int, int], draws: str) -> Array:
     J, d = shape
     if draws == "independent":
         return jax.random.normal(key, (J, d), jnp.float32)
+    if draws != "antithetic":
+        raise ValueError(f"proposal draws '{draws}' unknown: 'independent' or 'antithetic' "
+                         "('auto' is resolved by the run's sensor before)")
     z = jax.random.normal(key, ((J + 1) // 2, d), jnp.float32)
     return jnp.concatenate([z, -z])[:J]
 
