@@ -86,10 +86,10 @@ def standard_normals(key: Array, shape: tuple[int, int], draws: str) -> Array:
     "independent": every row its own draw. "antithetic": rows ``j`` and ``j + ceil(J/2)`` are
     ``z`` and ``-z`` (an odd J leaves row ``J // 2`` unpaired). Every row is still N(0, I), so
     each particle's proposal and importance weight are unchanged; but the particles' unweighted
-    mean draw is zero, so where the map's weights are flat the particles' mean move is the
-    proposal's mean (the VO) instead of a Monte Carlo error of O(sigma / sqrt(J)) that a
-    random walk accumulates (antithetic variates; Owen, Monte Carlo theory, methods and
-    examples, 8.2).
+    mean draw is zero, so where the map's weights are flat their mean heading stays on the VO's
+    (eq. 3 is additive; their mean position to first order in the noise) instead of taking a
+    Monte Carlo error of O(sigma / sqrt(J)) that a random walk accumulates (antithetic
+    variates; Owen, Monte Carlo theory, methods and examples, 8.2).
     """
     J, d = shape
     if draws == "independent":
