@@ -73,7 +73,7 @@ class FilterSection:
     proposal_cell_stride: int = 1
     # the proposals' standard normals: "independent" per particle (the paper), or "antithetic"
     # pairs (particle j + ceil(J/2) moves by the negated draw of particle j), so that where the
-    # weights are flat the particles' mean path is the VO's; "auto": by the run's sensor,
+    # weights are flat the particles' mean heading is the VO's; "auto": by the run's sensor,
     # antithetic for stereo, independent for the simulator's point sensor
     # (choices.AUTO_PROPOSAL_DRAWS; why: docs/real-data.md)
     proposal_draws: str = "auto"
