@@ -52,6 +52,6 @@ AUTO_ESS_TARGET = {"points": 0.5, "stereo": 0.99}
 # ``[filter] proposal_draws = "auto"`` by the run's sensor; a run that names none: "points".
 # Stereo's weights are tempered nearly flat (above), so the estimate is close to the
 # particles' unweighted mean, whose Monte Carlo error antithetic pairs remove: on the KITTI clip
-# the final drift fell under VO's on 28 of 32 seeds against 18 (docs/real-data.md). On the
+# RMS and final drift both fell under VO's on 30 of 32 seeds, against 18 (docs/real-data.md). On the
 # point sensor's Table I they were no better (the maze +27 % on seeds 0-4, docs/results.md).
 AUTO_PROPOSAL_DRAWS = {"points": "independent", "stereo": "antithetic"}

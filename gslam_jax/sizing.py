@@ -186,8 +186,7 @@ def resolve_ess_target(ess_target: float, sensor: str | None) -> float:
 def resolve_proposal_draws(draws: str, sensor: str | None) -> str:
     """``[filter] proposal_draws``, or for "auto" ``choices.AUTO_PROPOSAL_DRAWS`` of the local
     maps' ``sensor`` (None: "points"). ConfigError naming an unknown sensor."""
-    resolved = choices.AUTO_PROPOSAL_DRAWS[_sensor(sensor)]
-    return resolved if draws == "auto" else draws
+    return choices.AUTO_PROPOSAL_DRAWS[_sensor(sensor)] if draws == "auto" else draws
 
 
 def _prior_pool(cfg: rbpf.FilterConfig, prior: PriorMap) -> rbpf.FilterConfig:
