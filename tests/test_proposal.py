@@ -85,8 +85,9 @@ def test_the_grid_starts_at_the_prior_mean():
     assert grid.shape == (1, 3) and spacing == 0.0
 
 
-def test_accumulated_covariance_matches_monte_carlo_of_the_motion_model():
-    params = MotionParams(0.05, 0.01, 0.05)
+@pytest.mark.parametrize("alpha_cross", [0.0, 0.03])
+def test_accumulated_covariance_matches_monte_carlo_of_the_motion_model(alpha_cross):
+    params = MotionParams(0.05, 0.01, 0.05, alpha_cross)
     controls = jnp.asarray(np.tile([0.3, 0.0, 0.02], (20, 1)), jnp.float32)
     pose = jnp.zeros(3)
     cov = jnp.zeros((3, 3))
@@ -95,7 +96,7 @@ def test_accumulated_covariance_matches_monte_carlo_of_the_motion_model():
     n = 100_000
     samples = jnp.zeros((n, 3))
     for t, u in enumerate(controls):
-        eps = jax.random.normal(jax.random.key(t), (n, 2))
+        eps = jax.random.normal(jax.random.key(t), (n, 3))
         samples = apply_motion(samples, u, eps, params)
     emp = np.cov(np.asarray(samples, np.float64).T)
     np.testing.assert_allclose(np.asarray(samples).mean(0), np.asarray(pose), atol=3e-3)

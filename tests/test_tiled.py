@@ -76,6 +76,7 @@ def _equivalence() -> dict:
     out = {}
     # "ignore" in one pass over the particles; "sample" in blocks of 5 (3 blocks and a tail of 1).
     # and "ignore" with adaptive tempering (issue 16), which the reference solves on its own.
+    # "sample" also with cross-track motion noise (MotionParams.alpha_cross).
     for mode, block, temper in (("ignore", 16, "fixed"), ("sample", 5, "fixed"),
                                 ("ignore", 16, "adaptive")):
         probe = rbpf.FilterConfig(16, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
@@ -87,6 +88,8 @@ def _equivalence() -> dict:
         assert cfg.max_observed < L * L  # the compacted update is what is compared
         key = jax.random.key(3)
         params = rbpf.FilterParams()
+        if mode == "sample":
+            params = params._replace(motion=params.motion._replace(alpha_cross=0.03))
         d = rbpf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
                             jnp.asarray(run.obs_index), jnp.asarray(obs), cfg)
         i = jax.device_get(d.infos)

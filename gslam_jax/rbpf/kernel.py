@@ -102,8 +102,14 @@ def standard_normals(key: Array, shape: tuple[int, int], draws: str) -> Array:
 
 
 def motion_noise(key: Array, cfg: FilterConfig) -> Array:
-    """Standard-normal motion draws [J, 2] for one frame (along-track, heading)."""
-    return standard_normals(key, (cfg.num_particles, 2), cfg.proposal_draws)
+    """Standard-normal motion draws [J, 3] for one frame (along-track, heading, cross-track).
+
+    The cross-track column comes from its own key, so the first two are the same draws whether
+    or not the motion model has cross-track noise (``MotionParams.alpha_cross``)."""
+    J = cfg.num_particles
+    return jnp.concatenate(
+        [standard_normals(key, (J, 2), cfg.proposal_draws),
+         standard_normals(jax.random.fold_in(key, 2), (J, 1), cfg.proposal_draws)], axis=1)
 
 
 def update_noise(key: Array, cfg: FilterConfig) -> UpdateNoise:

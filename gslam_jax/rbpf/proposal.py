@@ -58,15 +58,15 @@ __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candida
            "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
-# moves the position along-track only, so the covariance is singular until the heading noise
-# has spread it across; the floor keeps the Cholesky factor finite.
+# moves the position along-track only (with alpha_cross = 0), so the covariance is singular
+# until the heading noise has spread it across; the floor keeps the Cholesky factor finite.
 JITTER = (1e-8, 1e-8, 1e-10)
 
 
 def motion_covariance_step(pose: Array, cov: Array, u: Array, params: MotionParams) -> Array:
     """Linearised covariance [..., 3, 3] of the pose after one motion step from ``pose`` with
     covariance ``cov`` and control ``u`` (eqs. 1-3: along-track scale noise alpha_d, heading
-    noise sigma_theta): F P F^T + G G^T."""
+    noise sigma_theta, cross-track noise alpha_cross): F P F^T + G G^T."""
     _, _, sigma_theta = motion_stds(u, params)
     c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
     wx = c * u[..., 0] - s * u[..., 1]  # the step in the world frame
@@ -75,9 +75,10 @@ def motion_covariance_step(pose: Array, cov: Array, u: Array, params: MotionPara
     F = jnp.stack([jnp.stack([one, zero, -wy], -1),
                    jnp.stack([zero, one, wx], -1),
                    jnp.stack([zero, zero, one], -1)], -2)
-    G = jnp.stack([jnp.stack([params.alpha_d * wx, zero], -1),
-                   jnp.stack([params.alpha_d * wy, zero], -1),
-                   jnp.stack([zero, sigma_theta * one], -1)], -2)
+    a_c = params.alpha_cross
+    G = jnp.stack([jnp.stack([params.alpha_d * wx, zero, -a_c * wy], -1),
+                   jnp.stack([params.alpha_d * wy, zero, a_c * wx], -1),
+                   jnp.stack([zero, sigma_theta * one, zero], -1)], -2)
     return F @ cov @ jnp.swapaxes(F, -1, -2) + G @ jnp.swapaxes(G, -1, -2)
 
 
@@ -85,7 +86,7 @@ def propagate_mean(pose: Array, cov: Array, u: Array, params: MotionParams
                    ) -> tuple[Array, Array]:
     """One frame of the informed proposal's prediction: the motion model's mean (eq. 1 without
     noise) and the accumulated covariance (``motion_covariance_step``)."""
-    new = apply_motion(pose, u, jnp.zeros(pose.shape[:-1] + (2,), pose.dtype), params)
+    new = apply_motion(pose, u, jnp.zeros(pose.shape[:-1] + (3,), pose.dtype), params)
     return new, motion_covariance_step(pose, cov, u, params)
 
 

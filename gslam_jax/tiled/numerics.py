@@ -63,20 +63,24 @@ def hypot32(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def apply_motion(pose: np.ndarray, u: np.ndarray, eps: np.ndarray, alpha_d: float,
-                 alpha_theta_d: float, alpha_theta: float) -> np.ndarray:
-    """Eq. 1 for poses [J, 3] (float32) with standard-normal draws eps [J, 2].
+                 alpha_theta_d: float, alpha_theta: float, alpha_cross: float = 0.0
+                 ) -> np.ndarray:
+    """Eq. 1 for poses [J, 3] (float32) with standard-normal draws eps [J, 3].
 
-    The position noise is along the VO translation, sigma_d = alpha_d |d| (eq. 2), so it scales
-    the translation by (1 + alpha_d eps_0); heading noise has sigma_theta = alpha_theta_d |d| +
+    The position noise along the VO translation has sigma_d = alpha_d |d| (eq. 2), so it scales
+    the translation by (1 + alpha_d eps_0); across it, alpha_cross |d| eps_2 along the
+    translation turned by +90 degrees; heading noise has sigma_theta = alpha_theta_d |d| +
     alpha_theta |dtheta| (eq. 3).
     """
     pose, u, eps = np.asarray(pose, F32), np.asarray(u, F32), np.asarray(eps, F32)
     dist = hypot32(u[0], u[1])
     sigma_theta = F32(alpha_theta_d) * dist + F32(alpha_theta) * np.abs(u[2])
     scale = F32(1) + F32(alpha_d) * eps[:, 0]
+    side = F32(alpha_cross) * eps[:, 2]
     c, s = cos32(pose[:, 2]), sin32(pose[:, 2])
-    dx = (c * u[0] - s * u[1]) * scale
-    dy = (s * u[0] + c * u[1]) * scale
+    tx, ty = c * u[0] - s * u[1], s * u[0] + c * u[1]
+    dx = tx * scale - ty * side
+    dy = ty * scale + tx * side
     dth = u[2] + sigma_theta * eps[:, 1]
     return np.stack([pose[:, 0] + dx, pose[:, 1] + dy, pose[:, 2] + dth], axis=-1).astype(F32)
 

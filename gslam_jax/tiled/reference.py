@@ -129,7 +129,7 @@ def predict(state: TiledState, u: np.ndarray, eps: np.ndarray, params: FilterPar
     """Motion model (eqs. 1-3, 24) for every particle, in place."""
     m = params.motion
     state.pose = nm.apply_motion(state.pose, u, eps, float(m.alpha_d), float(m.alpha_theta_d),
-                                 float(m.alpha_theta))
+                                 float(m.alpha_theta), float(m.alpha_cross))
 
 
 def _particle(tmap: TileMap, pose: np.ndarray, cs: tuple, obs: np.ndarray, u: np.ndarray,
