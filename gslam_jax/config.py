@@ -89,11 +89,13 @@ class FilterSection:
 
 @dataclass(frozen=True)
 class MotionSection:
-    """VO error constants of eqs. 2-3."""
+    """VO error constants of eqs. 2-3, and the cross-track one (``rbpf.motion``)."""
 
     alpha_d: float = 0.05
     alpha_theta_d: float = 0.01
     alpha_theta: float = 0.05
+    # cross-track std per metre travelled (rbpf.motion); 0: the paper's eq. 1, which has none
+    alpha_cross: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -242,7 +244,7 @@ class Config:
             (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             *((getattr(self.motion, k) >= 0, "motion", k, "must be non-negative")
-              for k in ("alpha_d", "alpha_theta_d", "alpha_theta")),
+              for k in ("alpha_d", "alpha_theta_d", "alpha_theta", "alpha_cross")),
             (m.resolution > 0, "map", "resolution", "must be positive"),
             (m.margin >= 0, "map", "margin", "must be non-negative"),
             # S = 0 with k > 0 would make log S = -inf and every log weight NaN

@@ -237,6 +237,6 @@ def filter_params(config: Config, run: Run | None = None,
             noise = jnp.asarray(run_range_noise(run, config))
     return rbpf.FilterParams(
         motion=MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
-                            jnp.float32(m.alpha_theta)),
+                            jnp.float32(m.alpha_theta), jnp.float32(m.alpha_cross)),
         beta_prev=jnp.float32(config.filter.beta_prev),
         beta_new=jnp.float32(config.filter.beta_new), range_noise=noise)

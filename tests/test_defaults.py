@@ -31,7 +31,8 @@ def test_every_filter_setting_of_the_config_reaches_the_filter():
                               tempering="fixed", ess_target=0.7, beta_prev=0.2, beta_new=0.3,
                               proposal_draws="antithetic"),
                "map": dict(store="shared", tile=16, pool_tiles=900),
-               "motion": dict(alpha_d=0.11, alpha_theta_d=0.12, alpha_theta=0.13)}
+               "motion": dict(alpha_d=0.11, alpha_theta_d=0.12, alpha_theta=0.13,
+                              alpha_cross=0.14)}
     config = dataclasses.replace(Config(), **{
         name: dataclasses.replace(getattr(Config(), name), **values)
         for name, values in changed.items()})
@@ -43,7 +44,8 @@ def test_every_filter_setting_of_the_config_reaches_the_filter():
         assert getattr(cfg, name) == {**changed["filter"], **changed["map"]}[name], name
     assert cfg.num_particles == 9
     params = sizing.filter_params(config)
-    np.testing.assert_allclose([float(v) for v in params.motion], [0.11, 0.12, 0.13], rtol=1e-6)
+    np.testing.assert_allclose([float(v) for v in params.motion], [0.11, 0.12, 0.13, 0.14],
+                               rtol=1e-6)
     np.testing.assert_allclose([float(params.beta_prev), float(params.beta_new)], [0.2, 0.3],
                                rtol=1e-6)
 

@@ -307,7 +307,7 @@ def test_fit_motion_on_a_full_disk_leaves_no_file(tmp_path, run_file, capsys, mo
     from gslam_jax.app import outfile
     from gslam_jax.tuning import motion_fit
 
-    fit = motion_fit.MotionFit(0.05, 0.01, 0.02, 10, 1, 0.01, 0.01, 0.001, 0.2, 0.01, False)
+    fit = motion_fit.MotionFit(0.05, 0.01, 0.02, 0.01, 10, 1, 0.01, 0.01, 0.001, 0.2, 0.01, False)
     monkeypatch.setattr(motion_fit, "fit_run", lambda run, window: fit)
 
     def full(fd):

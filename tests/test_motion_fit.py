@@ -14,9 +14,10 @@ from gslam_jax.run import integrate_controls, load_run, save_run
 KITTI_LIKE = (0.005, 0.0007, 0.01)
 
 
-def simulate(alphas, n=10_000, seed=0, turn_std=0.2):
-    """VO controls u [n, 3] drawn by eqs. 1-3 around true increments, and the true poses;
-    the stds scale with the true |d| and |dtheta|, as ``fit_motion`` regresses them (numpy)."""
+def simulate(alphas, n=10_000, seed=0, turn_std=0.2, alpha_cross=0.0):
+    """VO controls u [n, 3] drawn by eqs. 1-3 around true increments (plus cross-track noise
+    of std alpha_cross |d|), and the true poses; the stds scale with the true |d| and
+    |dtheta|, as ``fit_motion`` regresses them (numpy)."""
     rng = np.random.default_rng(seed)
     dist = rng.uniform(0.1, 1.5, n)
     side = rng.normal(0.0, 0.1, n)  # direction of travel off the robot's x axis
@@ -25,7 +26,9 @@ def simulate(alphas, n=10_000, seed=0, turn_std=0.2):
     alpha_d, alpha_theta_d, alpha_theta = alphas
     scale = 1.0 + alpha_d * rng.standard_normal(n)  # eq. 2: along Delta d only
     sigma_theta = alpha_theta_d * dist + alpha_theta * np.abs(turn)  # eq. 3
-    u = np.column_stack([true_u[:, :2] * scale[:, None],
+    normal = np.column_stack([-true_u[:, 1], true_u[:, 0]])  # Delta d turned by +90 degrees
+    cross = alpha_cross * rng.standard_normal(n) if alpha_cross else np.zeros(n)
+    u = np.column_stack([true_u[:, :2] * scale[:, None] + normal * cross[:, None],
                          turn + sigma_theta * rng.standard_normal(n)])
     u[0] = true_u[0] = 0.0
     return u, integrate_controls(true_u, np.array([3.0, -1.0, 0.4]))
@@ -50,11 +53,22 @@ def test_recovers_the_alphas(alphas):
     assert fit.alpha_d == pytest.approx(alphas[0], rel=0.03)
     assert fit.alpha_theta_d == pytest.approx(alphas[1], rel=0.06)
     assert fit.alpha_theta == pytest.approx(alphas[2], rel=0.06)
-    assert fit.across_rms < 1e-9  # eq. 1: no noise across the direction of travel
+    assert fit.across_rms < 1e-9 and fit.alpha_cross < 1e-9  # eq. 1: none across the track
     dist = np.hypot(*np.diff(ref[:, :2], axis=0).T)
     dist = dist[dist >= MOVING_FRACTION * np.median(dist)]
     assert fit.along_rms == pytest.approx(alphas[0] * np.sqrt(np.mean(dist ** 2)), rel=0.03)
     assert not fit.alpha_theta_at_bound
+
+
+@pytest.mark.parametrize("alpha_cross", [0.004, 0.01])  # VO-sized: errors of first order
+def test_recovers_the_cross_track_noise(alpha_cross):
+    """The cross-track constant (rbpf.motion) from errors across the true translation, beside
+    unchanged along-track and heading fits."""
+    u, ref = simulate(KITTI_LIKE, seed=3, alpha_cross=alpha_cross)
+    fit = fit_motion(u, ref)
+    assert fit.alpha_cross == pytest.approx(alpha_cross, rel=0.03)
+    assert fit.alpha_d == pytest.approx(KITTI_LIKE[0], rel=0.03)
+    assert fit.alpha_theta_d == pytest.approx(KITTI_LIKE[1], rel=0.06)
 
 
 @pytest.mark.parametrize("turn_std", [0.0, 1e-9])
@@ -179,8 +193,9 @@ def test_cli_writes_a_config_with_the_fitted_motion(tmp_path, capsys):
     assert main(["fit-motion", str(path), "--set", "filter.particles=8", "--out", str(out)]) == 0
     fit = fit_run(load_run(path))
     config = load_config(out)
-    assert (config.motion.alpha_d, config.motion.alpha_theta_d, config.motion.alpha_theta) == \
-        (fit.alpha_d, fit.alpha_theta_d, fit.alpha_theta)
+    assert (config.motion.alpha_d, config.motion.alpha_theta_d, config.motion.alpha_theta,
+            config.motion.alpha_cross) == (fit.alpha_d, fit.alpha_theta_d, fit.alpha_theta,
+                                           fit.alpha_cross)
     assert config.filter.particles == 8  # the rest of the config is the one given
     text = capsys.readouterr().out
     assert "[motion]" in text and f"alpha_d = {fit.alpha_d!r}" in text

@@ -130,7 +130,8 @@ CONFIG_VALID = {
     ("filter", "particle_block"): {"0"}, ("filter", "ess_target"): {"0"},
     ("map", "margin"): {"0"}, ("map", "pool_tiles"): {"0"},
     ("motion", "alpha_d"): {"0"}, ("motion", "alpha_theta_d"): {"0"},
-    ("motion", "alpha_theta"): {"0"}, ("localmap", "min_height"): {"-1", "0"},
+    ("motion", "alpha_theta"): {"0"}, ("motion", "alpha_cross"): {"0"},
+    ("localmap", "min_height"): {"-1", "0"},
     ("localmap", "max_height"): {"-1", "0"}, ("localmap", "cells"): {"0"},
     ("stereo", "num_disparities"): {"0"}, ("stereo", "block"): {"0"}, ("stereo", "stride"): {"0"},
     **{("rig", k): {"0"} for k in ("height", "pitch", "roll", "yaw", "forward", "lateral")},
@@ -146,6 +147,7 @@ CONFIG_NOT_YET_BOUNDED = {
     ("map", "obs_weight"): {"1e300"}, ("localmap", "max_height"): {"1e300"},
     ("localmap", "travel"): {"1e300"}, ("motion", "alpha_d"): {"1e300"},
     ("motion", "alpha_theta_d"): {"1e300"}, ("motion", "alpha_theta"): {"1e300"},
+    ("motion", "alpha_cross"): {"1e300"},
 }
 
 

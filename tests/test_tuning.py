@@ -28,13 +28,15 @@ def short_run():
     return run
 
 
-def test_transition_score_is_the_motion_log_density_gradient():
+@pytest.mark.parametrize("alpha_cross", [0.0, 0.03])
+def test_transition_score_is_the_motion_log_density_gradient(alpha_cross):
     """Zero in value; in gradient, d/dtheta log p_theta(x_t | x_{t-1}, u_t) of motion.py."""
     rng = np.random.default_rng(0)
     pose = jnp.asarray(rng.normal(size=(16, 3)), jnp.float32)
     u = jnp.asarray([0.4, 0.05, 0.2], jnp.float32)
-    eps = jnp.asarray(rng.normal(size=(16, 2)), jnp.float32)
-    p0 = MotionParams(jnp.float32(0.05), jnp.float32(0.02), jnp.float32(0.08))
+    eps = jnp.asarray(rng.normal(size=(16, 3)), jnp.float32)
+    p0 = MotionParams(jnp.float32(0.05), jnp.float32(0.02), jnp.float32(0.08),
+                      jnp.float32(alpha_cross))
     new = apply_motion(pose, u, eps, p0)
 
     def score(p):
@@ -46,6 +48,16 @@ def test_transition_score_is_the_motion_log_density_gradient():
     g1, g2 = jax.grad(score)(p0), jax.grad(dens)(p0)
     for a, b in zip(g1, g2):
         np.testing.assert_allclose(float(a), float(b), rtol=2e-3)
+    assert (float(g1.alpha_cross) != 0.0) == (alpha_cross > 0)
+
+
+def test_default_names_leave_out_a_term_switched_off():
+    """alpha_cross is 0 by default (the paper's eq. 1): log space cannot start there, so the
+    tuner's default names leave it out until it is given a positive value."""
+    assert "alpha_cross" in TU.MOTION_PARAM_NAMES
+    assert "alpha_cross" not in TU.default_names("loglik", {"alpha_cross": 0.0})
+    assert "alpha_cross" in TU.default_names("supervised", {"alpha_cross": 0.01})
+    assert TU.default_names("loglik") == TU.MOTION_PARAM_NAMES
 
 
 def test_forward_values_equal_the_filter(short_run):

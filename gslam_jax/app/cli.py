@@ -267,7 +267,8 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
     config, run = _config_and_run(args)
     fit = fit_run(run, args.window)
     fitted = dataclasses.replace(config, motion=MotionSection(
-        alpha_d=fit.alpha_d, alpha_theta_d=fit.alpha_theta_d, alpha_theta=fit.alpha_theta))
+        alpha_d=fit.alpha_d, alpha_theta_d=fit.alpha_theta_d, alpha_theta=fit.alpha_theta,
+        alpha_cross=fit.alpha_cross))
     print(section_to_toml(fitted, "motion"))
     print(_fit_text(fit, run.num_frames))
     if args.out is not None:

@@ -144,7 +144,8 @@ def _motion_check(run, config: Config) -> dict:
     m = config.motion
     along, heading = noise_ratios((m.alpha_d, m.alpha_theta_d, m.alpha_theta), fit)
     return {"motion_fit": {"alpha_d": fit.alpha_d, "alpha_theta_d": fit.alpha_theta_d,
-                           "alpha_theta": fit.alpha_theta, "window_frames": fit.window,
+                           "alpha_theta": fit.alpha_theta, "alpha_cross": fit.alpha_cross,
+                           "window_frames": fit.window,
                            "frames": fit.frames, "configured_over_fitted_along": along,
                            "configured_over_fitted_heading": heading}}
 

@@ -80,25 +80,28 @@ class Objectives(NamedTuple):
 
 def transition_score(eps: Array, u: Array, params: MotionParams) -> Array:
     """``log p_theta(x_t | x_{t-1}, u_t) - stop_gradient(same)`` for particles moved by
-    standard-normal draws ``eps`` [J, 2] (Scibior & Wood 2021): zero in value, the score of the
+    standard-normal draws ``eps`` [J, 3] (Scibior & Wood 2021): zero in value, the score of the
     transition density (eqs. 1-3) w.r.t. the alphas in gradient.
 
     The sampled residuals are sg(sigma) * eps; their density under sigma(theta) is
     N(sg(sigma) eps; 0, sigma^2), written from eps directly rather than recovered from the
     poses (no float32 cancellation). Along-track: sigma_d = alpha_d |d|; heading:
-    sigma_theta = alpha_theta_d |d| + alpha_theta |dtheta|. Zero-std components (no motion)
-    contribute nothing.
+    sigma_theta = alpha_theta_d |d| + alpha_theta |dtheta|; cross-track: sigma_c =
+    alpha_cross |d|. Zero-std components (no motion, or a zero alpha) contribute nothing.
     """
     dist, _, sigma_t = motion_stds(u, params)
-    a_d = params.alpha_d
-    # Safe stand-ins inside where: a zero std must give neither a NaN value nor a NaN gradient.
-    a_safe = jnp.where(a_d > 0, a_d, 1.0)
-    lp_d = jnp.where((dist > 0) & (a_d > 0),
-                     -0.5 * (sg(a_safe) * eps[..., 0] / a_safe) ** 2 - jnp.log(a_safe), 0.0)
-    st_safe = jnp.where(sigma_t > 0, sigma_t, 1.0)
-    lp_t = jnp.where(sigma_t > 0, -0.5 * (sg(st_safe) * eps[..., 1] / st_safe) ** 2
-                     - jnp.log(st_safe), 0.0)
-    lp = lp_d + lp_t
+
+    def normal(residual_scale: Array, e: Array, moves: Array) -> Array:
+        """log N(sg(a) e; 0, a^2) up to its constant, 0 where a = 0 or nothing moves. Safe
+        stand-ins inside where: a zero std gives neither a NaN value nor a NaN gradient."""
+        on = moves & (residual_scale > 0)
+        a = jnp.where(on, residual_scale, 1.0)
+        return jnp.where(on, -0.5 * (sg(a) * e / a) ** 2 - jnp.log(a), 0.0)
+
+    moved = dist > 0
+    lp = (normal(params.alpha_d, eps[..., 0], moved)  # sigma_d / |d|: |d| is no parameter
+          + normal(sigma_t, eps[..., 1], jnp.ones_like(moved))
+          + normal(jnp.asarray(params.alpha_cross), eps[..., 2], moved))
     return lp - sg(lp)
 
 
@@ -215,10 +218,12 @@ class TuneResult(NamedTuple):
     seconds: float
 
 
-def default_names(objective: str) -> tuple[str, ...]:
+def default_names(objective: str, start: dict[str, float] | None = None) -> tuple[str, ...]:
     """The alphas for "loglik" (the tempered likelihood is not normalised in the betas), the
-    filter parameters (alphas and betas) for "supervised"."""
-    return MOTION_PARAM_NAMES if objective == "loglik" else FILTER_PARAM_NAMES
+    filter parameters (alphas and betas) for "supervised"; less those whose ``start`` value
+    is 0 (a term switched off, as alpha_cross by default: log space cannot start there)."""
+    names = MOTION_PARAM_NAMES if objective == "loglik" else FILTER_PARAM_NAMES
+    return tuple(n for n in names if start is None or start.get(n, 1.0) != 0.0)
 
 
 def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "adam",
@@ -247,7 +252,9 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     if config.filter.proposal != "motion":
         raise TuneError(f"[filter] proposal = \"{config.filter.proposal}\": gradient tuning "
                         "differentiates the motion proposal only; tune with proposal = \"motion\"")
-    names = tuple(names) if names is not None else default_names(objective)
+    cur = base_values(config)
+    cur.update(start or {})
+    names = tuple(names) if names is not None else default_names(objective, cur)
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise TuneError(f"parameters named twice: {', '.join(repeated)}; name each once")
@@ -271,8 +278,6 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
     if objective == "supervised":
         slam.require_ground_truth(inputs.mask, objective, TuneError)
     base = sizing.filter_params(config, run)
-    cur = base_values(config)
-    cur.update(start or {})
     for n in names:
         if not (math.isfinite(cur[n]) and cur[n] > 0):
             raise TuneError(f"start value of '{n}' must be positive and finite, got {cur[n]}")

@@ -6,7 +6,9 @@ q_d along Delta d and q_theta on the heading; eq. 2: std(q_d) = alpha_d |Delta d
 std(q_theta) = alpha_theta_d |Delta d| + alpha_theta |Delta theta|. The errors of the VO
 increments against the ground-truth increments are samples of (q_d, q_theta), so
 
-- alpha_d has the closed form sqrt(mean((e_a / |d|)^2)), e_a the along-track error;
+- alpha_d has the closed form sqrt(mean((e_a / |d|)^2)), e_a the along-track error, and the
+  cross-track constant alpha_cross (``rbpf.motion``; the paper has none) the same form in the
+  cross-track error e_c;
 - (alpha_theta_d, alpha_theta) minimise the Gaussian negative log-likelihood of the heading
   errors, both >= 0 and alpha_theta <= ``ALPHA_THETA_MAX`` (it is not identifiable when every
   |dtheta| is tiny, and must not run off then).
@@ -61,10 +63,11 @@ class MotionFit(NamedTuple):
     alpha_d: float
     alpha_theta_d: float
     alpha_theta: float
+    alpha_cross: float  # cross-track std per metre (rbpf.motion; the paper's eq. 1 has none)
     frames: int  # frames used (alpha_d: those that moved; heading: also those that turned)
     window: int  # consecutive frames whose summed errors were fitted (1: each frame alone)
     along_rms: float  # m, VO minus truth along the VO direction
-    across_rms: float  # m, across it (eq. 1 assumes none)
+    across_rms: float  # m, across it (the paper's eq. 1 assumes none)
     heading_rms: float  # rad
     median_dist: float  # m, median true |Delta d| of the frames used
     median_turn: float  # rad, median true |Delta theta|
@@ -221,13 +224,16 @@ def fit_motion(controls: np.ndarray, reference: np.ndarray | None,
                              f"usable frames: fitting the motion model needs at least "
                              f"{MIN_FRAMES} (a smaller window, or a longer log)")
     dist, along = e.dist[moving][along_w], e.along[moving][along_w].sum(axis=1)
+    across = e.across[moving][along_w].sum(axis=1)
     alpha_d = float(np.sqrt(np.mean(along ** 2 / np.sum(dist ** 2, axis=1))))
+    alpha_cross = float(np.sqrt(np.mean(across ** 2 / np.sum(dist ** 2, axis=1))))
     h_dist, h_turn = e.dist[heading][head_w], e.turn[heading][head_w]
     h_err = e.heading[heading][head_w].sum(axis=1)
     a_scale = float(np.sqrt(np.mean(h_err ** 2 / np.sum(h_dist ** 2, axis=1))))
     alpha_theta_d, alpha_theta = _fit_heading(h_dist, h_turn, h_err, a_scale)
     return MotionFit(alpha_d=alpha_d, alpha_theta_d=alpha_theta_d, alpha_theta=alpha_theta,
-                     frames=int(heading.sum()), window=window, along_rms=_rms(e.along[moving]),
+                     alpha_cross=alpha_cross, frames=int(heading.sum()), window=window,
+                     along_rms=_rms(e.along[moving]),
                      across_rms=_rms(e.across[moving]), heading_rms=_rms(e.heading[heading]),
                      median_dist=float(np.median(e.dist[moving])),
                      median_turn=float(np.median(e.turn[heading])),

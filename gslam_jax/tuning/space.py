@@ -66,6 +66,7 @@ _SETTINGS = (
     Setting("alpha_d", "motion"),
     Setting("alpha_theta_d", "motion"),
     Setting("alpha_theta", "motion"),
+    Setting("alpha_cross", "motion"),
     Setting("beta_prev", "filter", positive=True),
     Setting("beta_new", "filter", positive=True),
     Setting("min_variance", "map", positive=True),
