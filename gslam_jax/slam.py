@@ -22,7 +22,7 @@ from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap
 from gslam_jax.map_reuse import PriorMap, prior_state, rebase
 from gslam_jax.observations import ObsSettings, map_observations, obs_settings, raw_observations
-from gslam_jax.rbpf import maps
+from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.run import Run, known_positions
 from gslam_jax.sizing import filter_config, filter_params, map_memory
 
@@ -103,6 +103,38 @@ def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.n
         raise WeightError(
             f"frame {t}: {what} (ESS {float(ess[i])}, evidence (log-likelihood) "
             f"{float(log_lik[i])}, not finite); {check}")
+
+
+def _scan_chunk(state: rbpf.FilterState, start: int, frames: tuple, obs: jax.Array,
+                params: rbpf.FilterParams, cfg: rbpf.FilterConfig,
+                growth: maps.PoolGrowth | None) -> tuple[rbpf.FilterState, tuple,
+                                                          rbpf.FilterConfig]:
+    """``rbpf.scan_frames`` over one chunk of ``frames`` (keys, controls, obs_index) from frame
+    ``start``, its outputs on the host. With an automatic pool (``growth``) the chunk is run
+    again from its start, in a grown pool, when it ran out of tiles (as long as the memory
+    allows; otherwise its outputs carry the status that ``_check_map_status`` names)."""
+    if growth is None:
+        state, out = rbpf.scan_frames(state, *frames, obs, params, cfg)
+        return state, jax.device_get(out), cfg
+    growth.before(state.maps)
+    kept = jax.tree.map(jnp.copy, state)  # scan_frames donates the state it is given
+    while True:
+        state, out = rbpf.scan_frames(state, *frames, obs, params, cfg)
+        out = jax.device_get(out)
+        ran_out = _ran_out(out[0])
+        regrown = ran_out and growth.regrow(kept.maps, cfg, start, start + ran_out - 1)
+        if not regrown:
+            return state, out, cfg
+        kept, cfg = kept._replace(maps=regrown[0]), regrown[1]
+        growth.before(kept.maps)
+        state = jax.tree.map(jnp.copy, kept)
+
+
+def _ran_out(info: rbpf.StepInfo) -> int:
+    """1 + the chunk frame at which the shared pool first ran out of tiles; 0 if it did not."""
+    status = np.asarray(info.map_status)
+    hit = (status & tilestore.POOL_EXHAUSTED) != 0
+    return int(np.argmax(hit)) + 1 if hit.any() else 0
 
 
 def _check_map_status(info: rbpf.StepInfo, start: int, cfg: rbpf.FilterConfig,
@@ -209,17 +241,18 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     else:
         state = prior_state(prior, cfg, key)
     outputs = []
-    growth = maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, *map_memory())
+    available, what = map_memory()
+    # an automatic pool keeps a copy of each chunk's start to run it again if it runs out:
+    # two pools live at once, so each may take half the memory
+    growth = maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, available // 2, what)
     t0 = time.perf_counter()
     compile_s = hook_s = 0.0
     for start in range(0, T + pad, chunk):
         sl = slice(start, start + chunk)
-        if growth is not None:
-            growth.before(state.maps)
         c0 = time.perf_counter()
-        state, out = rbpf.scan_frames(state, keys[sl], jnp.asarray(controls[sl]),
-                                      jnp.asarray(obs_index[sl]), obs, params, cfg)
-        out = jax.device_get(out)
+        state, out, cfg = _scan_chunk(state, start, (keys[sl], jnp.asarray(controls[sl]),
+                                                     jnp.asarray(obs_index[sl])),
+                                      obs, params, cfg, growth)
         if start == 0:
             compile_s = time.perf_counter() - c0  # first chunk includes compilation
         _check_weights(out[0], start, min(chunk, T - start), obs_index)

@@ -299,9 +299,10 @@ def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
         slam.run_slam(run, config)
 
 
-def test_an_automatic_pool_that_one_chunk_exhausts_says_it_is_automatic(monkeypatch):
-    """The whole run as one chunk leaves an automatic pool (30 tiles here) no chance to grow:
-    the error says the pool was automatic and to fix its size, not that a setting of 30 was."""
+def test_a_chunk_that_exhausts_an_automatic_pool_runs_again_in_a_grown_one(monkeypatch):
+    """The whole run as one chunk, an automatic pool of 30 tiles: the chunk runs out, is run
+    again from its start with the pool grown (as often as it takes), says so, and the run is
+    the dense store's bit for bit."""
     import dataclasses
 
     from gslam_jax import slam
@@ -311,9 +312,34 @@ def test_an_automatic_pool_that_one_chunk_exhausts_says_it_is_automatic(monkeypa
     automatic = dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
     real = maps.pool_tiles
     monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 30))
+    with pytest.warns(maps.MapStoreNotice, match=r"^frame \d+: .*pool ran out; frames from 0 "
+                                                 r"run again after it grew from 30 to \d+ tiles"):
+        shared = slam.run_slam(run, automatic, chunk=run.num_frames)
+    dense = slam.run_slam(run, dataclasses.replace(
+        config, map=dataclasses.replace(config.map, store="dense")), chunk=run.num_frames)
+    np.testing.assert_array_equal(shared.best_path, dense.best_path)
+    np.testing.assert_array_equal(shared.kmap, dense.kmap)
+    np.testing.assert_array_equal(shared.ess, dense.ess)
+
+
+def test_an_automatic_pool_without_room_to_grow_says_it_is_automatic(monkeypatch):
+    """No memory to grow an automatic pool (30 tiles here) into: the error says the pool was
+    automatic and to fix its size, not that a setting of 30 was."""
+    import dataclasses
+
+    from gslam_jax import slam
+    from gslam_jax.rbpf import maps
+
+    run, config = _pool_run_and_config()
+    automatic = dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
+    real = maps.pool_tiles
+    monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 30))
+    cfg = slam.filter_config(automatic, run)
+    monkeypatch.setattr(slam, "map_memory", lambda: (3 * maps.map_bytes(cfg), "test memory"))
     with pytest.raises(ts.PoolExhaustedError,
-                       match=r"^frame \d+: .*automatic pool of 30 tiles ran out before it could "
-                             r"grow.*set \[map\] pool_tiles to a fixed size above 30"):
+                       match=r"^frame \d+: .*automatic pool of 30 tiles ran out, and the memory "
+                             r"has no room to grow it.*set \[map\] pool_tiles to a fixed size "
+                             r"above 30"):
         slam.run_slam(run, automatic, chunk=run.num_frames)
 
 

@@ -261,8 +261,10 @@ class PoolGrowth:
     long run does not run out of tiles. After each chunk the pool keeps at least twice the most
     tiles any chunk has taken so far (its free count at the start less the lowest at a frame's
     end, ``StepInfo.map_free``), plus one update's worth for every particle (taken and given
-    back within a frame). Growing changes no value; the filter step recompiles for the new
-    pool, and ``MapStoreNotice`` says so."""
+    back within a frame). A chunk that runs out all the same (its first, or a sudden spread of
+    the particles) is run again from its start with the pool doubled (``regrow``; the caller
+    keeps a copy of the chunk's starting state). Growing changes no value; the filter step
+    recompiles for the new pool, and ``MapStoreNotice`` says so."""
 
     def __init__(self, available: int, what: str):
         self.available, self.what = available, what
@@ -291,9 +293,22 @@ class PoolGrowth:
         grown = grow_pool(maps_, cfg, need, self.available)
         if grown is None:
             return maps_, cfg
-        warnings.warn(f"frame {frame}: the shared map store's automatic pool grew from "
-                      f"{pool_tiles(cfg)} to {pool_tiles(grown[1])} tiles "
-                      f"({map_bytes(grown[1]) / 2**20:.1f} MiB of {self.what}); the filter "
-                      f"step compiles again for it. [map] pool_tiles = N fixes the pool's size",
-                      MapStoreNotice, stacklevel=3)
+        self._notice(f"frame {frame}: the shared map store's automatic pool grew", cfg, grown[1])
         return grown
+
+    def regrow(self, start_maps: Maps, cfg: FilterConfig, start: int, frame: int
+               ) -> tuple[Maps, FilterConfig] | None:
+        """``start_maps`` (a copy of the maps as the chunk from frame ``start`` began) in a pool
+        at least twice as large, for running the chunk again after it ran out of tiles at
+        ``frame``; None when the memory given has no room for it beside the old pool."""
+        grown = grow_pool(start_maps, cfg, 2 * pool_tiles(cfg), self.available)
+        if grown is not None:
+            self._notice(f"frame {frame}: the shared map store's automatic pool ran out; frames "
+                         f"from {start} run again after it grew", cfg, grown[1])
+        return grown
+
+    def _notice(self, what: str, cfg: FilterConfig, grown: FilterConfig) -> None:
+        warnings.warn(f"{what} from {pool_tiles(cfg)} to {pool_tiles(grown)} tiles "
+                      f"({map_bytes(grown) / 2**20:.1f} MiB of {self.what}); the filter step "
+                      f"compiles again for it. [map] pool_tiles = N fixes the pool's size",
+                      MapStoreNotice, stacklevel=4)

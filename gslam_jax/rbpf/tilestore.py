@@ -409,8 +409,8 @@ def check_status(status: int | Array, pool_tiles: int, where: str = "",
     status = int(status)
     if status & POOL_EXHAUSTED:
         raise PoolExhaustedError(where + (
-            f"the shared map store's automatic pool of {pool_tiles} tiles ran out before it "
-            f"could grow (it grows between chunks of frames, as far as the memory allows); set "
+            f"the shared map store's automatic pool of {pool_tiles} tiles ran out, and the "
+            f"memory has no room to grow it (it grows as far as the memory allows); set "
             f"[map] pool_tiles to a fixed size above {pool_tiles}" if automatic else
             f"the shared map store ran out of tiles: [map] pool_tiles = {pool_tiles} is too "
             f"small for this run; raise [map] pool_tiles") + " (or use [map] store = \"dense\")")
