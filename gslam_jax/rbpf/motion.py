@@ -22,7 +22,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-__all__ = ["MotionParams", "motion_stds", "apply_motion", "sample_motion", "log_density"]
+__all__ = ["MotionParams", "motion_stds", "world_step", "apply_motion", "sample_motion",
+           "log_density"]
 
 
 class MotionParams(NamedTuple):
@@ -43,6 +44,13 @@ def motion_stds(u: Array, params: MotionParams) -> tuple[Array, Array, Array]:
     return dist, sigma_d, sigma_theta
 
 
+def world_step(pose: Array, u: Array) -> tuple[Array, Array]:
+    """Delta d, the control's translation u[..., :2] turned into the world frame by the pose's
+    heading: (x, y) components."""
+    c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
+    return c * u[..., 0] - s * u[..., 1], s * u[..., 0] + c * u[..., 1]
+
+
 def apply_motion(pose: Array, u: Array, eps: Array, params: MotionParams) -> Array:
     """Eq. 1 with standard-normal draws ``eps`` [..., 3] (along-track, heading, cross-track).
 
@@ -51,9 +59,7 @@ def apply_motion(pose: Array, u: Array, eps: Array, params: MotionParams) -> Arr
     _, _, sigma_theta = motion_stds(u, params)
     scale = 1.0 + params.alpha_d * eps[..., 0]  # along-track noise: sigma_d / |d| = alpha_d
     cross = params.alpha_cross * eps[..., 2]  # cross-track noise: sigma_c / |d| = alpha_cross
-    c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
-    wx = c * u[..., 0] - s * u[..., 1]  # Delta d in the world frame
-    wy = s * u[..., 0] + c * u[..., 1]
+    wx, wy = world_step(pose, u)
     dx = wx * scale - wy * cross
     dy = wy * scale + wx * cross
     dtheta = u[..., 2] + sigma_theta * eps[..., 1]
@@ -75,9 +81,7 @@ def log_density(new_pose: Array, pose: Array, u: Array, params: MotionParams,
     is left out, not evaluated at zero width). ``min_std`` keeps a zero control finite.
     """
     dist, sigma_d, sigma_theta = motion_stds(u, params)
-    c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
-    wx = c * u[..., 0] - s * u[..., 1]
-    wy = s * u[..., 0] + c * u[..., 1]
+    wx, wy = world_step(pose, u)
     safe = jnp.where(dist > 0, dist, 1.0)
     step_x, step_y = new_pose[..., 0] - pose[..., 0], new_pose[..., 1] - pose[..., 1]
     along = (step_x * wx + step_y * wy) / safe

@@ -49,7 +49,7 @@ from jax import Array, lax
 from gslam_jax.rbpf import cells, maps
 from gslam_jax.rbpf.footprint import footprint_at, read_borrowed
 from gslam_jax.rbpf.importance import cell_noise, log_lambda
-from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds
+from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds, world_step
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
@@ -68,9 +68,7 @@ def motion_covariance_step(pose: Array, cov: Array, u: Array, params: MotionPara
     covariance ``cov`` and control ``u`` (eqs. 1-3: along-track scale noise alpha_d, heading
     noise sigma_theta, cross-track noise alpha_cross): F P F^T + G G^T."""
     _, _, sigma_theta = motion_stds(u, params)
-    c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
-    wx = c * u[..., 0] - s * u[..., 1]  # the step in the world frame
-    wy = s * u[..., 0] + c * u[..., 1]
+    wx, wy = world_step(pose, u)
     zero, one = jnp.zeros_like(wx), jnp.ones_like(wx)
     F = jnp.stack([jnp.stack([one, zero, -wy], -1),
                    jnp.stack([zero, one, wx], -1),
