@@ -8,7 +8,7 @@ placement (``gridmap.align``), so it has to be caught from the run itself.
 The check reads the run's local maps at its reported path (the map's own poses). The path is cut
 into stretches of ``stretch_m`` metres of travel. Each stretch's local maps, fused (eq. 14), are
 scored against the map fused from every frame at least ``gap_m`` metres of travel before it (so
-the terrain just driven does not count), by the gamma likelihood of ``gridmap.align`` (eq. 26,
+the terrain just driven does not count), by the gamma likelihood of ``gridmap.score`` (eq. 26,
 each cell's term against chance, standardised to z), over every shift within ``search_m`` and
 heading within ``search_rad`` of where the path placed it (turns about the stretch's centroid).
 A stretch that lands on enough earlier cells is a revisit. The revisit is doubled when a
@@ -17,7 +17,7 @@ better than the path's own placement by at least ``min_gap_z`` in z, is itself w
 (``min_z``), and is not ambiguous (no distinct placement within ``min_gap_z`` of it). A
 consistent map scores best at, or within a cell or two of, its own placement.
 
-All NumPy apart from the scoring (``align.score_poses``, jitted); deterministic.
+All NumPy apart from the scoring (``gridmap.score.score_poses``, jitted); deterministic.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gslam_jax.gridmap.align import score_poses
+from gslam_jax.gridmap.score import score_poses
 from gslam_jax.gridmap.grid import GridMap, apply_pose, known_cells
 from gslam_jax.loops import arc_length
 from gslam_jax.metrics import place_local_map, pose_lattice
@@ -196,7 +196,8 @@ def _check_stretch(run: Run, poses: np.ndarray, group: np.ndarray, lattice: Grid
     world = world - centroid
     radius = float(np.max(np.hypot(*world.T))) + b.resolution
     # The search: every placement on a grid of two cells and four heading steps (a step moves
-    # a cell at the window's half-side by one cell), scored on 2 x 2 blocks (``align.pool``);
+    # a cell at the window's half-side by one cell), scored on 2 x 2 blocks
+    # (``gridmap.score.pool``);
     # then, on the cells themselves, the neighbours (one cell, two heading steps) of its best
     # placement, of its best placement distinct from that, and the path's own placement (the
     # stretch's frame turns about its centroid: a pose is its own correction).

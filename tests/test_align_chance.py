@@ -1,14 +1,13 @@
-"""The alignment's chance baseline (``align._level``): for a map with fewer known cells than the
-table's sample, the mean and variance of eq. 26 over exactly its known cells, and one compiled
-table for maps of any size."""
+"""The alignment score's chance baseline (``gridmap.score.reference_level``): for a map with
+fewer known cells than the table's sample, the mean and variance of eq. 26 over exactly its
+known cells, and one compiled table for maps of any size."""
 
 from __future__ import annotations
 
 import numpy as np
 from jax import enable_x64
 
-from gslam_jax.gridmap import GridMap
-from gslam_jax.gridmap import align
+from gslam_jax.gridmap import GridMap, score
 from gslam_jax.rbpf import cells
 
 
@@ -23,8 +22,9 @@ def _map(known: int, seed: int) -> GridMap:
 def test_chance_tables_of_a_small_map_are_over_its_own_known_cells() -> None:
     a = _map(300, seed=0)  # under the 2048 samples: every known cell, padded
     max_dof, points = 8, 16
-    lvl = align._level(a, 1, pad=2, max_dof=max_dof, log_v_range=(-6.0, -2.0), points=points)
-    k, S = align.temper(a.k, a.S, max_dof)
+    lvl = score.reference_level(a, 1, pad=2, max_dof=max_dof, log_v_range=(-6.0, -2.0),
+                                points=points)
+    k, S = score.temper(a.k, a.S, max_dof)
     ka, Sa = k[k > 0], S[k > 0]
     grid = np.asarray(lvl.log_v_grid, np.float64)
     with enable_x64(True):  # eq. 26 in float64, the general (non-integer) form
@@ -37,7 +37,7 @@ def test_chance_tables_of_a_small_map_are_over_its_own_known_cells() -> None:
 
 
 def test_maps_of_different_sizes_share_one_compiled_chance_table() -> None:
-    align._chance_tables.clear_cache()
+    score.chance_tables.clear_cache()
     for known, seed in ((120, 1), (700, 2), (1500, 3)):
-        align._level(_map(known, seed), 1, pad=2, max_dof=8, log_v_range=(-6.0, -2.0))
-    assert align._chance_tables._cache_size() == 1
+        score.reference_level(_map(known, seed), 1, pad=2, max_dof=8, log_v_range=(-6.0, -2.0))
+    assert score.chance_tables._cache_size() == 1

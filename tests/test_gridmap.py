@@ -17,7 +17,8 @@ from gslam_jax.errors import InputError
 from gslam_jax.gridmap import (GridMap, MapFileError, add, compose, invert_pose, known_cells,
                                load_map, place, save_map, transform)
 from gslam_jax.gridmap import align as align_mod
-from gslam_jax.gridmap.align import AlignmentRefused, align_maps, score_poses
+from gslam_jax.gridmap.align import AlignmentRefused, align_maps
+from gslam_jax.gridmap.score import score_poses, temper
 from gslam_jax.gridmap import merge as merge_mod
 from gslam_jax.gridmap.align import AlignParams, PosePrior
 from gslam_jax.gridmap.merge import merge_maps
@@ -131,8 +132,8 @@ def test_score_matches_brute_force() -> None:
     b = _observe(3, truth, 2.0, 2)
     pose = truth + np.array([0.05, 0.02, 0.01])
     score, z, overlap = score_poses(a, b, pose[None], max_dof=8)
-    ka, Sa = align_mod.temper(a.k, a.S, 8)
-    kb, Sb = align_mod.temper(b.k, b.S, 8)
+    ka, Sa = temper(a.k, a.S, 8)
+    kb, Sb = temper(b.k, b.S, 8)
     known_a = ka > 0
     centres, _, _ = known_cells(b)
     placed = np.column_stack([

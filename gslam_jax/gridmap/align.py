@@ -1,18 +1,9 @@
 """Global alignment of two variance grid maps by the gamma likelihood the filter weighs with.
 
-The pose T = (x, y, theta) of map B's frame in map A's frame is found by scoring B's cells,
-carried by T onto A's lattice, against A's cells with the log posterior predictive of eq. 26.
-Each cell's term is a log-likelihood ratio against chance:
-
-    g(b, a) = lambda(b | a) - E_a'[lambda(b | a')],
-
-the expectation over A's known cells a' (what the unknown-cell model of eq. 31 would borrow),
-so a placement on unrelated terrain scores 0 on average and a cell of B over unknown A scores 0.
-The score of T is the sum of g over B's cells. Both maps' statistics are tempered to at most
-``max_dof`` degrees of freedom per cell (k and S scaled together, the variance kept): finished
-maps hold cells of thousands of points whose exact variances differ between runs by more than
-their nominal precision (different VO noise, different blur), and the untempered likelihood
-would trust them beyond that.
+The pose T = (x, y, theta) of map B's frame in map A's frame is the one that maximises the
+score of ``gridmap.score``: B's cells placed by T on A's lattice, each scored against A's cell
+by the log posterior predictive of eq. 26 as a log-likelihood ratio against chance, both maps
+tempered to at most ``max_dof`` degrees of freedom per cell.
 
 The search is global and coarse to fine. At level f the lattice has cells f x f times A's (the
 statistics of eq. 14 summed per block, so a coarse cell holds the pooled within-cell variance of
@@ -45,12 +36,14 @@ import numpy as np
 from jax import Array, lax
 
 from gslam_jax.errors import InputError
-from gslam_jax.gridmap.grid import GridMap, compose, invert_pose, known_cells
-from gslam_jax.rbpf import cells
+from gslam_jax.gridmap.grid import GridMap, compose, invert_pose
+from gslam_jax.gridmap.score import (Level, MovingMap, bucket, cell_terms, log_variance_range,
+                                     moving_map, prepare, reach, reference_level,
+                                     score_pose_batch)
 from gslam_jax.rbpf.proposal import candidate_grid, quadratic_design, quadratic_hessian
 
 __all__ = ["AlignParams", "PosePrior", "Alignment", "AlignmentRefused", "align_maps",
-           "check_alignment", "score_poses", "map_blocks", "pool", "temper", "FLAT_VARIANCE"]
+           "check_alignment", "map_blocks", "FLAT_VARIANCE"]
 
 
 # variance, in squared grid steps, of a direction along which the score does not curve down
@@ -149,206 +142,13 @@ class AlignmentRefused(InputError):
         self.alignment = alignment
 
 
-def temper(k: np.ndarray, S: np.ndarray, max_dof: int) -> tuple[np.ndarray, np.ndarray]:
-    """(k, S) with k at most ``max_dof`` and whole (the fast eq. 26 needs integer k), S scaled
-    by the same factor: the variance S / k is kept. Unknown cells (k = 0) stay (0, 0)."""
-    k = np.asarray(k, np.float64)
-    S = np.asarray(S, np.float64)
-    kt = np.where(k > 0, np.clip(np.round(np.minimum(k, max_dof)), 1, max_dof), 0.0)
-    return kt, np.where(k > 0, S * kt / np.where(k > 0, k, 1.0), 0.0)
-
-
-def pool(grid: GridMap, factor: int) -> GridMap:
-    """``grid`` on the lattice of factor x factor blocks (same origin): eq. 14 summed per
-    block, so a block holds the pooled within-cell variance of its cells."""
-    if factor == 1:
-        return grid
-    H, W = grid.shape
-    Hp, Wp = -(-H // factor) * factor, -(-W // factor) * factor
-    k = np.zeros((Hp, Wp))
-    S = np.zeros((Hp, Wp))
-    k[:H, :W], S[:H, :W] = grid.k, grid.S
-    shape = (Hp // factor, factor, Wp // factor, factor)
-    return GridMap(k.reshape(shape).sum(axis=(1, 3)), S.reshape(shape).sum(axis=(1, 3)),
-                   grid.origin, grid.resolution * factor)
-
-
-class _Level(NamedTuple):
-    """A's tempered, pooled map at one level, padded by at least ``pad`` cells on every side,
-    and the chance baseline of g: mean and variance of lambda(b | a') over A's known cells,
-    tabulated over b's tempered k (1..max_dof) and log variance."""
-
-    factor: int
-    k: Array            # [H + 2 pad, W + 2 pad]
-    S: Array
-    origin: tuple[float, float]  # world x, y of padded cell (0, 0)
-    resolution: float
-    base_mean: Array    # [max_dof + 1, V]
-    base_var: Array
-    log_v_grid: Array   # [V]
-
-
-def _g(kb: Array, Sb: Array, ka: Array, Sa: Array, lvl: _Level) -> tuple[Array, Array]:
-    """(g, chance variance of g) per cell, both 0 where b or a is unknown."""
-    both = (kb > 0) & (ka > 0)
-    one = jnp.ones_like(kb)
-    kb_, Sb_ = jnp.where(kb > 0, kb, one), jnp.where(kb > 0, Sb, one)
-    lam = cells.log_predictive_integer(kb_, Sb_, jnp.where(both, ka, one),
-                                       jnp.where(both, Sa, one))
-    log_v = jnp.log(Sb_ / kb_)
-    grid = lvl.log_v_grid
-    pos = jnp.clip((log_v - grid[0]) / (grid[1] - grid[0]), 0.0, grid.shape[0] - 1.001)
-    i0 = jnp.floor(pos).astype(jnp.int32)
-    frac = pos - i0
-    row = jnp.clip(kb_, 0, lvl.base_mean.shape[0] - 1).astype(jnp.int32)
-
-    def interp(table):
-        return table[row, i0] * (1 - frac) + table[row, i0 + 1] * frac
-
-    return (jnp.where(both, lam - interp(lvl.base_mean), 0.0),
-            jnp.where(both, interp(lvl.base_var), 0.0))
-
-
-def _level(a: GridMap, factor: int, pad: int, max_dof: int, log_v_range: tuple[float, float],
-           samples: int = 2048, points: int = 128) -> _Level:
-    """A at level ``factor`` (tempered after pooling) with its chance tables."""
-    pooled = pool(a, factor)
-    k, S = temper(pooled.k, pooled.S, max_dof)
-    ka, Sa = k[k > 0], S[k > 0]
-    if ka.size > samples:  # an even spread of A's known cells, deterministic
-        pick = np.linspace(0, ka.size - 1, samples).astype(np.int64)
-        ka, Sa = ka[pick], Sa[pick]
-    # fewer cells are padded to ``samples`` with weight 0: one compiled table for every map
-    weight = np.zeros(samples, np.float32)
-    weight[:ka.size] = 1.0
-    ka, Sa = (np.pad(x, (0, samples - x.size), constant_values=1.0) for x in (ka, Sa))
-    lo, hi = log_v_range
-    grid = np.linspace(lo - 1.0, hi + 1.0, points)
-    lam_mean, lam_var = _chance_tables(jnp.asarray(grid, jnp.float32), jnp.asarray(ka, jnp.float32),
-                                       jnp.asarray(Sa, jnp.float32), jnp.asarray(weight), max_dof)
-    mean = np.zeros((max_dof + 1, points))
-    var = np.zeros((max_dof + 1, points))
-    mean[1:], var[1:] = np.asarray(lam_mean), np.asarray(lam_var)
-    # padded by ``pad`` cells before, and after up to a shape bucket (jit reuse; fine, as the
-    # coarse search's shifts, and so its cost, grow with the padded shape)
-    H, W = k.shape
-    after = (_bucket(H + 2 * pad, 16) - H - pad, _bucket(W + 2 * pad, 16) - W - pad)
-    kp = np.pad(k, ((pad, after[0]), (pad, after[1])))
-    Sp = np.pad(S, ((pad, after[0]), (pad, after[1])))
-    r = pooled.resolution
-    return _Level(factor, jnp.asarray(kp, jnp.float32), jnp.asarray(Sp, jnp.float32),
-                  (a.origin[0] - pad * r, a.origin[1] - pad * r), r,
-                  jnp.asarray(mean, jnp.float32), jnp.asarray(var, jnp.float32),
-                  jnp.asarray(grid, jnp.float32))
-
-
-@partial(jax.jit, static_argnames=("max_dof",))
-def _chance_tables(log_v: Array, ka: Array, Sa: Array, weight: Array, max_dof: int
-                   ) -> tuple[Array, Array]:
-    """Mean and variance over A's cells (ka, Sa [n], each counted with its ``weight``, 0 for
-    padding) of lambda(b | a) for b of tempered k = 1..max_dof and variance exp(log_v)
-    ([max_dof, V] each)."""
-    kb = jnp.arange(1, max_dof + 1, dtype=jnp.float32)[:, None, None]
-    Sb = kb * jnp.exp(log_v)[None, :, None]
-    shape = (max_dof, log_v.shape[0], ka.shape[0])
-    lam = cells.log_predictive_integer(jnp.broadcast_to(kb, shape), jnp.broadcast_to(Sb, shape),
-                                       jnp.broadcast_to(ka, shape), jnp.broadcast_to(Sa, shape))
-    w = weight / jnp.sum(weight)
-    mean = jnp.sum(lam * w, axis=2)
-    return mean, jnp.sum((lam - mean[..., None]) ** 2 * w, axis=2)
-
-
-class _Moving(NamedTuple):
-    """B at one level: the centres [N, 2] (B's frame) of its known cells on its own lattice
-    of that level (eq. 14 summed per block, then tempered), with their k, S [N]."""
-
-    centres: Array
-    k: Array
-    S: Array
-
-
-def _bucket(n: int, quantum: int) -> int:
-    """n rounded up to a multiple of ``quantum``: padded shapes that later alignments share,
-    so the jitted scorers compile once per bucket rather than once per map."""
-    return max(quantum, -(-n // quantum) * quantum)
-
-
-def _moving(b: GridMap, factor: int, max_dof: int) -> _Moving:
-    pooled = pool(b, factor)
-    centres, k, S = known_cells(pooled)
-    kt, St = temper(k, S, max_dof)
-    # the coarse search costs in proportion to n, padding included: a coarse level's few
-    # hundred cells are padded to multiples of 128, a fine level's thousands to 1024
-    n = _bucket(len(k), 128 if len(k) <= 1024 else 1024)
-    pad = ((0, n - len(k)),)
-    return _Moving(jnp.asarray(np.pad(centres, pad + ((0, 0),)), jnp.float32),
-                   jnp.asarray(np.pad(kt, pad), jnp.float32),
-                   jnp.asarray(np.pad(St, pad), jnp.float32))
-
-
-def _score_pose(moving: _Moving, pose: Array, lvl: _Level) -> tuple[Array, Array, Array]:
-    """(score, chance variance, B cells on A's known cells) of one pose at a level: each of
-    B's cells is scored against the cell of A's lattice its centre falls in."""
-    H, W = lvl.k.shape
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    x = pose[0] + c * moving.centres[:, 0] - s * moving.centres[:, 1]
-    y = pose[1] + s * moving.centres[:, 0] + c * moving.centres[:, 1]
-    i = jnp.floor((x - lvl.origin[0]) / lvl.resolution).astype(jnp.int32)
-    j = jnp.floor((y - lvl.origin[1]) / lvl.resolution).astype(jnp.int32)
-    inside = (i >= 0) & (i < H) & (j >= 0) & (j < W)
-    ka = jnp.where(inside, lvl.k[jnp.clip(i, 0, H - 1), jnp.clip(j, 0, W - 1)], 0.0)
-    Sa = jnp.where(inside, lvl.S[jnp.clip(i, 0, H - 1), jnp.clip(j, 0, W - 1)], 0.0)
-    g, var = _g(moving.k, moving.S, ka, Sa, lvl)
-    return jnp.sum(g), jnp.sum(var), jnp.sum((ka > 0) & (moving.k > 0))
-
-
-@jax.jit
-def _score_poses(moving: _Moving, poses: Array, lvl: _Level) -> tuple[Array, Array, Array]:
-    return lax.map(lambda p: _score_pose(moving, p, lvl), poses)
-
-
-def score_poses(a: GridMap, b: GridMap, poses: np.ndarray, factor: int = 1,
-                max_dof: int = 8, pad: int | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(score, z, overlap) [n] of B placed at each of ``poses`` [n, 3] in A's frame, at the
-    lattice of ``factor`` x ``factor`` A cells (the module's score). A's lattice is padded by
-    ``pad`` cells (default: B's reach from its frame origin); B's cells placed off A's padded
-    lattice lie over unknown cells either way, so the padding changes only the compiled shape
-    (a fixed ``pad`` and A's shape: one compilation for many calls)."""
-    moving, lvl = _prepare(a, b, factor, max_dof, pad)
-    score, var, overlap = _score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)
-    score, var = np.asarray(score, np.float64), np.asarray(var, np.float64)
-    return score, score / np.sqrt(np.maximum(var, 1e-12)), np.asarray(overlap)
-
-
-def _log_v_range(*grids: GridMap) -> tuple[float, float]:
-    lo, hi = np.inf, -np.inf
-    for g in grids:
-        v = g.S[g.known] / g.k[g.known]
-        lo, hi = min(lo, float(np.log(v.min()))), max(hi, float(np.log(v.max())))
-    return lo, hi
-
-
-def _radius(b: GridMap) -> float:
-    centres, _, _ = known_cells(b)
-    return float(np.max(np.hypot(centres[:, 0], centres[:, 1]))) + b.resolution
-
-
-def _prepare(a: GridMap, b: GridMap, factor: int, max_dof: int, pad: int | None = None
-             ) -> tuple[_Moving, _Level]:
-    moving = _moving(b, factor, max_dof)
-    if pad is None:
-        pad = int(math.ceil(_radius(b) / (a.resolution * factor))) + 2
-    return moving, _level(a, factor, pad, max_dof, _log_v_range(a, b))
-
-
 def _heading_step(radius: float, cell: float) -> float:
     """Heading step that moves B's farthest cell by half a cell of side ``cell``."""
     return min(0.5 * cell / max(radius, cell), math.radians(10.0))
 
 
 @partial(jax.jit, static_argnames=("nx", "ny"))
-def _shift_scores(bi: Array, bj: Array, bk: Array, bS: Array, lvl: _Level, nx: int, ny: int
+def _shift_scores(bi: Array, bj: Array, bk: Array, bS: Array, lvl: Level, nx: int, ny: int
                   ) -> Array:
     """Scores [headings, nx, ny] of B's cells (k, S [N]) at padded lattice cells (bi, bj)
     [headings, N], shifted by every whole cell (sx, sy)."""
@@ -361,8 +161,8 @@ def _shift_scores(bi: Array, bj: Array, bk: Array, bS: Array, lvl: _Level, nx: i
             ii = jnp.broadcast_to(i[None, :] + sx, jj.shape)
             ka = lvl.k.at[ii, jj].get(mode="fill", fill_value=0.0)  # beyond: unknown
             Sa = lvl.S.at[ii, jj].get(mode="fill", fill_value=0.0)
-            g, _ = _g(jnp.broadcast_to(bk, jj.shape), jnp.broadcast_to(bS, jj.shape), ka, Sa,
-                      lvl)
+            g, _ = cell_terms(jnp.broadcast_to(bk, jj.shape), jnp.broadcast_to(bS, jj.shape),
+                              ka, Sa, lvl)
             return jnp.sum(g, axis=1)
 
         return lax.map(row, jnp.arange(nx))
@@ -374,12 +174,12 @@ def _coarse_search(a: GridMap, b: GridMap, factor: int, params: AlignParams,
                    prior: PosePrior | None) -> tuple[np.ndarray, np.ndarray]:
     """Every heading and whole-cell shift at level ``factor``: the poses [n, 3] and scores [n]
     of the best distinct peaks (at most ``params.candidates``)."""
-    moving = _moving(b, factor, params.max_dof)
+    moving = moving_map(b, factor, params.max_dof)
     centres = np.asarray(moving.centres, np.float64)
     r = a.resolution * factor
-    radius = _radius(b)
+    radius = reach(b)
     pad = 2 * int(math.ceil(radius / r)) + 2
-    lvl = _level(a, factor, pad, params.max_dof, _log_v_range(a, b))
+    lvl = reference_level(a, factor, pad, params.max_dof, log_variance_range(a, b))
     step = _heading_step(radius, r)
     if prior is not None:
         spread = 4.0 * math.sqrt(prior.cov[2, 2])
@@ -401,9 +201,9 @@ def _coarse_search(a: GridMap, b: GridMap, factor: int, params: AlignParams,
     nx, ny = Hp - int(bi_s.max()), Wp - int(bj_s.max())
     # shapes padded to buckets so that later alignments reuse the compiled search
     Hd = len(headings)
-    rows = np.minimum(np.arange(_bucket(Hd, 16)), Hd - 1)
+    rows = np.minimum(np.arange(bucket(Hd, 16)), Hd - 1)
     scores = np.asarray(_shift_scores(jnp.asarray(bi_s[rows]), jnp.asarray(bj_s[rows]),
-                                      moving.k, moving.S, lvl, _bucket(nx, 8), _bucket(ny, 8)),
+                                      moving.k, moving.S, lvl, bucket(nx, 8), bucket(ny, 8)),
                         np.float64)[:Hd, :nx, :ny]
     # Shift index sx is n = sx - i_min whole cells: B's frame origin at lattice origin + n r.
     sx = np.arange(nx) - i_min
@@ -441,7 +241,7 @@ def _distinct_peaks(poses: np.ndarray, scores: np.ndarray, params: AlignParams
     return poses[kept], scores[kept]
 
 
-def _refine(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
+def _refine(moving: MovingMap, lvl: Level, pose: np.ndarray, step: np.ndarray,
             prior: PosePrior | None, rounds: int = 10) -> tuple[np.ndarray, float]:
     """Local grid search: a 5 x 5 x 5 grid of ``step`` around the pose, re-centred on its
     best point until that is inside (at most ``rounds`` times): a hill climb to the peak."""
@@ -450,7 +250,7 @@ def _refine(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
     best_score = -np.inf
     for _ in range(rounds):
         poses = pose + t * step
-        s = np.asarray(_score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)[0],
+        s = np.asarray(score_pose_batch(moving, jnp.asarray(poses, jnp.float32), lvl)[0],
                        np.float64)
         if prior is not None:
             s = s + _log_prior(poses, prior)
@@ -461,7 +261,7 @@ def _refine(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
     return pose, best_score
 
 
-def _laplace(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
+def _laplace(moving: MovingMap, lvl: Level, pose: np.ndarray, step: np.ndarray,
              prior: PosePrior | None, centre: np.ndarray | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
     """Mode and covariance of the quadratic fitted to the score on a 5 x 5 x 5 grid of
@@ -484,7 +284,7 @@ def _laplace(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
     t, _ = candidate_grid(5, 2.0)
     t = np.asarray(t, np.float64)
     poses = to_pose(u0 + t * step)
-    s = np.asarray(_score_poses(moving, jnp.asarray(poses, jnp.float32), lvl)[0], np.float64)
+    s = np.asarray(score_pose_batch(moving, jnp.asarray(poses, jnp.float32), lvl)[0], np.float64)
     if prior is not None:
         s = s + _log_prior(poses, prior)
     coef = np.asarray(quadratic_design(jnp.asarray(t, jnp.float32)), np.float64) @ (s - s.max())
@@ -503,7 +303,7 @@ def _laplace(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
     return to_pose(u), J @ cov_u @ J.T
 
 
-def _centroid(moving: _Moving) -> np.ndarray:
+def _centroid(moving: MovingMap) -> np.ndarray:
     known = np.asarray(moving.k) > 0
     return np.asarray(moving.centres, np.float64)[known].mean(axis=0)
 
@@ -525,7 +325,7 @@ def map_blocks(centres: np.ndarray, along: int = 4, across: int = 2) -> np.ndarr
     return block
 
 
-def _jackknife(moving: _Moving, lvl: _Level, pose: np.ndarray, step: np.ndarray,
+def _jackknife(moving: MovingMap, lvl: Level, pose: np.ndarray, step: np.ndarray,
                prior: PosePrior | None) -> np.ndarray:
     """Delete-one-block jackknife covariance [3, 3] of the fitted pose over ``map_blocks`` of
     B's cells: (n - 1) / n sum_i (T_i - T)(T_i - T)^T over the n fits without block i. It
@@ -555,7 +355,7 @@ def _choose_coarse(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrior
     evaluations (headings x shifts x B's coarse cells)."""
     if params.coarse:
         return params.coarse
-    radius = _radius(b)
+    radius = reach(b)
     nb = int(b.known.sum())
     factor = 1
     while True:
@@ -587,11 +387,11 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
             raise InputError(f"map {name} has no known cell")
     factor = _choose_coarse(a, b, params, prior)
     poses, _ = _coarse_search(a, b, factor, params, prior)
-    radius = _radius(b)
+    radius = reach(b)
     levels = {}
     f = max(factor // 2, 1)  # a search already at A's lattice is still refined there
     while f >= 1:
-        levels[f] = _prepare(a, b, f, params.max_dof)
+        levels[f] = prepare(a, b, f, params.max_dof)
         f //= 2
     refined: list[tuple[float, np.ndarray]] = []
     for pose in poses:
@@ -603,7 +403,7 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
         if all(_distinct(pose, p, params) for _, p in refined):
             refined.append((score, pose))
     refined.sort(key=lambda sp: -sp[0])
-    moving, lvl = levels[1] if 1 in levels else _prepare(a, b, 1, params.max_dof)
+    moving, lvl = levels[1] if 1 in levels else prepare(a, b, 1, params.max_dof)
     # the fit spans +-2 cells: the score is piecewise constant within a cell, so a narrower
     # grid would fit its steps rather than its shape
     step = np.array([a.resolution, a.resolution, 2 * _heading_step(radius, a.resolution)])
@@ -613,7 +413,7 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
     others = [p for _, p in refined[1:] if _distinct(p, best_pose, params)]
     test = np.vstack([best_pose[None]] + [p[None] for p in others])
     score, var, overlap = (np.asarray(v, np.float64) for v in
-                           _score_poses(moving, jnp.asarray(test, jnp.float32), lvl))
+                           score_pose_batch(moving, jnp.asarray(test, jnp.float32), lvl))
     z = score / np.sqrt(np.maximum(var, 1e-12))
     runner = int(np.argmax(score[1:])) + 1 if len(others) else None
     nan3 = np.full(3, np.nan)
