@@ -17,7 +17,9 @@ error of the GPS-only alignment (each run's path aligned to its own simulated WA
 receiver, paper appendix, then composed); with ``--self-check``, whether B's map passes its
 own run's check against itself (``consistency``; ``gslam merge`` refuses it when not).
 Then A of each course is aligned to B of the next
-course (no overlap), ``--cross`` pairs in all: each should be refused.
+course (no overlap), ``--cross`` pairs in all: each should be refused. Every run takes the
+defaults, or ``--config`` (with its tables for each course: ``configs/table1.toml`` gives each
+course its calibrated noise) and ``--set``.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax import slam
-from gslam_jax.config import Config
+from gslam_jax.config import Config, layered_config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.gps import align_to_gps
 from gslam_jax.gps.georeference import gps_input
@@ -191,12 +193,19 @@ def main(argv: list[str] | None = None) -> dict:
                          "run does); a doubled map is refused as gslam merge refuses it")
     ap.add_argument("--cross", type=int, default=10,
                     help="pairs of different courses to align (each should be refused)")
+    ap.add_argument("--config", type=Path, default=None,
+                    help="TOML config of every run (default: the defaults); a Table I config's "
+                         "tables for each course apply (configs/table1.toml: its calibrated "
+                         "noise). Give each config its own --cache")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override one config value (repeatable)")
     args = ap.parse_args(argv)
-    config = Config()
-    report = {"environment": environment(), "trials": [], "cross": []}
+    report = {"environment": environment(), "config": str(args.config), "set": args.set,
+              "trials": [], "cross": []}
     maps = {}
     cache = Path(args.cache) if args.cache else None
     for course in args.courses:
+        config = layered_config(args.config, course, args.set)
         a = _cached(cache, f"{course}-a", lambda: _run_maps(course, None, None, config, 1000))
         g0, size = a["g0"], float(a["size"])
         maps[course] = {"a": _grid(a), "b": []}
