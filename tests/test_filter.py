@@ -174,7 +174,8 @@ def test_a_turned_local_map_lands_one_cell_per_map_cell():
     """Placement should not depend on the map frame's orientation. A local map turned by 45
     degrees against the map's lattice sends a third of its cells into a map cell another local
     cell also lands in (and leaves as many map cells beneath it empty); at 0 degrees none. On
-    the maze, the same run with its frame turned by 22.5 degrees ends 2.3 m off against 0.13 m."""
+    the KITTI clip the final drift is 0.81 % with the frame turned by 22.5 degrees against
+    0.35 % (docs/results.md)."""
     L = 64
     cfg = rbpf.FilterConfig(1, (200, 200), (-16.0, -16.0), RES, L, unknown_cells="ignore")
     for heading in (0.0, np.pi / 4):
