@@ -11,7 +11,12 @@ calibrated value (robustness), on Run files and simulated courses.
 Each line: source, noise scale, proposal, particles, filter seed, VO RMS, SLAM RMS, their ratio,
 final drift of both (% of the true distance), the rotation of the rigid fit of each path to the
 ground truth (a path rotated as a whole drifts at its end while its RMS after the fit stays
-small), filter seconds (after compilation).
+small), filter seconds (after compilation). ``--frame-turns`` also runs each case with its map
+frame turned by each angle about the start (``initial_pose[2]`` changed, nothing else): the
+result should not depend on it (docs/results.md, "The map frame's orientation").
+
+    python -m experiments.proposal_compare --runs /tmp/kitti51.npz --proposals motion \
+        --frame-turns 0 22.5 45 90 --seeds 0 1 2 3 4 5 6 7
 """
 
 from __future__ import annotations
@@ -22,6 +27,8 @@ import json
 import math
 import time
 from pathlib import Path
+
+import numpy as np
 
 from gslam_jax import metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
@@ -36,6 +43,14 @@ def _scaled(config, scale: float):
     return dataclasses.replace(config, motion=dataclasses.replace(
         m, alpha_d=m.alpha_d * scale, alpha_theta_d=m.alpha_theta_d * scale,
         alpha_theta=m.alpha_theta * scale))
+
+
+def turned_frame(run, degrees: float):
+    """``run`` with its map frame turned by ``degrees`` about its start: the start heading
+    changed, the controls, local maps and truth as they are (the rigid fit absorbs the turn)."""
+    start = np.asarray(run.start_pose(), np.float64).copy()
+    start[2] += math.radians(degrees)
+    return run._replace(initial_pose=start)
 
 
 def _row(name, run, config, scale, proposal, seed) -> dict:
@@ -72,6 +87,8 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3], help="filter seeds")
     ap.add_argument("--noise-scale", type=float, nargs="+", default=[1.0])
     ap.add_argument("--proposals", nargs="+", default=["motion", "informed"])
+    ap.add_argument("--frame-turns", type=float, nargs="+", default=[0.0], metavar="DEG",
+                    help="run each case with its map frame turned by each of these angles")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args()
     env = environment()
@@ -85,6 +102,8 @@ def main() -> int:
             run, _ = simulate_run(course, seed=s, params=localmap_params(config),
                                   max_frames=args.max_frames)
             cases.append((f"{course}/sim{s}", run, config))
+    cases = [(name if turn == 0 else f"{name}@{turn:g}deg", turned_frame(run, turn), config)
+             for name, run, config in cases for turn in args.frame_turns]
     out = args.json.open("w") if args.json else None
     for name, run, config in cases:
         for scale in args.noise_scale:
