@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax import slam
-from gslam_jax.config import Config, layered_config
+from gslam_jax.config import Config, config_to_toml, layered_config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.gps import align_to_gps
 from gslam_jax.gps.georeference import gps_input
@@ -93,16 +93,22 @@ def _error(est: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
             float(abs(math.degrees(math.remainder(est[2] - truth[2], 2 * math.pi)))))
 
 
-def _cached(cache: Path | None, name: str, make) -> dict:
-    """``make()`` (a dict of arrays), kept as ``cache/name.npz`` when a cache folder is given."""
+def _cached(cache: Path | None, name: str, config: Config, make) -> dict:
+    """``make()`` (a dict of arrays), kept as ``cache/name.npz`` when a cache folder is given,
+    with the config it was made with; a cached run of another config is an error."""
     if cache is None:
         return make()
     file = cache / f"{name}.npz"
+    toml = config_to_toml(config)
     if not file.exists():
         cache.mkdir(parents=True, exist_ok=True)
-        np.savez(file, **make())
+        np.savez(file, config_toml=np.array(toml), **make())
     with np.load(file) as data:
-        return {k: data[k] for k in data.files}
+        made_with = str(data["config_toml"]) if "config_toml" in data.files else None
+        if made_with is not None and made_with != toml:
+            raise SystemExit(f"{file}: cached with another config; give this config its own "
+                             "--cache")
+        return {k: data[k] for k in data.files if k != "config_toml"}
 
 
 def _run_maps(course: str, noise_seed: int | None, start: np.ndarray | None, config: Config,
@@ -196,7 +202,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--config", type=Path, default=None,
                     help="TOML config of every run (default: the defaults); a Table I config's "
                          "tables for each course apply (configs/table1.toml: its calibrated "
-                         "noise). Give each config its own --cache")
+                         "noise); a --cache holds the runs of one config")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override one config value (repeatable)")
     args = ap.parse_args(argv)
@@ -206,14 +212,15 @@ def main(argv: list[str] | None = None) -> dict:
     cache = Path(args.cache) if args.cache else None
     for course in args.courses:
         config = layered_config(args.config, course, args.set)
-        a = _cached(cache, f"{course}-a", lambda: _run_maps(course, None, None, config, 1000))
+        a = _cached(cache, f"{course}-a", config,
+                    lambda: _run_maps(course, None, None, config, 1000))
         g0, size = a["g0"], float(a["size"])
         maps[course] = {"a": _grid(a), "b": []}
         for i in range(args.trials):
             rng = np.random.default_rng([7, i])
             Q = np.array([rng.uniform(-size, size), rng.uniform(-size, size),
                           rng.uniform(-math.pi, math.pi)])
-            b = _cached(cache, f"{course}-b{i}",
+            b = _cached(cache, f"{course}-b{i}", config,
                         lambda: _run_maps(course, 100 + i, Q, config, 2000 + i))
             truth = compose(g0, invert_pose(Q))
             grid_b = _grid(b)
