@@ -1,11 +1,13 @@
-"""Shared by the tuning experiments: a simulated run with known VO noise, objectives averaged
-over filter keys, and the JSON report every experiment prints (and optionally writes)."""
+"""Shared by the experiments: a simulated run with known VO noise, objectives averaged over
+filter keys, a run in a turned map frame, and the JSON report every experiment prints (and
+optionally writes)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Callable
 
@@ -21,6 +23,26 @@ from gslam_jax.tuning.evaluation import evaluate
 from gslam_jax.vo.localmap import LocalMapParams
 
 ALPHAS = ("alpha_d", "alpha_theta_d", "alpha_theta")
+
+
+def turned_run(run: Run, degrees: float) -> Run:
+    """``run`` with its map frame turned by ``degrees`` about its start pose: the start heading
+    and the ground truth turned with it; the controls and local maps (robot frame) as they are.
+    The same log, seen in another frame: a filter that does not depend on the frame's
+    orientation gives the same result up to the turn. Turning the frame moves the map's
+    lattice against the terrain; shifting it does not (the map's lattice is laid from the
+    start pose, ``sizing.map_extent``)."""
+    start = np.asarray(run.start_pose(), np.float64)
+    a = math.radians(degrees)
+    turned_start = start + np.array([0.0, 0.0, a])
+    truth = run.ground_truth
+    if truth is not None:
+        truth = np.asarray(truth, np.float64)
+        c, s = math.cos(a), math.sin(a)
+        dx, dy = truth[:, 0] - start[0], truth[:, 1] - start[1]
+        truth = np.stack([start[0] + c * dx - s * dy, start[1] + s * dx + c * dy,
+                          np.angle(np.exp(1j * (truth[:, 2] + a)))], axis=1)
+    return run._replace(initial_pose=turned_start, ground_truth=truth)
 
 
 def add_known_noise_arguments(ap: argparse.ArgumentParser) -> None:

@@ -12,6 +12,8 @@ differences), beside the motion prior's variance accumulated since the last upda
 configured alphas (their product: how much sharper the score is than the prior that way).
 
     python -m experiments.pose_objective --run /tmp/k51.npz --self-check
+    python -m experiments.pose_objective --run /tmp/k51.npz --span-m 0.16 --step-m 0.16 \
+        --span-rad 0.01 --step-rad 0.0005 --frame-turns 0 0.5 2 11.25 22.5 45 67.5 90
     python -m experiments.pose_objective --course mars-yard-a --sim-seed 0 --max-frames 400 \
         --config configs/table1.toml --vo-noise-scale 0 --json out.json
 
@@ -58,6 +60,8 @@ from gslam_jax.run import Run, load_run
 from gslam_jax.sim.sensor import SensorParams
 from gslam_jax.sim.vonoise import VO_PROFILES
 from gslam_jax.vo.localmap import localmap_params
+
+from experiments.common import turned_run
 
 AXES = ("along", "across", "heading")
 HEADING_TOL = 0.01  # rad: a peak "at the truth" lies within one cell and this of it
@@ -374,6 +378,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--step-rad", type=float, default=0.005)
     ap.add_argument("--self-check", action="store_true", help="also score each local map "
                     "against a map of itself alone (summary: the fraction peaking at zero)")
+    ap.add_argument("--frame-turns", type=float, nargs="+", default=[0.0], metavar="DEG",
+                    help="score each case with its map frame turned by each of these angles "
+                    "(common.turned_run): where the peak's heading sits then depends on the "
+                    "angle between the local maps' lattice and the map's")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args(argv)
     env = environment()
@@ -391,6 +399,8 @@ def main(argv: list[str] | None = None) -> int:
                        args.disparity_std)
             disparity = "" if args.disparity_std is None else f"/d{args.disparity_std:g}"
             cases.append((f"{course}/sim{s}/vo{args.vo_noise_scale:g}{disparity}", run, config))
+    cases = [(name if turn == 0 else f"{name}@{turn:g}deg", turned_run(run, turn), config)
+             for name, run, config in cases for turn in args.frame_turns]
     out = args.json.open("w") if args.json else None
     print(f"{'source':>22} {'frame':>5} {'map':>4} {'prior':>6} {'along':>6} {'across':>6} "
           f"{'head':>7} ach {'info along':>9} {'across':>9} {'heading':>9}  "

@@ -12,8 +12,10 @@ Each line: source, noise scale, proposal, particles, filter seed, VO RMS, SLAM R
 final drift of both (% of the true distance), the rotation of the rigid fit of each path to the
 ground truth (a path rotated as a whole drifts at its end while its RMS after the fit stays
 small), filter seconds (after compilation). ``--frame-turns`` also runs each case with its map
-frame turned by each angle about the start (``initial_pose[2]`` changed, nothing else): the
-result should not depend on it (docs/results.md, "The map frame's orientation").
+frame turned by each angle about the start (``common.turned_run``: the start heading and the
+ground truth turned, the log as it is): the result should not depend on it (docs/results.md,
+"The map frame's orientation"); the fit turn is then the path's turn against the truth in
+every frame.
 
     python -m experiments.proposal_compare --runs /tmp/kitti51.npz --proposals motion \
         --frame-turns 0 22.5 45 90 --seeds 0 1 2 3 4 5 6 7
@@ -28,8 +30,6 @@ import math
 import time
 from pathlib import Path
 
-import numpy as np
-
 from gslam_jax import metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim import simulate_run
@@ -37,20 +37,14 @@ from gslam_jax.machine import environment
 from gslam_jax.run import known_positions, load_run
 from gslam_jax.vo.localmap import localmap_params
 
+from experiments.common import turned_run
+
 
 def _scaled(config, scale: float):
     m = config.motion
     return dataclasses.replace(config, motion=dataclasses.replace(
         m, alpha_d=m.alpha_d * scale, alpha_theta_d=m.alpha_theta_d * scale,
         alpha_theta=m.alpha_theta * scale))
-
-
-def turned_frame(run, degrees: float):
-    """``run`` with its map frame turned by ``degrees`` about its start: the start heading
-    changed, the controls, local maps and truth as they are (the rigid fit absorbs the turn)."""
-    start = np.asarray(run.start_pose(), np.float64).copy()
-    start[2] += math.radians(degrees)
-    return run._replace(initial_pose=start)
 
 
 def _row(name, run, config, scale, proposal, seed) -> dict:
@@ -102,7 +96,7 @@ def main() -> int:
             run, _ = simulate_run(course, seed=s, params=localmap_params(config),
                                   max_frames=args.max_frames)
             cases.append((f"{course}/sim{s}", run, config))
-    cases = [(name if turn == 0 else f"{name}@{turn:g}deg", turned_frame(run, turn), config)
+    cases = [(name if turn == 0 else f"{name}@{turn:g}deg", turned_run(run, turn), config)
              for name, run, config in cases for turn in args.frame_turns]
     out = args.json.open("w") if args.json else None
     for name, run, config in cases:
