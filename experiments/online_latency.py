@@ -66,7 +66,8 @@ def main(argv: list[str] | None = None) -> dict:
             else Online(config, args.size, start_pose=run.start_pose()))
     for t in range(run.num_frames):
         m = run.obs_index[t]
-        live.push(run.controls[t], run.local_maps[m] if m >= 0 else None, run.timestamps[t])
+        live.push(run.controls[t], run.local_maps[m] if m >= 0 else None, run.timestamps[t],
+                  float(run.lattice_heading_array()[max(m, 0)]))
     s = live.stats()
     prediction = s.frame_latency[~np.asarray([m >= 0 for m in run.obs_index[1:]])]
     report = {

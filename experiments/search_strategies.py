@@ -64,7 +64,9 @@ def prefix_run(run: Run, frames: int) -> Run:
     cut = lambda a: None if a is None else a[:frames]  # noqa: E731
     return run._replace(controls=run.controls[:frames], obs_index=idx,
                         local_maps=run.local_maps[:max(m, 1)], timestamps=run.timestamps[:frames],
-                        ground_truth=cut(run.ground_truth), vo_failed=cut(run.vo_failed))
+                        ground_truth=cut(run.ground_truth), vo_failed=cut(run.vo_failed),
+                        lattice_headings=(None if run.lattice_headings is None
+                                          else run.lattice_headings[:max(m, 1)]))
 
 
 def evaluator(run: Run, config: Config, names: tuple[str, ...], keys: list[int], batch: int

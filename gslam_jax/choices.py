@@ -12,7 +12,7 @@ __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJEC
            "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "PROPOSALS",
            "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS", "SENSORS",
            "AUTO_ESS_TARGET", "RANGE_NOISE", "PROPOSAL_DRAWS",
-           "AUTO_PROPOSAL_DRAWS"]
+           "AUTO_PROPOSAL_DRAWS", "LOCALMAP_LATTICES"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
@@ -37,6 +37,9 @@ SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --desig
 # particle's ancestral path
 ESTIMATES = ("best", "mean", "smoothed")
 SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] estimate``)
+# ``[localmap] lattice``: each local map binned on the robot's axes (the paper's) or on the
+# map's at its VO pose (``vo.localmap.LocalMapParams``)
+LOCALMAP_LATTICES = ("robot", "map")
 BAD_FRAME_POLICIES = ("error", "fallback")  # ``gslam run --on-bad-frame``
 STEREO_ALGORITHMS = ("sgbm", "bm")  # ``[stereo] algorithm`` (vo.stereo.DenseStereoParams)
 # ``Run.sensor``: how a run's local maps were made. "points": independent height samples (the

@@ -125,6 +125,7 @@ class LocalMapSection:
     max_height: float = 2.0
     travel: float = 2.0
     cells: int = 0
+    lattice: str = "robot"
 
 
 @dataclass(frozen=True)
@@ -258,6 +259,9 @@ class Config:
             (lm.max_range > 0, "localmap", "max_range", "must be positive"),
             (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
             (lm.travel > 0, "localmap", "travel", "must be positive"),
+            (lm.lattice in choices.LOCALMAP_LATTICES, "localmap", "lattice",
+             f"must be one of {', '.join(choices.LOCALMAP_LATTICES)} (the robot's axes, or the "
+             "map's at the VO pose)"),
             (lm.cells >= 0 and lm.cells % 2 == 0, "localmap", "cells", "must be even and >= 0"),
             (st.num_disparities >= 0 and st.num_disparities % 16 == 0, "stereo",
              "num_disparities", "must be a multiple of 16 (0: the source's default)"),

@@ -266,12 +266,14 @@ def place_local_map(run: Run, t: int, pose: np.ndarray, lattice: GridMap
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frame ``t``'s local map placed at ``pose`` [3] on ``lattice`` (``pose_lattice``): the flat
     index of the lattice cell each of its known cells falls in (nearest cell centre), and
-    their k and S."""
+    their k and S. The local map's own lattice is turned by its ``Run.lattice_headings``."""
     res = lattice.resolution
     cx, cy = local_cell_centres(run.local_maps.shape[1], res)
-    k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[run.obs_index[t]]), -1, 0)
+    m_ = int(run.obs_index[t])
+    k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[m_]), -1, 0)
     m = k > 0
     x, y, th = pose
+    th = th + (0.0 if run.lattice_headings is None else float(run.lattice_headings[m_]))
     c, s = math.cos(th), math.sin(th)
     wx = x + c * cx[m] - s * cy[m]
     wy = y + s * cx[m] + c * cy[m]

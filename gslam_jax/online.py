@@ -79,16 +79,19 @@ class OnlineStats(NamedTuple):
 
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
 def online_step(state: rbpf.FilterState, key: jax.Array, t: jax.Array, control: jax.Array,
-                raw_obs: jax.Array, has_obs: jax.Array, settings: observations.ObsSettings,
-                params: rbpf.FilterParams, cfg: rbpf.FilterConfig
+                raw_obs: jax.Array, has_obs: jax.Array, lattice_heading: jax.Array,
+                settings: observations.ObsSettings, params: rbpf.FilterParams,
+                cfg: rbpf.FilterConfig
                 ) -> tuple[rbpf.FilterState, tuple[rbpf.StepInfo, jax.Array, jax.Array]]:
     """One frame t of the batch run's scan: its key ``fold_in(key, t)``, its raw observation
-    [L, L, 2] refined (``observations.refine_observations``) and, where ``has_obs``, the update.
+    [L, L, 2] refined (``observations.refine_observations``) and, where ``has_obs``, the update
+    (the local map on a lattice turned by ``lattice_heading``, ``Run.lattice_headings``).
     ``state`` is donated. Returns the state and the frame's (StepInfo, best pose, mean pose)."""
     keys = jax.random.fold_in(key, t)[None]
     obs = observations.refine_observations(raw_obs[None], settings)
     index = jnp.where(has_obs, 0, -1).astype(jnp.int32)[None]
-    state, out = rbpf.scan_frames(state, keys, control[None], index, obs, params, cfg)
+    state, out = rbpf.scan_frames(state, keys, control[None], index, obs, params, cfg,
+                                  lattice_heading[None])
     return state, jax.tree.map(lambda x: x[0], out)
 
 
@@ -204,12 +207,14 @@ class Online:
         return jnp.asarray(raw)
 
     def push(self, control: np.ndarray, local_map: np.ndarray | None = None,
-             time_s: float | None = None) -> OnlineFrame:
+             time_s: float | None = None, lattice_heading: float = 0.0) -> OnlineFrame:
         """One frame: ``control`` [3] the VO increment (dx, dy, dtheta) in the robot frame of
         the previous frame (``Run.controls``), ``local_map`` [L, L, 3] the statistics
-        (n, sum z, sum z^2) of the local map completed at this frame or None, ``time_s`` its
-        time in seconds (for ``stats``; None: the frame index). InputError for a malformed
-        frame, ``slam.WeightError`` for non-finite weights, MapEdgeError past the map's edge."""
+        (n, sum z, sum z^2) of the local map completed at this frame or None, on a lattice
+        turned by ``lattice_heading`` radians against the robot (``Run.lattice_headings``),
+        ``time_s`` its time in seconds (for ``stats``; None: the frame index). InputError for a
+        malformed frame, ``slam.WeightError`` for non-finite weights, MapEdgeError past the
+        map's edge."""
         t = self.frames
         u = np.asarray(control, np.float64)
         if u.shape != (3,) or not np.isfinite(u).all():
@@ -228,7 +233,8 @@ class Online:
             self.params = self.params._replace(range_noise=jnp.asarray(self._range_noise.profile))
         self.state, (info, best, mean) = online_step(
             self.state, self.key, jnp.int32(t), jnp.asarray(u, jnp.float32), raw,
-            jnp.bool_(local_map is not None), self.settings, self.params, self.cfg)
+            jnp.bool_(local_map is not None), jnp.float32(lattice_heading), self.settings,
+            self.params, self.cfg)
         info, best, mean = jax.device_get((info, best, mean))
         seconds = time.perf_counter() - t0
         self._times.append(stamp)
@@ -269,7 +275,8 @@ class Online:
         stats = self._builder.add(pose, np.asarray(points, np.float64))
         if self.frames == 0 and stats is None:
             stats = self._builder.flush()
-        return self.push(control, stats, time_s)
+        heading = self._builder.lattice_headings[-1] if stats is not None else 0.0
+        return self.push(control, stats, time_s, heading)
 
     def particles(self) -> Particles:
         """The particles now: poses [J, 3] and normalised weights [J]."""

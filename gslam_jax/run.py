@@ -54,6 +54,12 @@ class Run(NamedTuple):
         sensor: how the local maps were made, one of ``choices.SENSORS`` ("stereo": the
             stereo front-end; "points": the simulator's point sensor), or None (unknown,
             treated as "points"). It picks the automatic ``[filter] ess_target``.
+        lattice_headings: [M] radians, or None (all 0): the angle of each local map's lattice
+            against the robot frame at its frame. Local map m's cell (i, j) then covers the
+            square above, turned by ``lattice_headings[m]`` about the robot: a cell centre c of
+            the lattice lies at R(lattice_headings[m]) c in the robot frame. 0: the robot's
+            own axes (the paper's local maps); ``[localmap] lattice = "map"`` turns each
+            lattice onto the map's axes at the VO pose (``localmap.LocalMapBuilder``).
     """
 
     controls: np.ndarray
@@ -66,6 +72,7 @@ class Run(NamedTuple):
     initial_pose: np.ndarray | None = None
     time_origin_ns: int | None = None
     sensor: str | None = None
+    lattice_headings: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -83,6 +90,13 @@ class Run(NamedTuple):
         if self.initial_pose is None:
             return np.zeros(3)
         return np.asarray(self.initial_pose, dtype=np.float64)
+
+    def lattice_heading_array(self) -> np.ndarray:
+        """[max(M, 1)] float32: ``lattice_headings``, zeros where None (the filter's input)."""
+        if self.lattice_headings is None:
+            return np.zeros(max(self.num_local_maps, 1), np.float32)
+        h = np.asarray(self.lattice_headings, np.float32)
+        return h if h.size else np.zeros(1, np.float32)
 
     def vo_poses(self) -> np.ndarray:
         """[T, 3] poses from integrating the VO controls alone (the VO-only trajectory)."""
@@ -107,7 +121,7 @@ def integrate_controls(controls: np.ndarray, start: np.ndarray | None = None) ->
 
 _REAL = "iuf"  # dtype kinds of real numbers (bool, complex, strings and objects are not)
 _REAL_FIELDS = ("controls", "local_maps", "resolution", "timestamps", "ground_truth",
-                "initial_pose")
+                "initial_pose", "lattice_headings")
 # Local-map statistics may hold n sum z^2 - (sum z)^2 below 0 from rounding by up to
 # max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * eps) relative to n |sum z^2| + (sum z)^2,
 # eps that of the dtype the statistics were stored in (float32 sums of n heights round by up to
@@ -356,12 +370,25 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
         if not np.isfinite(pose).all():
             fail("initial_pose", f"non-finite value (NaN or inf): {pose.tolist()}")
         check_start_pose(pose.astype(np.float64), resolution, fail)
+    if run.lattice_headings is not None:
+        h = np.asarray(run.lattice_headings)
+        M = int(np.asarray(run.local_maps).shape[0])
+        if h.shape != (M,):
+            fail("lattice_headings", f"expected shape [{M}] (one per local map), got {h.shape}")
+        if not np.isfinite(h).all():
+            fail("lattice_headings", f"non-finite value (NaN or inf) at local map "
+                 f"{int(np.argmax(~np.isfinite(h)))}")
+        if (np.abs(h) > HEADING_LIMIT).any():
+            m = int(np.argmax(np.abs(h) > HEADING_LIMIT))
+            fail("lattice_headings", f"local map {m}: {float(h[m]):.6g} rad is beyond "
+                 f"{HEADING_LIMIT:g} rad (radians expected)")
     check_controls(controls.astype(np.float64), ts.astype(np.float64), fail)
     return run
 
 
 _REQUIRED = ("controls", "obs_index", "local_maps", "resolution", "timestamps")
-_OPTIONAL = ("ground_truth", "vo_failed", "initial_pose", "time_origin_ns", "sensor")
+_OPTIONAL = ("ground_truth", "vo_failed", "initial_pose", "time_origin_ns", "sensor",
+             "lattice_headings")
 
 
 def save_run(path: str | Path | BinaryIO, run: Run) -> None:
@@ -425,5 +452,7 @@ def load_run(path: str | Path) -> Run:
         initial_pose=fields.get("initial_pose"),
         time_origin_ns=(int(fields["time_origin_ns"]) if "time_origin_ns" in fields else None),
         sensor=str(fields["sensor"]) if "sensor" in fields else None,
+        lattice_headings=(fields["lattice_headings"].astype(np.float64)
+                          if "lattice_headings" in fields else None),
     )
     return validate_run(run, str(path), stats_dtype=stats_dtype)

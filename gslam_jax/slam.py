@@ -45,6 +45,7 @@ class RunArrays(NamedTuple):
     controls: jax.Array    # [T, 3]
     obs_index: jax.Array   # [T]
     local_obs: jax.Array   # [M, L, L, 2] raw observations (``raw_observations``)
+    lattice_headings: jax.Array  # [M] (``Run.lattice_heading_array``)
     reference: jax.Array   # [T, 3] ground truth (zeros where unknown)
     mask: jax.Array        # [T] frames with a ground-truth position (``ground_truth_mask``)
     start: jax.Array       # [3]
@@ -78,6 +79,7 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
         controls=jnp.asarray(run.controls, jnp.float32),
         obs_index=jnp.asarray(run.obs_index, jnp.int32),
         local_obs=jnp.asarray(raw_observations(run)),
+        lattice_headings=jnp.asarray(run.lattice_heading_array()),
         reference=jnp.asarray(np.nan_to_num(gt), jnp.float32),
         mask=jnp.asarray(ground_truth_mask(run)),
         start=jnp.asarray(run.start_pose(), jnp.float32),
@@ -106,20 +108,21 @@ def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.n
 
 
 def _scan_chunk(state: rbpf.FilterState, start: int, frames: tuple, obs: jax.Array,
-                params: rbpf.FilterParams, cfg: rbpf.FilterConfig,
+                headings: jax.Array, params: rbpf.FilterParams, cfg: rbpf.FilterConfig,
                 growth: maps.PoolGrowth | None) -> tuple[rbpf.FilterState, tuple,
                                                           rbpf.FilterConfig]:
     """``rbpf.scan_frames`` over one chunk of ``frames`` (keys, controls, obs_index) from frame
-    ``start``, its outputs on the host. With an automatic pool (``growth``) the chunk is run
+    ``start`` (local maps ``obs`` on lattices turned by ``headings``), its outputs on the
+    host. With an automatic pool (``growth``) the chunk is run
     again from its start, in a grown pool, when it ran out of tiles (as long as the memory
     allows; otherwise its outputs carry the status that ``_check_map_status`` names)."""
     if growth is None:
-        state, out = rbpf.scan_frames(state, *frames, obs, params, cfg)
+        state, out = rbpf.scan_frames(state, *frames, obs, params, cfg, headings)
         return state, jax.device_get(out), cfg
     growth.before(state.maps)
     kept = jax.tree.map(jnp.copy, state)  # scan_frames donates the state it is given
     while True:
-        state, out = rbpf.scan_frames(state, *frames, obs, params, cfg)
+        state, out = rbpf.scan_frames(state, *frames, obs, params, cfg, headings)
         out = jax.device_get(out)
         ran_out = _ran_out(out[0])
         regrown = ran_out and growth.regrow(kept.maps, cfg, start, start + ran_out - 1)
@@ -225,6 +228,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     cfg = filter_config(config, run, prior)
     params = filter_params(config, run)
     obs = map_observations(run, config)
+    headings = jnp.asarray(run.lattice_heading_array())
     T = run.num_frames
     key = jax.random.key(config.filter.seed) if key is None else key
     keys = rbpf.frame_keys(key, T)
@@ -252,7 +256,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         c0 = time.perf_counter()
         state, out, cfg = _scan_chunk(state, start, (keys[sl], jnp.asarray(controls[sl]),
                                                      jnp.asarray(obs_index[sl])),
-                                      obs, params, cfg, growth)
+                                      obs, headings, params, cfg, growth)
         if start == 0:
             compile_s = time.perf_counter() - c0  # first chunk includes compilation
         _check_weights(out[0], start, min(chunk, T - start), obs_index)

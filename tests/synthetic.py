@@ -55,8 +55,9 @@ def make_run(seed: int = 0, steps: int = 60, drift: float = 0.004, kind: str = "
     gt, u_true = truth_and_controls(kind, steps)
     u_vo = u_true + np.array([0.0, 0.0, drift])
     frames = [world.observe(p, rng) for p in gt]
-    obs_index, maps, _ = build_local_maps(integrate_controls(u_vo), frames, params)
+    obs_index, maps, _, headings = build_local_maps(integrate_controls(u_vo), frames, params)
     run = Run(controls=u_vo, obs_index=obs_index, local_maps=maps, resolution=params.resolution,
               timestamps=np.arange(steps) * 0.2, ground_truth=gt,
-              vo_failed=np.zeros(steps, bool), initial_pose=np.zeros(3))
+              vo_failed=np.zeros(steps, bool), initial_pose=np.zeros(3),
+              lattice_headings=None if params.lattice == "robot" else headings)
     return run, world

@@ -32,6 +32,8 @@ def test_round_trip_through_toml(tmp_path):
     ("[map]\nstore = \"tiles\"\n", r"bad\.toml: \[map\] store must be one of dense, shared, auto"),
     ("[map]\ntile = 12\n", r"bad\.toml: \[map\] tile must be a positive multiple of 8"),
     ("[map]\npool_tiles = -1\n", r"bad\.toml: \[map\] pool_tiles must be >= 0"),
+    ("[localmap]\nlattice = \"north\"\n",
+     r"bad\.toml: \[localmap\] lattice must be one of robot, map"),
 ])
 def test_bad_configs_name_file_section_and_key(tmp_path, text, match):
     p = tmp_path / "bad.toml"

@@ -188,6 +188,22 @@ def test_a_turned_local_map_lands_one_cell_per_map_cell(heading):
     assert shared < 0.01, f"heading {np.degrees(heading):.0f} deg: {shared:.0%} share a cell"
 
 
+@pytest.mark.parametrize("correction_deg", [0.0, 1.0, -2.0])
+def test_a_map_lattice_local_map_lands_one_cell_per_map_cell_at_any_heading(correction_deg):
+    """[localmap] lattice = "map": the local map's lattice is turned by minus the VO heading
+    (here 45 degrees), so a particle whose heading differs from the VO's by a correction of a
+    degree or two still places its local cells one to a map cell (the oblique case of the
+    test above, which fails on the robot's lattice)."""
+    L = 64
+    cfg = rbpf.FilterConfig(1, (200, 200), (-16.0, -16.0), RES, L, unknown_cells="ignore")
+    vo_heading = np.pi / 4
+    pose = jnp.asarray([0.03, 0.05, vo_heading + np.radians(correction_deg)], jnp.float32)
+    flat, _ = observation_cells(pose, jnp.arange(L * L, dtype=jnp.int32), cfg, -vo_heading)
+    _, counts = np.unique(np.asarray(flat), return_counts=True)
+    shared = np.sum(counts[counts > 1]) / (L * L)
+    assert shared < 0.01, f"correction {correction_deg} deg: {shared:.1%} share a cell"
+
+
 def test_update_adds_every_on_map_cell_once():
     """Eq. 14 through the scatter: the map gains exactly the on-map local statistics."""
     L = 16

@@ -25,7 +25,7 @@ def frames():
     gt, u_true = truth_and_controls("loop", 30)
     u = u_true + np.array([0.0, 0.0, 0.004])
     points = [world.observe(p, rng) for p in gt]
-    obs_index, local_maps, _ = build_local_maps(integrate_controls(u), points,
+    obs_index, local_maps, *_ = build_local_maps(integrate_controls(u), points,
                                                 localmap_params(CONFIG))
     run = Run(controls=u, obs_index=obs_index, local_maps=local_maps, resolution=0.16,
               timestamps=np.arange(30) * 0.2, ground_truth=gt, initial_pose=np.zeros(3))

@@ -29,7 +29,7 @@ def run() -> Run:
     steps = 30
     gt, u = truth_and_controls("loop", steps)
     params = LocalMapParams(resolution=0.16, max_range=5.0, travel=1.0)
-    obs_index, maps, _ = build_local_maps(integrate_controls(u), [world.observe(p, rng)
+    obs_index, maps, *_ = build_local_maps(integrate_controls(u), [world.observe(p, rng)
                                                                    for p in gt], params)
     return Run(controls=u, obs_index=obs_index, local_maps=maps, resolution=0.16,
                timestamps=np.arange(steps) * 0.2, ground_truth=gt,

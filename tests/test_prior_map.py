@@ -134,7 +134,7 @@ def _run(world: World, seed: int, drift: float, steps: int = 40) -> Run:
     rng = np.random.default_rng(seed)
     gt, u_true = truth_and_controls("loop", steps)
     u_vo = u_true + np.array([0.0, 0.0, drift])
-    obs_index, local_maps, _ = build_local_maps(integrate_controls(u_vo),
+    obs_index, local_maps, *_ = build_local_maps(integrate_controls(u_vo),
                                                 [world.observe(p, rng, n=4000) for p in gt],
                                                 params)
     return Run(controls=u_vo, obs_index=obs_index, local_maps=local_maps, resolution=0.16,

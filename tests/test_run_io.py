@@ -51,3 +51,30 @@ def test_out_of_range_obs_index_and_corrupt_file(tmp_path):
     np.save(tmp_path / "e.npy", np.zeros(3))  # an .npy is no Run either (np.load would accept it)
     with pytest.raises(RunError, match=r"e\.npy: not a \.npz archive"):
         load_run(tmp_path / "e.npy")
+
+
+def test_lattice_headings_round_trip_and_bad_values_are_named(tmp_path):
+    """``lattice_headings`` ([localmap] lattice = "map") is kept by a Run file; a file without
+    it loads as the robot's lattice (zeros to the filter); a wrong shape, a NaN or degrees in
+    place of radians are errors naming the field and local map."""
+    from gslam_jax.vo.localmap import LocalMapParams
+
+    run, _ = make_run(steps=15, params=LocalMapParams(resolution=0.16, max_range=5.0,
+                                                      travel=1.0, lattice="map"))
+    assert run.lattice_headings is not None and np.any(run.lattice_headings != 0)
+    save_run(tmp_path / "r.npz", run)
+    back = load_run(tmp_path / "r.npz")
+    np.testing.assert_array_equal(back.lattice_headings, run.lattice_headings)
+    plain, _ = make_run(steps=15)
+    save_run(tmp_path / "p.npz", plain)
+    old = load_run(tmp_path / "p.npz")
+    assert old.lattice_headings is None
+    np.testing.assert_array_equal(old.lattice_heading_array(), np.zeros(old.num_local_maps))
+    d = {k: v for k, v in run._asdict().items() if v is not None}
+    h = run.lattice_headings
+    for bad, match in ((h[:-1], r"expected shape \[\d+\] \(one per local map\)"),
+                       (np.where(np.arange(h.size) == 2, np.nan, h), "non-finite .* local map 2"),
+                       (np.where(np.arange(h.size) == 1, 5000.0, h), "local map 1: 5000 rad")):
+        np.savez(tmp_path / "bad.npz", **{**d, "lattice_headings": bad})
+        with pytest.raises(RunError, match=r"bad\.npz: field 'lattice_headings': " + match):
+            load_run(tmp_path / "bad.npz")

@@ -27,7 +27,7 @@ def _parked_run(moved: float, steps: int = 30, seed: int = 0) -> Run:
     world = World(seed)
     frames = [world.observe(p, rng, n=4000) for p in gt]
     params = LocalMapParams(resolution=0.16, max_range=5.0, travel=0.05)
-    obs_index, maps, _ = build_local_maps(integrate_controls(u_vo), frames, params)
+    obs_index, maps, *_ = build_local_maps(integrate_controls(u_vo), frames, params)
     return Run(controls=u_vo, obs_index=obs_index, local_maps=maps,
                resolution=params.resolution, timestamps=np.arange(steps) * 0.1,
                ground_truth=gt)

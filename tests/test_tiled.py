@@ -69,16 +69,24 @@ def _equivalence() -> dict:
     from gslam_jax.observations import local_observations
     from gslam_jax.sizing import map_extent, observed_cells
     from gslam_jax.tiled.reference import run_tiled
+    from gslam_jax.vo.localmap import LocalMapParams
 
-    run, _ = make_run(seed=0, steps=70)
-    obs = local_observations(run, 1e-4)
-    L = obs.shape[1]
+    robot_run, _ = make_run(seed=0, steps=70)
+    # the same course with local maps on the map's lattice (``Run.lattice_headings``): the loop
+    # turns through every heading, so every lattice angle is placed
+    map_run, _ = make_run(seed=0, steps=70, params=LocalMapParams(
+        resolution=0.16, max_range=5.0, travel=1.0, lattice="map"))
     out = {}
     # "ignore" in one pass over the particles; "sample" in blocks of 5 (3 blocks and a tail of 1).
     # and "ignore" with adaptive tempering (issue 16), which the reference solves on its own.
     # "sample" also with cross-track motion noise (MotionParams.alpha_cross).
-    for mode, block, temper in (("ignore", 16, "fixed"), ("sample", 5, "fixed"),
-                                ("ignore", 16, "adaptive")):
+    for mode, block, temper, lattice in (("ignore", 16, "fixed", "robot"),
+                                         ("sample", 5, "fixed", "robot"),
+                                         ("ignore", 16, "adaptive", "robot"),
+                                         ("sample", 5, "fixed", "map")):
+        run = map_run if lattice == "map" else robot_run
+        obs = local_observations(run, 1e-4)
+        L = obs.shape[1]
         probe = rbpf.FilterConfig(16, (8, 8), (0.0, 0.0), 0.16, L, unknown_cells=mode)
         ext = map_extent(run.vo_poses(), L, 0.16, -2.5, probe.window)  # footprints reach the edge
         cfg = rbpf.FilterConfig(16, ext.shape, ext.origin, 0.16, L, unknown_cells=mode,
@@ -90,14 +98,17 @@ def _equivalence() -> dict:
         params = rbpf.FilterParams()
         if mode == "sample":
             params = params._replace(motion=params.motion._replace(alpha_cross=0.03))
+        headings = run.lattice_heading_array()
         d = rbpf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
-                            jnp.asarray(run.obs_index), jnp.asarray(obs), cfg)
+                            jnp.asarray(run.obs_index), jnp.asarray(obs), cfg,
+                            lattice_headings=jnp.asarray(headings))
         i = jax.device_get(d.infos)
         dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.maps.k),
                             np.asarray(d.final_state.maps.S), 0, 0.0, 0.0,
                             ancestors=np.asarray(i.ancestors))
-        tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile_size=16 * 0.16)
-        name = f"{mode}-{temper}"
+        tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile_size=16 * 0.16,
+                          lattice_headings=headings)
+        name = f"{mode}-{temper}" + ("" if lattice == "robot" else f"-{lattice}")
         out[name] = check_agreement(dense, tiled, cfg)
         if temper == "adaptive":  # following the dense decisions: real differences still show
             out["follow"] = _follow_cases(dense, run, obs, cfg, key, params)
@@ -166,6 +177,7 @@ def test_tiled_reference_reproduces_dense_filter():
     assert max(r["off_map_updates"] for r in res.values()) > 0  # the off-map rule is exercised
     assert res["ignore-fixed"]["tempered_updates"] == 0
     assert res["ignore-adaptive"]["tempered_updates"] >= 3  # the tempering rule is exercised
+    assert "sample-fixed-map" in res  # local maps on the map's lattice, placed by both
 
 
 def test_dense_update_timing_replays_the_run(compared):

@@ -151,7 +151,10 @@ def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs:
 
     Returns [M] seconds and [M] whether each update resampled."""
     all_keys = rbpf.frame_keys(key, run.num_frames)
-    step = jax.jit(lambda k, s, u, local: rbpf.step(k, s, u, local, params, cfg), donate_argnums=1)
+    step = jax.jit(lambda k, s, u, local, h=0.0: rbpf.step(k, s, u, local, params, cfg,
+                                                          lattice_heading=h),
+                   donate_argnums=1)
+    headings = [jnp.float32(h) for h in run.lattice_heading_array()]
     keys = [all_keys[t] for t in range(run.num_frames)]
     controls = [jnp.asarray(u) for u in np.asarray(run.controls, np.float32)]
     local_obs = [jnp.asarray(o) for o in np.asarray(obs)]
@@ -166,7 +169,8 @@ def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs:
             continue
         jax.block_until_ready(state)
         t0 = time.perf_counter()
-        state, info = jax.block_until_ready(step(keys[t], state, controls[t], local_obs[idx]))
+        state, info = jax.block_until_ready(step(keys[t], state, controls[t], local_obs[idx],
+                                                 headings[idx]))
         times.append(time.perf_counter() - t0)
         resampled.append(bool(info.resampled))
     return np.array(times), np.array(resampled, bool)
@@ -178,7 +182,8 @@ def run_dense(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarr
     maps, and every update as the run executes it (``time_dense_updates``). The state's bytes
     are those of its fixed-shape arrays, allocated once: the same at every frame."""
     args = (key, params, jnp.asarray(run.controls, jnp.float32), jnp.asarray(run.obs_index, jnp.int32),
-            jnp.asarray(obs), cfg, jnp.asarray(run.start_pose(), jnp.float32))
+            jnp.asarray(obs), cfg, jnp.asarray(run.start_pose(), jnp.float32),
+            jnp.asarray(run.lattice_heading_array()))
     jax.block_until_ready(rbpf.run_filter(*args))  # compile
     t0 = time.perf_counter()
     out = jax.block_until_ready(rbpf.run_filter(*args))
@@ -193,12 +198,16 @@ def run_dense(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarr
     state = jax.tree.map(jnp.copy, out.final_state)
     del out
     noise = rbpf.update_noise(jax.random.key(1), cfg)
-    local = jnp.asarray(obs[int(np.max(run.obs_index))])
-    state, _ = jax.block_until_ready(upd(state, local, noise.unknown_u, params))
+    last = int(np.max(run.obs_index))
+    local = jnp.asarray(obs[last])
+    heading = jnp.float32(run.lattice_heading_array()[last])
+    state, _ = jax.block_until_ready(upd(state, local, noise.unknown_u, params,
+                                         lattice_heading=heading))
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
-        state, _ = jax.block_until_ready(upd(state, local, noise.unknown_u, params))
+        state, _ = jax.block_until_ready(upd(state, local, noise.unknown_u, params,
+                                             lattice_heading=heading))
         times.append(time.perf_counter() - t)
     del state
     run_times, resampled = time_dense_updates(key, params, run, obs, cfg)
@@ -368,7 +377,8 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     t0 = time.perf_counter()
     tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile, run.start_pose(),
                       draws=draws, follow=Decisions(np.asarray(dense.resampled),
-                                                    np.asarray(dense.ancestors)))
+                                                    np.asarray(dense.ancestors)),
+                      lattice_headings=run.lattice_heading_array())
     tiled_s = time.perf_counter() - t0
     agree = check_agreement(dense, tiled, cfg)
     tiled_upd_rs = np.asarray(tiled.resampled)[np.asarray(run.obs_index) >= 0]  # [M]

@@ -283,9 +283,13 @@ def _check_frames(seq: Path, max_frames: int | None) -> list[Path]:
 
 
 def kitti_frontend(root: str | Path, params: KittiParams = KittiParams(), *,
-                   progress: Callable[[int, int], None] | None = None) -> FrontEndResult:
+                   progress: Callable[[int, int], None] | None = None,
+                   frame_turn: float = 0.0) -> FrontEndResult:
     """Run the stereo front-end over a KITTI odometry sequence; returns Run, summary and poses.
-    ``progress(done, total)`` follows the frames.
+    ``progress(done, total)`` follows the frames. ``frame_turn``: radians by which the world
+    frame (the robot frame at frame 0) is turned, the ground truth and start pose with it, so
+    that local maps on the map's lattice (``[localmap] lattice = "map"``) are built for that
+    frame (the frame-orientation check, ``experiments.frame_lattice``).
 
     Frame numbers come from the image names (``NNNNNN.png``, consecutive); frame k takes line k of
     times.txt and of the poses file. Missing or out-of-order rows are named errors.
@@ -323,12 +327,18 @@ def kitti_frontend(root: str | Path, params: KittiParams = KittiParams(), *,
     if cams is not None:
         rel = invert(cams[0])  # world = robot frame at frame 0
         gt = np.stack([pose_to_2d(t_robot_cam @ rel @ c @ invert(t_robot_cam)) for c in cams])
+        if frame_turn:
+            c_, s_ = np.cos(frame_turn), np.sin(frame_turn)
+            gt = np.stack([c_ * gt[:, 0] - s_ * gt[:, 1], s_ * gt[:, 0] + c_ * gt[:, 1],
+                           np.angle(np.exp(1j * (gt[:, 2] + frame_turn)))], axis=1)
 
     def load(t: int) -> tuple[np.ndarray, np.ndarray]:
         return read_image(lefts[t]), read_image(seq / "image_1" / lefts[t].name)
 
     return run_frontend(load, n, rig, t_robot_cam, times, params.frontend, ground_truth=gt,
-                        initial_pose=None if gt is None else gt[0], source=str(seq),
+                        initial_pose=(gt[0] if gt is not None else
+                                      np.array([0.0, 0.0, frame_turn]) if frame_turn else None),
+                        source=str(seq),
                         progress=progress)
 
 

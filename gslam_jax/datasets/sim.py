@@ -190,14 +190,16 @@ def sense_run(odo: Odometry, world: World, seed: int, params: LocalMapParams,
             yield pts
 
     t1 = time.perf_counter()
-    obs_index, local_maps, dropped = build_local_maps(vo_poses, frames(), params)
+    obs_index, local_maps, dropped, lattice_headings = build_local_maps(vo_poses, frames(),
+                                                                         params)
     timings["sensor_and_maps_s"] = time.perf_counter() - t1
     timings["total_s"] = time.perf_counter() - t0
 
     run = Run(controls=controls, obs_index=obs_index, local_maps=local_maps,
               resolution=float(params.resolution), timestamps=traj.timestamps.copy(),
               ground_truth=gt.copy(), vo_failed=draw.vo_failed.copy(),
-              initial_pose=gt[0].copy(), sensor="points")
+              initial_pose=gt[0].copy(), sensor="points",
+              lattice_headings=None if params.lattice == "robot" else lattice_headings)
     info = SimInfo(course=crs, world=world, trajectory=traj, vo_noise=noise, vo_draw=draw,
                    sensor=sensor_params, localmap=params, survey_frames=traj.survey_frames,
                    survey_points=gt[traj.survey_frames, :2].copy(),

@@ -17,8 +17,10 @@ __all__ = ["Footprint", "Borrowed", "compact_observation", "observation_cells", 
            "footprint_at", "read_footprints"]
 
 
-def compact_observation(local_obs: Array, cfg: FilterConfig) -> Observation:
-    """[L, L, 2] local map (k, S) -> its observed cells (``Observation``), once per update."""
+def compact_observation(local_obs: Array, cfg: FilterConfig,
+                        lattice_heading: Array | float = 0.0) -> Observation:
+    """[L, L, 2] local map (k, S) on a lattice turned by ``lattice_heading`` against the robot
+    (``Run.lattice_headings``) -> its observed cells (``Observation``), once per update."""
     M = cfg.max_observed
     k = local_obs[..., 0].reshape(-1)
     S = local_obs[..., 1].reshape(-1)
@@ -27,18 +29,23 @@ def compact_observation(local_obs: Array, cfg: FilterConfig) -> Observation:
     count = jnp.sum(observed)
     valid = jnp.arange(M) < count
     return Observation(index, jnp.where(valid, k[index], 0.0), jnp.where(valid, S[index], 0.0),
-                       jnp.maximum(count - M, 0).astype(jnp.int32))
+                       jnp.maximum(count - M, 0).astype(jnp.int32),
+                       jnp.asarray(lattice_heading, jnp.float32))
 
 
-def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig) -> tuple[Array, Array]:
+def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig,
+                      lattice_heading: Array | float = 0.0) -> tuple[Array, Array]:
     """The map cell under each given local cell seen from ``pose`` (paper 6.1: "rotate and
     translate the observation"): flat map indices and whether each lies inside the map.
 
-    Local cell (a, b) (flat index a * L + b) covers robot-frame x in [a - L/2, a - L/2 + 1)
-    cells (y likewise with b); its centre is rotated by the particle's heading, translated to
-    its position, and takes the map cell it falls in. Every local cell lands in exactly one map
-    cell, so no observation is dropped or counted twice; off-map cells get index H*W and are
-    masked, never wrapped.
+    Local cell (a, b) (flat index a * L + b) covers x in [a - L/2, a - L/2 + 1) cells (y
+    likewise with b) on the local map's lattice, which is turned by ``lattice_heading``
+    against the robot frame; its centre is rotated by the particle's heading plus that angle,
+    translated to its position, and takes the map cell it falls in. Every local cell lands in
+    exactly one map cell, so no observation is dropped; off-map cells get index H*W and are
+    masked, never wrapped. Where the lattice lies turned against the map's (the particle's
+    heading plus ``lattice_heading`` far from a multiple of 90 degrees), some map cells take
+    two local cells and others none (docs/results.md, "The map frame's orientation").
     """
     H, W = cfg.map_shape
     L = cfg.local_size
@@ -47,7 +54,8 @@ def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig) -> tup
     py = (pose[1] - cfg.map_origin[1]) / cfg.resolution
     ca = (local_index // L).astype(jnp.float32) - (L // 2) + 0.5
     cb = (local_index % L).astype(jnp.float32) - (L // 2) + 0.5
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+    heading = pose[2] + lattice_heading
+    c, s = jnp.cos(heading), jnp.sin(heading)
     gi = jnp.floor(px + (c * ca - s * cb)).astype(jnp.int32)
     gj = jnp.floor(py + (s * ca + c * cb)).astype(jnp.int32)
     on_map = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
@@ -99,7 +107,8 @@ def footprint_at(pose: Array, obs: Observation, borrowed: Borrowed,
                  cfg: FilterConfig) -> Footprint:
     """The footprint of poses [n, 3], the map statistics under it read by ``read_cells``
     (flat cells [n, M], on_map [n, M] -> (k, S) [n, M], 0 off the map)."""
-    flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg))(pose)
+    flat, on_map = jax.vmap(lambda p: observation_cells(p, obs.index, cfg,
+                                                        obs.lattice_heading))(pose)
     return Footprint(flat, jnp.any(~on_map & (obs.k > 0), axis=1),
                      jnp.where(on_map, obs.k, 0.0), jnp.where(on_map, obs.S, 0.0),
                      *read_cells(flat, on_map), borrowed.k, borrowed.S, borrowed.can_borrow)

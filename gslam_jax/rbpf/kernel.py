@@ -226,8 +226,8 @@ def _exponent(log_w: Array, log_lam: Array, cfg: FilterConfig) -> Array:
 
 
 def update(state: FilterState, local_obs: Array, unknown_u: Array, params: FilterParams,
-           cfg: FilterConfig, proposal_z: Array | None = None
-           ) -> tuple[FilterState, UpdateInfo]:
+           cfg: FilterConfig, proposal_z: Array | None = None,
+           lattice_heading: Array | float = 0.0) -> tuple[FilterState, UpdateInfo]:
     """Weigh, write, normalise: eq. 26 with eq. 30 / 31 against each particle's map, eq. 14
     into it, the weights multiplied (eq. 27; with ``cfg.tempering == "adaptive"`` the log
     factors are first scaled by ``tempering.adaptive_exponent``) and normalised. No resampling
@@ -238,11 +238,12 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     the proposal's exact correction; with more than one candidate the exponent is the one the
     proposal was fitted with (chosen from the scores at the prior means).
 
-    local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred; unknown_u:
+    local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred, on a lattice
+    turned by ``lattice_heading`` against the robot (``Run.lattice_headings``); unknown_u:
     ``UpdateNoise.unknown_u``. The state's ``best`` becomes the highest-weight particle.
     """
     J = cfg.num_particles
-    obs = compact_observation(local_obs, cfg)
+    obs = compact_observation(local_obs, cfg, lattice_heading)
     correction = jnp.zeros((J,), state.log_w.dtype)
     fitted_phi = None
     if cfg.proposal == "informed":
@@ -305,9 +306,11 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
 
 
 def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: FilterParams,
-            cfg: FilterConfig, resampler: Resampler = resample) -> tuple[FilterState, StepInfo]:
+            cfg: FilterConfig, resampler: Resampler = resample,
+            lattice_heading: Array | float = 0.0) -> tuple[FilterState, StepInfo]:
     """``update`` with ``noise.unknown_u``, then ``resampler`` with ``noise.resample_u``."""
-    state, upd = update(state, local_obs, noise.unknown_u, params, cfg, noise.proposal_z)
+    state, upd = update(state, local_obs, noise.unknown_u, params, cfg, noise.proposal_z,
+                        lattice_heading)
     state, anc, resampled = resampler(state, noise.resample_u, cfg)
     return state, StepInfo(pose=state.pose, ancestors=anc, best=state.best, log_w=state.log_w,
                            ess=upd.ess, resampled=resampled, updated=jnp.bool_(True),
@@ -330,8 +333,8 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
 
 def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
          params: FilterParams, cfg: FilterConfig, has_obs: Array | bool = True, *,
-         propose: Proposal | None = None, resampler: Resampler = resample
-         ) -> tuple[FilterState, StepInfo]:
+         propose: Proposal | None = None, resampler: Resampler = resample,
+         lattice_heading: Array | float = 0.0) -> tuple[FilterState, StepInfo]:
     """One frame, the filter's only one: ``propose`` (predict, eq. 24), then, if the frame has
     a local map, ``observe`` (update, then ``resampler``).
 
@@ -339,7 +342,7 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
     frame has one: True (Python) updates, a traced bool chooses under ``lax.cond``. The key is
     split once into the motion draws and the update's draws (``update_noise``). ``propose``
     None: ``propagate`` (the motion proposal) or, with ``cfg.proposal == "informed"``,
-    ``propagate_mean``.
+    ``propagate_mean``. ``lattice_heading``: the local map's (``update``).
     """
     if propose is None:
         propose = propagate_mean if cfg.proposal == "informed" else propagate
@@ -349,7 +352,8 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
         return state, _no_update_info(state, cfg)
 
     def observe_frame(s: FilterState) -> tuple[FilterState, StepInfo]:
-        return observe(s, local_obs, update_noise(k_update, cfg), params, cfg, resampler)
+        return observe(s, local_obs, update_noise(k_update, cfg), params, cfg, resampler,
+                       lattice_heading)
 
     if has_obs is True:
         return observe_frame(state)
@@ -362,12 +366,14 @@ def _summaries(info: StepInfo) -> tuple[Array, Array]:
 
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
 def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Array,
-                local_obs: Array, params: FilterParams, cfg: FilterConfig
+                local_obs: Array, params: FilterParams, cfg: FilterConfig,
+                lattice_headings: Array | None = None
                 ) -> tuple[FilterState, tuple[StepInfo, Array, Array]]:
     """``lax.scan`` of ``step`` over frames (update where obs_index >= 0).
 
     keys [T], controls [T, 3], obs_index [T] (index into local_obs or -1), local_obs
-    [M, L, L, 2] observations (k, S) from ``cells.obs_from_stats`` with M >= 1.
+    [M, L, L, 2] observations (k, S) from ``cells.obs_from_stats`` with M >= 1,
+    lattice_headings [M] (``Run.lattice_heading_array``; None: all 0, the robot's axes).
     Returns the final state and per-frame (StepInfo, best pose, weighted-mean pose).
     ``state`` is donated: the maps are updated in its buffers, so do not use it afterwards
     (pass ``jax.tree.map(jnp.copy, state)`` to keep it).
@@ -375,7 +381,10 @@ def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Arr
 
     def frame(state, xs):
         k, u, idx = xs
-        state, info = step(k, state, u, local_obs[jnp.maximum(idx, 0)], params, cfg, idx >= 0)
+        m = jnp.maximum(idx, 0)
+        heading = 0.0 if lattice_headings is None else lattice_headings[m]
+        state, info = step(k, state, u, local_obs[m], params, cfg, idx >= 0,
+                           lattice_heading=heading)
         best, mean = _summaries(info)
         return state, (info, best, mean)
 
@@ -389,11 +398,13 @@ def frame_keys(key: Array, num_frames: int) -> Array:
 
 @partial(jax.jit, static_argnames=("cfg",))
 def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Array,
-               local_obs: Array, cfg: FilterConfig, start_pose: Array | None = None) -> RunOutput:
+               local_obs: Array, cfg: FilterConfig, start_pose: Array | None = None,
+               lattice_headings: Array | None = None) -> RunOutput:
     """The whole filter in one jitted call (see ``scan_frames``); vmappable and differentiable
     in ``params``."""
     state = init(cfg, start_pose)
     final, (infos, best, mean) = scan_frames(
-        state, frame_keys(key, controls.shape[0]), controls, obs_index, local_obs, params, cfg)
+        state, frame_keys(key, controls.shape[0]), controls, obs_index, local_obs, params, cfg,
+        lattice_headings)
     path = backtrack_path(infos.pose, infos.ancestors, final.best)
     return RunOutput(final, infos, best, mean, path)

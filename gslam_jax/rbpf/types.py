@@ -198,6 +198,8 @@ class Observation(NamedTuple):
     k: Array        # [M]
     S: Array        # [M]
     dropped: Array  # observed cells that did not fit in M (0 when M is large enough)
+    # [] the local map's lattice against the robot frame, radians (``Run.lattice_headings``)
+    lattice_heading: Array | float = 0.0
 
 
 class UpdateInfo(NamedTuple):

@@ -177,15 +177,19 @@ def _particle(tmap: TileMap, pose: np.ndarray, cs: tuple, obs: np.ndarray, u: np
 
 
 def update(state: TiledState, obs: np.ndarray, noise: UpdateNoise, params: FilterParams,
-           cfg: FilterConfig, follow: tuple[bool, np.ndarray] | None = None) -> UpdateInfo:
+           cfg: FilterConfig, follow: tuple[bool, np.ndarray] | None = None,
+           lattice_heading: float = 0.0) -> UpdateInfo:
     """One local map: per-particle update, weights (eq. 27), normalisation, ESS-gated
-    resampling; state is updated in place. obs: [L, L, 2] float32 (k, S). ``follow``: another
-    filter's (resampled, ancestors) at this frame, taken where this one's differ only by
-    rounding (reported in ``UpdateInfo.rounding``)."""
+    resampling; state is updated in place. obs: [L, L, 2] float32 (k, S) on a lattice turned
+    by ``lattice_heading`` radians against the robot (its cells are placed at the particle's
+    heading plus that angle). ``follow``: another filter's (resampled, ancestors) at this
+    frame, taken where this one's differ only by rounding (reported in
+    ``UpdateInfo.rounding``)."""
     J = cfg.num_particles
     obs = np.asarray(obs, F32)
     unknown_u = np.asarray(noise.unknown_u, F32)
-    c, s = nm.cos32(state.pose[:, 2]), nm.sin32(state.pose[:, 2])
+    heading = (state.pose[:, 2] + F32(lattice_heading)).astype(F32)
+    c, s = nm.cos32(heading), nm.sin32(heading)
     log_lam = np.zeros(J)
     violations = 0
     for j in range(J):
@@ -298,8 +302,11 @@ def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_in
               local_obs: np.ndarray, cfg: FilterConfig, tile_size: float = DEFAULT_TILE_SIZE,
               start_pose: np.ndarray | None = None,
               progress: Callable[[int, int], None] | None = None,
-              draws: Draws | None = None, follow: Decisions | None = None) -> TiledOutput:
-    """The whole run, frame by frame, with the dense filter's per-frame random numbers:
+              draws: Draws | None = None, follow: Decisions | None = None,
+              lattice_headings: np.ndarray | None = None) -> TiledOutput:
+    """The whole run, frame by frame, with the dense filter's per-frame random numbers
+    (local map m on a lattice turned by ``lattice_headings[m]``, ``Run.lattice_headings``;
+    None: all 0):
     ``draws`` (``draw_noise(key, obs_index, cfg)``, made here first when not given; pass them
     to time the run alone). With ``draws`` given, the loop is NumPy only: ``key`` is unused.
     ``follow``: another filter's resampling decisions, taken where they differ from the
@@ -327,8 +334,10 @@ def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_in
         if obs_index[t] >= 0:
             noise = draws.update[t]
             t0 = time.perf_counter()
-            info = update(state, local_obs[obs_index[t]], noise, params, cfg,
-                          None if follow is None else (follow.resampled[t], follow.ancestors[t]))
+            m = int(obs_index[t])
+            info = update(state, local_obs[m], noise, params, cfg,
+                          None if follow is None else (follow.resampled[t], follow.ancestors[t]),
+                          0.0 if lattice_headings is None else float(lattice_headings[m]))
             upd_s.append(time.perf_counter() - t0)
             ess, resampled, anc = info.ess, info.resampled, info.ancestors
             rounding.extend(r._replace(frame=t) for r in info.rounding)

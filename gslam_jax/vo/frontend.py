@@ -214,5 +214,7 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
               resolution=params.local_map.resolution,
               timestamps=np.asarray(timestamps, np.float64), ground_truth=ground_truth,
               vo_failed=np.asarray(failed, bool), initial_pose=start,
-              time_origin_ns=time_origin_ns, sensor="stereo")
+              time_origin_ns=time_origin_ns, sensor="stereo",
+              lattice_headings=(None if params.local_map.lattice == "robot"
+                                else np.asarray(builder.lattice_headings, np.float64)))
     return FrontEndResult(validate_run(run, source), summary, np.stack(poses), results, slip)

@@ -10,15 +10,17 @@ float64; ``cells.obs_from_stats`` turns them into (k, S).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Iterable, Iterator
+from typing import TYPE_CHECKING, Iterable, Iterator, NamedTuple
 
 import numpy as np
+
+from gslam_jax.choices import LOCALMAP_LATTICES
 
 if TYPE_CHECKING:
     from gslam_jax.config import Config
 
-__all__ = ["LocalMapParams", "localmap_params", "LocalMapBuilder", "points_to_stats", "relative_pose",
-           "transform_points", "build_local_maps"]
+__all__ = ["LocalMapParams", "localmap_params", "LocalMapBuilder", "LocalMaps", "points_to_stats",
+           "relative_pose", "transform_points", "lattice_heading", "build_local_maps"]
 
 
 @dataclass(frozen=True)
@@ -32,6 +34,13 @@ class LocalMapParams:
     min_height, max_height: height band kept, metres relative to the robot base; points above
         ``max_height`` are overhangs (canopy) and are removed.
     travel: metres of travel fused into one local map (paper: "a few metres").
+    lattice: the local map's axes. "robot": the robot's at the local map's frame (the
+        paper's). "map": the map's, at the VO pose of that frame: the points are binned on a
+        lattice turned by minus the VO heading (``Run.lattice_headings``), so that a particle
+        near the VO pose places its cells on the map's cells one for one. A lattice turned
+        against the map's places cells by their centres, two into some map cells and none
+        into others, and the result then depends on the map frame's orientation
+        (docs/results.md, "The map frame's orientation").
     """
 
     resolution: float = 0.16
@@ -40,6 +49,7 @@ class LocalMapParams:
     min_height: float = -2.0
     max_height: float = 2.0
     travel: float = 2.0
+    lattice: str = "robot"
 
     @property
     def size(self) -> int:
@@ -54,7 +64,7 @@ def localmap_params(config: Config) -> LocalMapParams:
     lm = config.localmap
     return LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
                           max_range=lm.max_range, min_height=lm.min_height,
-                          max_height=lm.max_height, travel=lm.travel)
+                          max_height=lm.max_height, travel=lm.travel, lattice=lm.lattice)
 
 
 def relative_pose(ref: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -62,6 +72,18 @@ def relative_pose(ref: np.ndarray, pose: np.ndarray) -> np.ndarray:
     c, s = np.cos(ref[2]), np.sin(ref[2])
     dx, dy = pose[0] - ref[0], pose[1] - ref[1]
     return np.array([c * dx + s * dy, -s * dx + c * dy, pose[2] - ref[2]])
+
+
+def lattice_heading(vo_heading: float, lattice: str) -> float:
+    """The angle of a local map's lattice against the robot frame (``Run.lattice_headings``)
+    for the VO heading of its frame: 0 ("robot"), or minus that heading wrapped into
+    (-pi, pi] ("map": the lattice on the map's axes)."""
+    if lattice == "robot":
+        return 0.0
+    if lattice != "map":
+        raise ValueError(f"[localmap] lattice '{lattice}' unknown: one of "
+                         f"{', '.join(LOCALMAP_LATTICES)}")
+    return float(-np.angle(np.exp(1j * vo_heading)))
 
 
 def transform_points(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -75,8 +97,11 @@ def transform_points(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
 
 
 def points_to_stats(points: np.ndarray, params: LocalMapParams,
-                    out: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-    """Bin points (already in the local-map frame) into [L, L, 3] (n, sum z, sum z^2).
+                    out: np.ndarray | None = None, heading: float = 0.0
+                    ) -> tuple[np.ndarray, int]:
+    """Bin points (already in the local-map frame) into [L, L, 3] (n, sum z, sum z^2), on a
+    lattice turned by ``heading`` radians about the local map's centre (``lattice_heading``):
+    a point p lands in the cell of R(-heading) p.
 
     Points outside the grid or outside the height band are dropped; returns the statistics and
     the number of points that fell outside the grid (height-band removals are intended and not
@@ -89,6 +114,10 @@ def points_to_stats(points: np.ndarray, params: LocalMapParams,
     points = points[np.isfinite(points).all(axis=1)]
     z = points[:, 2]
     points = points[(z >= params.min_height) & (z <= params.max_height)]
+    if heading:
+        c, s = np.cos(heading), np.sin(heading)
+        x, y = points[:, 0], points[:, 1]
+        points = np.stack([c * x + s * y, -s * x + c * y, points[:, 2]], axis=1)
     i = np.floor(points[:, 0] / res).astype(np.int64) + L // 2
     j = np.floor(points[:, 1] / res).astype(np.int64) + L // 2
     inside = (i >= 0) & (i < L) & (j >= 0) & (j < L)
@@ -118,6 +147,7 @@ class LocalMapBuilder:
 
     params: LocalMapParams
     dropped_points: int = 0
+    lattice_headings: list[float] = field(default_factory=list)
     _frames: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     _travel: float = 0.0
     _last_pose: np.ndarray | None = None
@@ -138,19 +168,31 @@ class LocalMapBuilder:
         if not self._frames:
             return None
         ref = self._frames[-1][0]
+        heading = lattice_heading(float(ref[2]), self.params.lattice)
         stats = np.zeros((self.params.size, self.params.size, 3))
         for pose, pts in self._frames:
             _, dropped = points_to_stats(transform_points(pts, relative_pose(ref, pose)),
-                                         self.params, out=stats)
+                                         self.params, out=stats, heading=heading)
             self.dropped_points += dropped
+        self.lattice_headings.append(heading)
         self._frames.clear()
         self._travel = 0.0
         return stats
 
 
+class LocalMaps(NamedTuple):
+    """A sequence's local maps (``build_local_maps``)."""
+
+    obs_index: np.ndarray         # [T] int32, -1 where a frame completes none
+    local_maps: np.ndarray        # [M, L, L, 3]
+    dropped_points: int
+    lattice_headings: np.ndarray  # [M] (``Run.lattice_headings``)
+
+
 def build_local_maps(vo_poses: np.ndarray, frames: Iterable[np.ndarray],
-                     params: LocalMapParams) -> tuple[np.ndarray, np.ndarray, int]:
-    """Fuse a whole sequence: returns (obs_index [T], local_maps [M, L, L, 3], dropped points).
+                     params: LocalMapParams) -> LocalMaps:
+    """Fuse a whole sequence: obs_index [T], local_maps [M, L, L, 3], the dropped points and
+    the lattice headings [M].
 
     The first local map is emitted at frame 0 (the robot starts with an observation of where it
     stands), then every ``travel`` metres; a trailing partial segment is not emitted.
@@ -176,4 +218,5 @@ def build_local_maps(vo_poses: np.ndarray, frames: Iterable[np.ndarray],
         raise ValueError(f"build_local_maps: more point frames than the {len(poses)} poses")
     L = params.size
     local_maps = np.stack(maps) if maps else np.zeros((0, L, L, 3))
-    return np.asarray(obs_index, dtype=np.int32), local_maps, builder.dropped_points
+    return LocalMaps(np.asarray(obs_index, dtype=np.int32), local_maps, builder.dropped_points,
+                     np.asarray(builder.lattice_headings, np.float64))
