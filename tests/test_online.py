@@ -3,6 +3,8 @@ the same frames, seed and map; one compilation for every frame; fixed extent, re
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from synthetic import World, truth_and_controls
@@ -178,3 +180,23 @@ def test_a_range_noise_profile_is_estimated_as_the_frames_come(frames, batch, mo
     assert checked == 4 and nonzero >= 1
     assert online_step._cache_size() == compiled  # a new profile is a new value, not a shape
     assert not np.array_equal(live.particles().weight, plain.particles().weight)
+
+
+def test_map_lattice_local_maps_fused_online_reproduce_the_batch_run(frames):
+    """[localmap] lattice = "map": Online.push_points bins each local map on the map's axes
+    and hands its lattice angle to the filter, as the batch run of the Run built from the same
+    points does (the loop turns through every heading)."""
+    run0, points = frames
+    config = dataclasses.replace(CONFIG, localmap=dataclasses.replace(CONFIG.localmap,
+                                                                      lattice="map"))
+    obs_index, local_maps, _, headings = build_local_maps(
+        integrate_controls(run0.controls), points, localmap_params(config))
+    assert np.ptp(headings) > 3.0  # the loop turns the lattice through every angle
+    run = run0._replace(obs_index=obs_index, local_maps=local_maps, lattice_headings=headings)
+    res = slam.run_slam(run, config)
+    fused = Online(config, filter_config=sizing.filter_config(config, run))
+    for t in range(run.num_frames):
+        fused.push_points(run.controls[t], points[t], run.timestamps[t])
+    np.testing.assert_array_equal(np.stack(fused.best), res.best_pose)
+    robot = slam.run_slam(run0, CONFIG)
+    assert not np.array_equal(res.best_pose, robot.best_pose)  # the lattice changed the run
