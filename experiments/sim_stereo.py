@@ -52,7 +52,7 @@ def main() -> int:
     config = Config()
     config = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
                                                                     particles=args.particles))
-    params = localmap_params(config)
+    params = localmap_params(config, "stereo")
     frames = args.frames or None
     env = environment()
     print(f"# {env['date']} | {env['processor']} | {env['cpus']} cpus | jax {env['jax']} | "

@@ -12,7 +12,7 @@ __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJEC
            "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "PROPOSALS",
            "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS", "SENSORS",
            "AUTO_ESS_TARGET", "RANGE_NOISE", "PROPOSAL_DRAWS",
-           "AUTO_PROPOSAL_DRAWS", "LOCALMAP_LATTICES"]
+           "AUTO_PROPOSAL_DRAWS", "LOCALMAP_LATTICES", "AUTO_LOCALMAP_LATTICE"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
@@ -38,8 +38,9 @@ SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --desig
 ESTIMATES = ("best", "mean", "smoothed")
 SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] estimate``)
 # ``[localmap] lattice``: each local map binned on the robot's axes (the paper's) or on the
-# map's at its VO pose (``vo.localmap.LocalMapParams``)
-LOCALMAP_LATTICES = ("robot", "map")
+# map's at its VO pose (``vo.localmap.LocalMapParams``); "auto" resolves by the sensor that
+# makes the local maps (``AUTO_LOCALMAP_LATTICE``)
+LOCALMAP_LATTICES = ("robot", "map", "auto")
 BAD_FRAME_POLICIES = ("error", "fallback")  # ``gslam run --on-bad-frame``
 STEREO_ALGORITHMS = ("sgbm", "bm")  # ``[stereo] algorithm`` (vo.stereo.DenseStereoParams)
 # ``Run.sensor``: how a run's local maps were made. "points": independent height samples (the
@@ -58,3 +59,8 @@ AUTO_ESS_TARGET = {"points": 0.5, "stereo": 0.99}
 # RMS and final drift both fell under VO's on 30 of 32 seeds, against 18 (docs/real-data.md). On the
 # point sensor's Table I they were no better (the maze +27 % on seeds 0-4, docs/results.md).
 AUTO_PROPOSAL_DRAWS = {"points": "independent", "stereo": "antithetic"}
+# ``[localmap] lattice = "auto"``: the map's lattice for stereo, whose results on the robot's
+# depended on the map frame's orientation (KITTI drift 0.16-0.81 % by the frame alone, 0.29-0.42
+# % on the map's); the robot's for the simulator's point sensor, where the map's broke one of
+# seven Table I maze seeds (docs/results.md, "The map frame's orientation")
+AUTO_LOCALMAP_LATTICE = {"points": "robot", "stereo": "map"}

@@ -125,7 +125,7 @@ class LocalMapSection:
     max_height: float = 2.0
     travel: float = 2.0
     cells: int = 0
-    lattice: str = "robot"
+    lattice: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -260,8 +260,8 @@ class Config:
             (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
             (lm.travel > 0, "localmap", "travel", "must be positive"),
             (lm.lattice in choices.LOCALMAP_LATTICES, "localmap", "lattice",
-             f"must be one of {', '.join(choices.LOCALMAP_LATTICES)} (the robot's axes, or the "
-             "map's at the VO pose)"),
+             f"must be one of {', '.join(choices.LOCALMAP_LATTICES)} (the robot's axes, the "
+             "map's at the VO pose, or by the sensor)"),
             (lm.cells >= 0 and lm.cells % 2 == 0, "localmap", "cells", "must be even and >= 0"),
             (st.num_disparities >= 0 and st.num_disparities % 16 == 0, "stereo",
              "num_disparities", "must be a multiple of 16 (0: the source's default)"),

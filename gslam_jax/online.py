@@ -131,7 +131,7 @@ class Online:
         if self.start.shape != (3,) or not np.isfinite(self.start).all():
             raise ConfigError(f"Online: start_pose must be 3 finite numbers (x, y, theta), "
                               f"got {np.asarray(start_pose).tolist()}")
-        self.localmap = localmap_params(config)
+        self.localmap = localmap_params(config, sensor)
         if filter_config is None:
             L = self.localmap.size if local_size is None else int(local_size)
             if map_extent is None or isinstance(map_extent, (int, float)):

@@ -51,23 +51,30 @@ def test_every_filter_setting_of_the_config_reaches_the_filter():
 
 
 def test_local_map_defaults_are_the_config_defaults():
-    lm, m = Config().localmap, Config().map
-    assert LocalMapParams() == LocalMapParams(resolution=m.resolution, cells=lm.cells,
-                                              max_range=lm.max_range, min_height=lm.min_height,
-                                              max_height=lm.max_height, travel=lm.travel)
+    """``LocalMapParams()`` is the default config's local maps for the simulator's point sensor
+    (``lattice = "auto"`` resolved: the robot's axes); for stereo "auto" is the map's."""
+    from gslam_jax.vo.localmap import localmap_params
+
+    assert LocalMapParams() == localmap_params(Config())
+    assert localmap_params(Config(), "stereo") == dataclasses.replace(LocalMapParams(),
+                                                                      lattice="map")
+    with pytest.raises(ConfigError, match="sensor 'lidar' unknown"):
+        localmap_params(Config(), "lidar")
 
 
 def test_paper_config_file_holds_every_default():
-    """configs/paper.toml lists every field, each the built-in default but for the three it says
-    differ: the paper's fixed tempering, best-particle path and independent draws."""
+    """configs/paper.toml lists every field, each the built-in default but for the four it says
+    differ: the paper's fixed tempering, best-particle path, independent draws and local maps
+    on the robot's axes."""
     path = ROOT / "configs" / "paper.toml"
     paper = load_config(path)
-    default = Config().filter
+    default = Config()
     assert dataclasses.replace(paper, filter=dataclasses.replace(
-        paper.filter, tempering=default.tempering, estimate=default.estimate,
-        proposal_draws=default.proposal_draws)) == Config()
-    assert (paper.filter.tempering, paper.filter.estimate,
-            paper.filter.proposal_draws) == ("fixed", "best", "independent")
+        paper.filter, tempering=default.filter.tempering, estimate=default.filter.estimate,
+        proposal_draws=default.filter.proposal_draws), localmap=default.localmap) == Config()
+    assert dataclasses.replace(paper.localmap, lattice="auto") == default.localmap
+    assert (paper.filter.tempering, paper.filter.estimate, paper.filter.proposal_draws,
+            paper.localmap.lattice) == ("fixed", "best", "independent", "robot")
     data = tomllib.loads(path.read_text())
     for section in ("filter", "motion", "map", "localmap"):
         assert set(data[section]) == set(dataclasses.asdict(getattr(Config(), section)))

@@ -378,7 +378,8 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
     result = euroc_frontend(src.path, EurocParams(
         max_frames=src.max_frames,
         mount=lambda default: camera_mount(config, default, f"--source euroc {src.path}"),
-        frontend=FrontEndParams(local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
+        frontend=FrontEndParams(local_map=localmap_params(config, "stereo"),
+                                on_bad_frame=src.on_bad_frame,
                                 stereo=stereo_settings(config, default.stereo))),
         progress=progress)
     print(result.summary.text())

@@ -354,7 +354,8 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
     mount = camera_mount(config, robot_from_camera(KittiParams()), f"--source kitti {src.path}")
     params = KittiParams(
         sequence=sequence, max_frames=src.max_frames, mount=mount,
-        frontend=replace(fe, local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
+        frontend=replace(fe, local_map=localmap_params(config, "stereo"),
+                         on_bad_frame=src.on_bad_frame,
                          stereo=stereo_settings(config, fe.stereo)))
     result = kitti_frontend(src.path, params, progress=progress)
     print(result.summary.text())

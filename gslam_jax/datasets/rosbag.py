@@ -366,7 +366,8 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
     default = FrontEndParams()
     params = RosbagParams(
         topics=_given(src.topics), max_frames=src.max_frames,
-        frontend=FrontEndParams(local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
+        frontend=FrontEndParams(local_map=localmap_params(config, "stereo"),
+                                on_bad_frame=src.on_bad_frame,
                                 stereo=stereo_settings(config, default.stereo)),
         mount=lambda found: camera_mount(config, found, where))
     out = rosbag_frontend(src.path, params, progress=progress)

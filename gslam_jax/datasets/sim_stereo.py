@@ -139,7 +139,7 @@ def _load(src: Source, config: Config, progress: ProgressFn | None = None) -> Lo
     sp = replace(sp, render=rig_render_params(config, sp.render),
                  frontend=replace(sp.frontend,
                                   stereo=stereo_settings(config, sp.frontend.stereo)))
-    run, info = load_sim_stereo(src.course, src.sim_seed, localmap_params(config),
+    run, info = load_sim_stereo(src.course, src.sim_seed, localmap_params(config, "stereo"),
                                 max_frames=src.max_frames, progress=progress, params=sp)
     print(info.text())
     return LoadedSource(run, f"rendered stereo of course {src.course} (seed {src.sim_seed})")

@@ -342,7 +342,7 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
     mount = camera_mount(config, None, f"--source stereo {src.path}")
     default = FrontEndParams()
     params = StereoParams(mount=mount, max_frames=src.max_frames, frontend=FrontEndParams(
-        local_map=localmap_params(config), on_bad_frame=src.on_bad_frame,
+        local_map=localmap_params(config, "stereo"), on_bad_frame=src.on_bad_frame,
         stereo=stereo_settings(config, default.stereo)))
     result = stereo_frontend(src.path, params, progress=progress)
     print(result.summary.text())

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Iterable, Iterator, NamedTuple
 
 import numpy as np
 
-from gslam_jax.choices import LOCALMAP_LATTICES
+from gslam_jax.choices import AUTO_LOCALMAP_LATTICE, LOCALMAP_LATTICES
 
 if TYPE_CHECKING:
     from gslam_jax.config import Config
@@ -59,12 +59,21 @@ class LocalMapParams:
         return int(8 * np.ceil(need / 8))
 
 
-def localmap_params(config: Config) -> LocalMapParams:
-    """How a config's [localmap] and [map] sections turn points into local maps."""
+def localmap_params(config: Config, sensor: str | None = None) -> LocalMapParams:
+    """How a config's [localmap] and [map] sections turn points into local maps made by
+    ``sensor`` (``choices.SENSORS``; None: "points"), which resolves ``lattice = "auto"``
+    (``choices.AUTO_LOCALMAP_LATTICE``)."""
     lm = config.localmap
+    lattice = lm.lattice
+    if lattice == "auto":
+        if sensor is not None and sensor not in AUTO_LOCALMAP_LATTICE:
+            from gslam_jax.config import ConfigError
+            raise ConfigError(f"sensor '{sensor}' unknown: one of "
+                              f"{', '.join(AUTO_LOCALMAP_LATTICE)}")
+        lattice = AUTO_LOCALMAP_LATTICE[sensor or "points"]
     return LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
                           max_range=lm.max_range, min_height=lm.min_height,
-                          max_height=lm.max_height, travel=lm.travel, lattice=lm.lattice)
+                          max_height=lm.max_height, travel=lm.travel, lattice=lattice)
 
 
 def relative_pose(ref: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -82,7 +91,8 @@ def lattice_heading(vo_heading: float, lattice: str) -> float:
         return 0.0
     if lattice != "map":
         raise ValueError(f"[localmap] lattice '{lattice}' unknown: one of "
-                         f"{', '.join(LOCALMAP_LATTICES)}")
+                         f"{', '.join(LOCALMAP_LATTICES)} ('auto' resolved by the sensor "
+                         "before, ``localmap_params``)")
     return float(-np.angle(np.exp(1j * vo_heading)))
 
 
