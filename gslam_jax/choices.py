@@ -62,5 +62,5 @@ AUTO_PROPOSAL_DRAWS = {"points": "independent", "stereo": "antithetic"}
 # ``[localmap] lattice = "auto"``: the map's lattice for stereo, whose results on the robot's
 # depended on the map frame's orientation (KITTI drift 0.16-0.81 % by the frame alone, 0.29-0.42
 # % on the map's); the robot's for the simulator's point sensor, where the map's broke one of
-# seven Table I maze seeds (docs/results.md, "The map frame's orientation")
+# ten Table I maze seeds (docs/results.md, "The map frame's orientation")
 AUTO_LOCALMAP_LATTICE = {"points": "robot", "stereo": "map"}
