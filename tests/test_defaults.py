@@ -58,7 +58,7 @@ def test_local_map_defaults_are_the_config_defaults():
     assert LocalMapParams() == localmap_params(Config())
     assert localmap_params(Config(), "stereo") == dataclasses.replace(LocalMapParams(),
                                                                       lattice="map")
-    with pytest.raises(ConfigError, match="sensor 'lidar' unknown"):
+    with pytest.raises(ConfigError, match="sensor must be one of points, stereo, got 'lidar'"):
         localmap_params(Config(), "lidar")
 
 

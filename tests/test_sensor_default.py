@@ -56,5 +56,8 @@ def test_online_takes_the_sensor():
     stereo, unmarked = Online(_small(), 20.0, sensor="stereo").cfg, Online(_small(), 20.0).cfg
     assert (stereo.ess_target, stereo.proposal_draws) == (0.99, "antithetic")
     assert (unmarked.ess_target, unmarked.proposal_draws) == (0.5, "independent")
+    # [localmap] lattice = "auto": stereo local maps fused by push_points on the map's axes
+    assert Online(_small(), 20.0, sensor="stereo").localmap.lattice == "map"
+    assert Online(_small(), 20.0).localmap.lattice == "robot"
     with pytest.raises(ConfigError, match="sensor must be one of points, stereo, got 'lidar'"):
         Online(_small(), 20.0, sensor="lidar")

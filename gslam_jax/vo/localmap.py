@@ -68,8 +68,8 @@ def localmap_params(config: Config, sensor: str | None = None) -> LocalMapParams
     if lattice == "auto":
         if sensor is not None and sensor not in AUTO_LOCALMAP_LATTICE:
             from gslam_jax.config import ConfigError
-            raise ConfigError(f"sensor '{sensor}' unknown: one of "
-                              f"{', '.join(AUTO_LOCALMAP_LATTICE)}")
+            raise ConfigError(f"sensor must be one of {', '.join(AUTO_LOCALMAP_LATTICE)}, "
+                              f"got {sensor!r}")
         lattice = AUTO_LOCALMAP_LATTICE[sensor or "points"]
     return LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
                           max_range=lm.max_range, min_height=lm.min_height,
