@@ -94,6 +94,7 @@ def test_the_ess_target_is_reported_only_where_tempering_uses_it(parked, tmp_pat
     assert summary["tempering"] == "adaptive"
     assert summary["ess_target"] == 0.5  # automatic: the point sensor's (no sensor recorded)
     assert summary["proposal_draws"] == "independent"  # likewise
+    assert summary["localmap_lattice"] == "robot"  # the Run has no lattice_headings
     save_run(tmp_path / "r.npz", _parked_run(0.3, steps=10))
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["run", str(tmp_path / "r.npz"), "--out", str(tmp_path / "o"),

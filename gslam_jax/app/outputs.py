@@ -107,6 +107,9 @@ def summarise(run, result, config: Config, description: str) -> dict:
                        if config.filter.tempering == "adaptive" else None),
         "proposal_draws": sizing.resolve_proposal_draws(config.filter.proposal_draws,
                                                         run.sensor),
+        # the axes the Run's local maps were binned on ([localmap] lattice, "auto" resolved when
+        # they were built; a Run file keeps it as its lattice_headings)
+        "localmap_lattice": "robot" if run.lattice_headings is None else "map",
         "resampling_events": int(np.sum(result.resampled)),
         "extent_violations": result.extent_violations,
         "empty_observations": result.empty_observations,
