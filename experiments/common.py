@@ -17,6 +17,7 @@ import numpy as np
 from gslam_jax import choices, sizing, slam
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.gridmap.grid import apply_pose
 from gslam_jax.run import Run
 from gslam_jax.sim.vonoise import VO_PROFILES
 from gslam_jax.tuning.evaluation import evaluate
@@ -38,10 +39,8 @@ def turned_run(run: Run, degrees: float) -> Run:
     truth = run.ground_truth
     if truth is not None:
         truth = np.asarray(truth, np.float64)
-        c, s = math.cos(a), math.sin(a)
-        dx, dy = truth[:, 0] - start[0], truth[:, 1] - start[1]
-        truth = np.stack([start[0] + c * dx - s * dy, start[1] + s * dx + c * dy,
-                          np.angle(np.exp(1j * (truth[:, 2] + a)))], axis=1)
+        turned = apply_pose(np.array([start[0], start[1], a]), truth[:, :2] - start[:2])
+        truth = np.column_stack([turned, np.angle(np.exp(1j * (truth[:, 2] + a)))])
     return run._replace(initial_pose=turned_start, ground_truth=truth)
 
 

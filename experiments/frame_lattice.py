@@ -36,7 +36,7 @@ from gslam_jax.machine import environment
 from gslam_jax.run import load_run, save_run
 from gslam_jax.vo.localmap import localmap_params
 
-from experiments.proposal_compare import _row
+from experiments.proposal_compare import case_row
 
 
 def build(kitti: Path, sequence: str | None, config, lattice: str, turn_deg: float,
@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     for lattice in args.lattices:
         for turn in args.turns:
             run = build(args.kitti, args.sequence, config, lattice, turn, args.cache)
-            rows = [_row(f"{lattice}@{turn:g}", run, config, 1.0, "motion", s) for s in args.seeds]
+            rows = [case_row(f"{lattice}@{turn:g}", run, config, 1.0, "motion", s)
+                    for s in args.seeds]
             ratio = np.array([r["ratio"] for r in rows])
             drift = np.array([r["slam_drift_pct"] for r in rows])
             bias = np.array([r["slam_fit_turn_deg"] - r["vo_fit_turn_deg"] for r in rows])

@@ -47,7 +47,9 @@ def _scaled(config, scale: float):
         alpha_theta=m.alpha_theta * scale))
 
 
-def _row(name, run, config, scale, proposal, seed) -> dict:
+def case_row(name, run, config, scale, proposal, seed) -> dict:
+    """One filter run of ``run`` (its motion noise scaled by ``scale``, ``proposal``, filter
+    ``seed``) against VO-only: RMS, final drift and the rigid fit's turn of both, and time."""
     cfg = apply_overrides(_scaled(config, scale), [f"filter.proposal={proposal}",
                                                    f"filter.seed={seed}"])
     t0 = time.perf_counter()
@@ -103,7 +105,7 @@ def main() -> int:
         for scale in args.noise_scale:
             for proposal in args.proposals:
                 for seed in args.seeds:
-                    row = _row(name, run, config, scale, proposal, seed)
+                    row = case_row(name, run, config, scale, proposal, seed)
                     print(f"{name:>22} x{scale:<4g} {proposal:>8} J={row['particles']:<4} "
                           f"seed {seed}: VO {row['vo_rms_m']:.3f} SLAM {row['slam_rms_m']:.3f} "
                           f"({row['ratio']:.2f}x) drift VO {row['vo_drift_pct']:.2f} % SLAM "

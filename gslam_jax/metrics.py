@@ -269,11 +269,12 @@ def place_local_map(run: Run, t: int, pose: np.ndarray, lattice: GridMap
     their k and S. The local map's own lattice is turned by its ``Run.lattice_headings``."""
     res = lattice.resolution
     cx, cy = local_cell_centres(run.local_maps.shape[1], res)
-    m_ = int(run.obs_index[t])
-    k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[m_]), -1, 0)
+    index = int(run.obs_index[t])
+    k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[index]), -1, 0)
     m = k > 0
     x, y, th = pose
-    th = th + (0.0 if run.lattice_headings is None else float(run.lattice_headings[m_]))
+    if run.lattice_headings is not None:
+        th = th + float(run.lattice_headings[index])
     c, s = math.cos(th), math.sin(th)
     wx = x + c * cx[m] - s * cy[m]
     wy = y + s * cx[m] + c * cy[m]

@@ -137,10 +137,10 @@ def sw_objectives(key: Array, params: rbpf.FilterParams, inputs: TuneInputs,
 
     def frame(state: rbpf.FilterState, xs):
         k, u, idx, ref, m = xs
-        m_ = jnp.maximum(idx, 0)
-        state, info = rbpf.step(k, state, u, inputs.local_obs[m_], params, cfg, idx >= 0,
+        local = jnp.maximum(idx, 0)
+        state, info = rbpf.step(k, state, u, inputs.local_obs[local], params, cfg, idx >= 0,
                                 propose=sw_propose, resampler=sw_resample,
-                                lattice_heading=inputs.lattice_headings[m_])
+                                lattice_heading=inputs.lattice_headings[local])
         w = jax.nn.softmax(state.log_w)  # self-normalised: weights carry the gradient
         d2 = jnp.sum((state.pose[:, :2] - ref[:2]) ** 2, axis=-1)
         return state, (info.log_lik, jnp.where(m, w @ d2, 0.0))
