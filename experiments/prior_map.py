@@ -2,7 +2,7 @@
 as A itself (and as B without the map)?
 
     python -m experiments.prior_map --out results/prior_map [--courses ...] [--seeds 0 1]
-        [--max-frames N] [--sigma 0.5,0.5,0.1]
+        [--max-frames N] [--sigma 0.5,0.5,0.1] [--config configs/table1.toml]
 
 For each course and seed s:
 
@@ -16,7 +16,9 @@ For each course and seed s:
 B's start in A's frame: A's filter starts at A's true first pose (the simulator's Run gives it
 as ``initial_pose``), so A's map frame is the simulator's world frame, exactly at the start;
 B drives the same course, so its true start in that frame is B's ``initial_pose`` (read from
-the Run file, printed in the commands). Every command is run through ``gslam_jax.app.cli.main``
+the Run file, printed in the commands). With ``--config`` every run (A, B's local maps and B's
+runs) uses that config, a Table I config's ``[course.<name>.*]`` tables resolved per course and
+written to OUT/<course>-<seed>/config.toml. Every command is run through ``gslam_jax.app.cli.main``
 and written to OUT/commands.txt; the figures come from each run's summary.json (RMS after the
 rigid fit, over every frame).
 """
@@ -34,10 +36,12 @@ import numpy as np
 from gslam_jax.app import cli
 
 
-def make_b(course: str, seed: int, noise_seed: int, max_frames: int | None, path: Path) -> None:
+def make_b(course: str, seed: int, noise_seed: int, max_frames: int | None, path: Path,
+           config: Path | None = None) -> None:
     """Run file of ``course`` with the course and world of ``seed`` and the VO and sensor noise
-    of ``noise_seed``."""
-    from gslam_jax.config import Config
+    of ``noise_seed``; its local maps made as ``config`` (a TOML file; None: the defaults)
+    makes them."""
+    from gslam_jax.config import layered_config
     from gslam_jax.datasets.sim import drive_course, sense_run
     from gslam_jax.run import save_run
     from gslam_jax.sim.courses import make_course
@@ -48,7 +52,8 @@ def make_b(course: str, seed: int, noise_seed: int, max_frames: int | None, path
     odo = drive_course(make_course(course, seed), noise_seed, VO_PROFILES[course],
                        max_frames=max_frames)
     world = world_for_course(odo.course, seed)
-    run, _ = sense_run(odo, world, noise_seed, localmap_params(Config()))
+    params = localmap_params(layered_config(config, course), "points")
+    run, _ = sense_run(odo, world, noise_seed, params)
     save_run(path, run)
 
 
@@ -63,11 +68,15 @@ def gslam(args: list[str], log: Path) -> dict:
 
 
 def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
-        b_set: tuple[str, ...] = (), located: bool = False) -> dict:
+        b_set: tuple[str, ...] = (), located: bool = False,
+        config: Path | None = None) -> dict:
     """A, B plain, B on A's map (exact start, then spread by ``sigma``) for one course/seed;
-    ``b_set``: ``--set KEY=VALUE`` settings of B's runs (A's map is the default run's). With
+    ``b_set``: ``--set KEY=VALUE`` settings of B's runs only. With
     ``located``, also B on A's map with no --start (the start located from B's first metres:
-    ``relocalise``), and the located start's error against B's true start in A's frame."""
+    ``relocalise``), and the located start's error against B's true start in A's frame.
+    ``config``: a TOML config of every run, its course tables resolved for ``course`` (None:
+    the defaults)."""
+    from gslam_jax.config import config_to_toml, layered_config
     from gslam_jax.run import load_run
 
     d = out / f"{course}-{seed}"
@@ -75,18 +84,24 @@ def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
     log = out / "commands.txt"
     frames = [] if max_frames is None else ["--max-frames", str(max_frames)]
     row: dict = {"course": course, "seed": seed, "b_noise_seed": seed + 100,
-                 "b_set": list(b_set)}
+                 "b_set": list(b_set), "config": None if config is None else str(config)}
+    resolved = None
+    if config is not None:  # this course's config, so that every run reads the same file
+        resolved = d / "config.toml"
+        resolved.write_text(config_to_toml(layered_config(config, course)))
+    common = [] if resolved is None else ["--config", str(resolved)]
     t0 = time.perf_counter()
-    a = gslam(["run", "--course", course, "--seed", str(seed), *frames, "--out", str(d / "A"),
-               "--overwrite"], log)
+    a = gslam(["run", "--course", course, "--seed", str(seed), *frames, *common,
+               "--out", str(d / "A"), "--overwrite"], log)
     b_file = d / "B.npz"
-    make_b(course, seed, seed + 100, max_frames, b_file)
+    make_b(course, seed, seed + 100, max_frames, b_file, resolved)
     with open(log, "a") as f:
         f.write(f"# B.npz: python -c 'from experiments.prior_map import make_b; make_b("
-                f"\"{course}\", {seed}, {seed + 100}, {max_frames}, \"{b_file}\")'\n")
+                f"\"{course}\", {seed}, {seed + 100}, {max_frames}, \"{b_file}\""
+                + ("" if resolved is None else f", \"{resolved}\"") + ")'\n")
     start = np.asarray(load_run(b_file).start_pose(), np.float64)
     start_text = ",".join(repr(float(v)) for v in start)
-    settings = [arg for kv in b_set for arg in ("--set", kv)]
+    settings = common + [arg for kv in b_set for arg in ("--set", kv)]
     plain = gslam(["run", str(b_file), *settings, "--out", str(d / "B-plain"), "--overwrite"],
                   log)
     prior = gslam(["run", str(b_file), *settings, "--prior-map", str(d / "A"), "--start",
@@ -153,6 +168,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="also run B on A's map without --start (the start located)")
     ap.add_argument("--b-set", action="append", default=[], metavar="KEY=VALUE",
                     help="--set of B's runs (repeatable), e.g. filter.proposal=informed")
+    ap.add_argument("--config", type=Path, default=None,
+                    help="TOML config of every run (default: the defaults); a Table I config's "
+                         "[course.<name>.*] tables apply per course")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -165,7 +183,7 @@ def main(argv: list[str] | None = None) -> None:
             if (course, seed) in done:
                 continue
             rows.append(one(course, seed, args.out, args.max_frames, args.sigma,
-                            tuple(args.b_set), args.located))
+                            tuple(args.b_set), args.located, args.config))
             table.write_text(json.dumps(rows, indent=1))
     rows = [{**r, **agreement(args.out, r)} for r in rows]
     table.write_text(json.dumps(rows, indent=1))
