@@ -9,9 +9,12 @@ Per course: run A is the course with sim seed 0; trial i drives the same world a
 with other VO and sensor noise (``--noise-seed 100 + i``) and starts B's frame at a random pose
 Q (offset uniform up to the course's size, any heading), so B's map lives in an unknown frame;
 the true pose of B's frame in A's is then T = g0 (+) Q^-1 (g0: the true start, A's start pose).
-Both maps carry their own SLAM errors, so a second reference is the pose that best lays B's
-estimated path on A's frame by frame (they drive the same true poses): the best any rigid
-alignment of these two maps can do. Each trial reports the alignment's error against both,
+Both maps carry their own SLAM errors, so a second reference is the pose that best lays the
+path of B's map on A's frame by frame (they drive the same true poses): the best any rigid
+alignment of these two maps can do. Each map is its run's final best particle's, so the path
+is that particle's (``SlamResult.best_path``), not the reported one (``[filter] estimate``,
+by default the smoothed mean over every particle), which can lie half a metre from it where
+the weights are flat. Each trial reports the alignment's error against both,
 its standard deviation, z and runner-up, whether ``align_maps`` would refuse it, and the
 error of the GPS-only alignment (each run's path aligned to its own simulated WAAS-like
 receiver, paper appendix, then composed); with ``--self-check``, whether B's map passes its
@@ -64,6 +67,15 @@ def _path_fit(path_a: np.ndarray, path_b: np.ndarray) -> np.ndarray:
     (both drive the same true poses): ``metrics.rigid_fit_2d`` of the positions."""
     fit = rigid_fit_2d(path_b, path_a)
     return np.array([fit.translation[0], fit.translation[1], fit.angle])
+
+
+def _map_path(run: dict, cache: Path | None, name: str) -> np.ndarray:
+    """The path of a run's map (its best particle's); a cache made before it was kept is
+    named."""
+    if "map_path" not in run:
+        raise SystemExit(f"{cache}/{name}.npz: made before the map's own path was kept; "
+                         "give a new --cache")
+    return run["map_path"]
 
 
 def _cell_error(grid_b: GridMap, est: np.ndarray, truth: np.ndarray) -> float:
@@ -123,6 +135,7 @@ def _run_maps(course: str, noise_seed: int | None, start: np.ndarray | None, con
     g0 = np.asarray(run.ground_truth[0], np.float64)
     return {"k": grid.k, "S": grid.S, "origin": np.asarray(grid.origin),
             "resolution": grid.resolution, "g0": g0, "path": result.path,
+            "map_path": result.best_path,
             "size": np.max(np.abs(run.ground_truth[:, :2] - g0[:2])),
             "gps_frame": _gps_frame(run, result, gps_seed),
             **({} if start is not None else {
@@ -241,7 +254,8 @@ def main(argv: list[str] | None = None) -> dict:
                     "corr_b_placed_true": _roughness_corr(a, placed_true),
                     "corr_merged": _roughness_corr(a, merged)}
             gps = compose(invert_pose(a["gps_frame"]), b["gps_frame"])
-            fit = _path_fit(a["path"], b["path"])
+            fit = _path_fit(_map_path(a, cache, f"{course}-a"),
+                            _map_path(b, cache, f"{course}-b{i}"))
             fdist, fhead = _error(al.pose, fit)
             dist, head = _error(al.pose, truth)
             gdist, ghead = _error(gps, truth)
