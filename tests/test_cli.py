@@ -51,6 +51,38 @@ def test_run_on_npz_writes_results(mean_run):
     assert check["consistent"] is True and check["revisits_checked"] == 0
 
 
+def _counts_at(run, poses: np.ndarray, like: dict) -> np.ndarray:
+    """Point counts k of every local map of ``run`` placed at ``poses`` on the lattice of the
+    map file ``like`` (metrics' numpy placement, eq. 14's sum)."""
+    from gslam_jax.gridmap import GridMap
+    from gslam_jax.metrics import place_local_map
+
+    shape = like["k"].shape
+    lattice = GridMap(np.zeros(shape), np.zeros(shape), tuple(like["origin"]),
+                      float(like["resolution"]))
+    k = np.zeros(like["k"].size)
+    for t in np.flatnonzero(run.obs_index >= 0):
+        flat, counts, _ = place_local_map(run, t, poses[t], lattice)
+        np.add.at(k, flat, counts)
+    return k.reshape(shape)
+
+
+def test_map_path_is_the_path_of_the_written_map(mean_run):
+    """map.npz is the final best particle's map; map_path_tum.txt is that particle's path: the
+    local maps placed along it give map.npz's counts in every cell, which the reported path
+    (here the weighted mean) does not."""
+    from gslam_jax.io import read_tum
+
+    run, out = mean_run
+    with np.load(out / "map.npz") as m:
+        written = {name: m[name] for name in m.files}
+    _, map_path = read_tum(out / "map_path_tum.txt")
+    _, reported = read_tum(out / "trajectory_tum.txt")
+    assert map_path.shape == (FRAMES, 3)
+    np.testing.assert_array_equal(_counts_at(run, map_path, written), written["k"])
+    assert (_counts_at(run, reported, written) != written["k"]).any()
+
+
 def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
     assert main(["run", str(tmp_path / "missing.npz")]) == 2
     assert "missing.npz: no such file" in capsys.readouterr().err

@@ -43,7 +43,8 @@ MARKER = "COMPLETE"
 # unmarked folder holding only these (from a version without the marker) may be overwritten.
 RESULT_FILES = frozenset({
     MARKER, "summary.json", "config.toml", "simulation.json", "trajectory_tum.txt",
-    "trajectory_kitti.txt", "trajectory_robot_kitti.txt", "vo_tum.txt", "ground_truth_tum.txt",
+    "trajectory_kitti.txt", "trajectory_robot_kitti.txt", "vo_tum.txt", "map_path_tum.txt",
+    "ground_truth_tum.txt",
     "map.npz", "map.png",
     "maps_vo_vs_slam.png", "ground_truth.png", "errors.png", "ess.png", "trace.npz",
     "trajectory_utm.txt",
