@@ -95,10 +95,12 @@ def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
                "--out", str(d / "A"), "--overwrite"], log)
     b_file = d / "B.npz"
     make_b(course, seed, seed + 100, max_frames, b_file, resolved)
+    make_b_args = [json.dumps(course), seed, seed + 100, max_frames, json.dumps(str(b_file))]
+    if resolved is not None:
+        make_b_args.append(json.dumps(str(resolved)))
     with open(log, "a") as f:
-        f.write(f"# B.npz: python -c 'from experiments.prior_map import make_b; make_b("
-                f"\"{course}\", {seed}, {seed + 100}, {max_frames}, \"{b_file}\""
-                + ("" if resolved is None else f", \"{resolved}\"") + ")'\n")
+        f.write("# B.npz: python -c 'from experiments.prior_map import make_b; make_b("
+                + ", ".join(map(str, make_b_args)) + ")'\n")
     start = np.asarray(load_run(b_file).start_pose(), np.float64)
     start_text = ",".join(repr(float(v)) for v in start)
     settings = common + [arg for kv in b_set for arg in ("--set", kv)]

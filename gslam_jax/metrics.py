@@ -220,16 +220,19 @@ def ess_summary(ess: np.ndarray, num_particles: int,
     return out
 
 
-def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0) -> GridMap:
+def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0,
+             lattice: GridMap | None = None) -> GridMap:
     """Fuse every local map of ``run`` at ``poses`` [T, 3] (one pose per frame) by the conjugate
     update (eq. 14: (k, S) add up), each local cell dropped into the nearest global cell.
 
-    The extent covers every pose plus the local-map half-width and ``margin`` metres.
+    The map lies on ``lattice`` (its origin, shape and resolution; its k and S are not used),
+    by default one that covers every pose plus the local-map half-width and ``margin`` metres.
     """
     poses = np.asarray(poses, dtype=np.float64)
     if poses.shape != (run.num_frames, 3):
         raise ValueError(f"poses must have shape [{run.num_frames}, 3], got {poses.shape}")
-    lattice = pose_lattice(run, poses, margin)
+    if lattice is None:
+        lattice = pose_lattice(run, poses, margin)
     k_map = np.zeros(lattice.k.size)
     s_map = np.zeros_like(k_map)
     for t in np.flatnonzero(run.obs_index >= 0):

@@ -53,18 +53,14 @@ def test_run_on_npz_writes_results(mean_run):
 
 def _counts_at(run, poses: np.ndarray, like: dict) -> np.ndarray:
     """Point counts k of every local map of ``run`` placed at ``poses`` on the lattice of the
-    map file ``like`` (metrics' numpy placement, eq. 14's sum)."""
+    map file ``like`` (the metrics' numpy placement, eq. 14's sum)."""
     from gslam_jax.gridmap import GridMap
-    from gslam_jax.metrics import place_local_map
+    from gslam_jax.metrics import pose_map
 
     shape = like["k"].shape
     lattice = GridMap(np.zeros(shape), np.zeros(shape), tuple(like["origin"]),
                       float(like["resolution"]))
-    k = np.zeros(like["k"].size)
-    for t in np.flatnonzero(run.obs_index >= 0):
-        flat, counts, _ = place_local_map(run, t, poses[t], lattice)
-        np.add.at(k, flat, counts)
-    return k.reshape(shape)
+    return pose_map(run, poses, lattice=lattice).k
 
 
 def test_map_path_is_the_path_of_the_written_map(mean_run):
