@@ -49,8 +49,7 @@ from gslam_jax.vo.localmap import localmap_params
 
 def _slam_map(run, config: Config) -> tuple[GridMap, slam.SlamResult]:
     result = slam.run_slam(run, config)
-    return GridMap(np.asarray(result.kmap, np.float64), np.asarray(result.smap, np.float64),
-                   result.map_origin, result.resolution), result
+    return result.grid, result
 
 
 def _gps_frame(run, result, seed: int) -> np.ndarray:
@@ -94,9 +93,10 @@ def _figure(out: Path, grid_a: GridMap, grid_b: GridMap, pose: np.ndarray, merge
 
     out.parent.mkdir(parents=True, exist_ok=True)
     placed = transform(grid_b, pose, like=grid_a)
-    save_maps_png(out, [(f"A ({course})", grid_a.expected_std(), grid_a.origin, None),
-                        ("B placed by the alignment", placed.expected_std(), placed.origin, None),
-                        ("merged", merged.expected_std(), merged.origin, None)],
+    save_maps_png(out, [(title, g.expected_std(), (*g.origin, g.heading), None)
+                        for title, g in ((f"A ({course})", grid_a),
+                                         ("B placed by the alignment", placed),
+                                         ("merged", merged))],
                   grid_a.resolution)
 
 
@@ -134,7 +134,7 @@ def _run_maps(course: str, noise_seed: int | None, start: np.ndarray | None, con
     grid, result = _slam_map(run, config)
     g0 = np.asarray(run.ground_truth[0], np.float64)
     return {"k": grid.k, "S": grid.S, "origin": np.asarray(grid.origin),
-            "resolution": grid.resolution, "g0": g0, "path": result.path,
+            "resolution": grid.resolution, "heading": grid.heading, "g0": g0, "path": result.path,
             "map_path": result.best_path,
             "size": np.max(np.abs(run.ground_truth[:, :2] - g0[:2])),
             "gps_frame": _gps_frame(run, result, gps_seed),
@@ -161,13 +161,16 @@ def _self_check(course: str, trial: int, path: np.ndarray, config: Config) -> di
 
 def _true_std(a: dict, grid: GridMap) -> np.ndarray:
     """The simulated world's true spread of heights in each cell of ``grid`` (a map in the
-    world frame): the spread of the world's pixel heights in the cell with each pixel's own
-    return spread (``World.rough``) added in quadrature; NaN where no pixel falls."""
+    world frame, its lattice turned by its heading): the spread of the world's pixel heights
+    in the cell with each pixel's own return spread (``World.rough``) added in quadrature; NaN
+    where no pixel falls."""
     h, rough = a["world_height"], a["world_rough"]
     res_w = float(a["world_resolution"])
     i, j = np.meshgrid(np.arange(h.shape[0]), np.arange(h.shape[1]), indexing="ij")
     x = a["world_origin"][0] + (i + 0.5) * res_w
     y = a["world_origin"][1] + (j + 0.5) * res_w
+    c, s = math.cos(grid.heading), math.sin(grid.heading)
+    x, y = c * x + s * y, -s * x + c * y  # onto the lattice's axes
     ci = np.floor((x - grid.origin[0]) / grid.resolution).astype(np.int64).ravel()
     cj = np.floor((y - grid.origin[1]) / grid.resolution).astype(np.int64).ravel()
     inside = (ci >= 0) & (ci < grid.shape[0]) & (cj >= 0) & (cj < grid.shape[1])
@@ -193,7 +196,8 @@ def _roughness_corr(a: dict, grid: GridMap) -> float:
 
 
 def _grid(d: dict) -> GridMap:
-    return GridMap(d["k"], d["S"], tuple(d["origin"]), float(d["resolution"]))
+    return GridMap(d["k"], d["S"], tuple(d["origin"]), float(d["resolution"]),
+                   float(d.get("heading", 0.0)))
 
 
 def main(argv: list[str] | None = None) -> dict:

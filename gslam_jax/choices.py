@@ -12,7 +12,7 @@ __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJEC
            "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "PROPOSALS",
            "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS", "SENSORS",
            "AUTO_ESS_TARGET", "RANGE_NOISE", "PROPOSAL_DRAWS",
-           "AUTO_PROPOSAL_DRAWS", "LOCALMAP_LATTICES", "AUTO_LOCALMAP_LATTICE"]
+           "AUTO_PROPOSAL_DRAWS", "LOCALMAP_LATTICES", "AUTO_LOCALMAP_LATTICE", "MAP_AXES"]
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
@@ -41,6 +41,10 @@ SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] es
 # map's at its VO pose (``vo.localmap.LocalMapParams``); "auto" resolves by the sensor that
 # makes the local maps (``AUTO_LOCALMAP_LATTICE``)
 LOCALMAP_LATTICES = ("robot", "map", "auto")
+# ``[map] axes``: the global map's lattice on the axes of the frame the run is given in (its
+# start pose's and ground truth's), or on the robot's at its start pose, so that the result does
+# not depend on how that frame is turned (``slam.lattice_heading``)
+MAP_AXES = ("frame", "start")
 BAD_FRAME_POLICIES = ("error", "fallback")  # ``gslam run --on-bad-frame``
 STEREO_ALGORITHMS = ("sgbm", "bm")  # ``[stereo] algorithm`` (vo.stereo.DenseStereoParams)
 # ``Run.sensor``: how a run's local maps were made. "points": independent height samples (the

@@ -114,6 +114,10 @@ class MapSection:
     store: str = "dense"
     tile: int = 32
     pool_tiles: int = 0
+    # The lattice's axes: the run's frame's ("frame") or the robot's at its start pose ("start":
+    # the filter runs on those axes and turns its paths back; the map keeps them, map.npz's
+    # heading). choices.MAP_AXES
+    axes: str = "frame"
 
 
 @dataclass(frozen=True)
@@ -256,6 +260,9 @@ class Config:
              f"must be one of {', '.join(choices.MAP_STORES)}"),
             (m.tile >= 8 and m.tile % 8 == 0, "map", "tile", "must be a positive multiple of 8"),
             (m.pool_tiles >= 0, "map", "pool_tiles", "must be >= 0 (0: automatic)"),
+            (m.axes in choices.MAP_AXES, "map", "axes",
+             f"must be one of {', '.join(choices.MAP_AXES)} (the run's frame's axes, or the "
+             "robot's at its start)"),
             (lm.max_range > 0, "localmap", "max_range", "must be positive"),
             (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
             (lm.travel > 0, "localmap", "travel", "must be positive"),

@@ -59,11 +59,13 @@ def write_kitti(path: str | Path, poses: np.ndarray) -> None:
 
 
 def save_map(path: str | Path, kmap: np.ndarray, smap: np.ndarray, origin: tuple[float, float],
-             resolution: float, **extra: np.ndarray) -> None:
-    """Variance grid map archive: k, S, origin (world x, y of cell (0, 0)), resolution.
+             resolution: float, heading: float = 0.0, **extra: np.ndarray) -> None:
+    """Variance grid map archive: k, S, origin (x, y of cell (0, 0)'s corner in the lattice's
+    axes), resolution, heading (the lattice's axes in the map's frame, radians;
+    ``gridmap.GridMap``).
 
-    Axis 0 of the arrays runs along world x, axis 1 along world y.
+    Axis 0 of the arrays runs along the lattice's x, axis 1 along its y.
     """
     np.savez_compressed(path, k=np.asarray(kmap, np.float32), S=np.asarray(smap, np.float32),
                         origin=np.asarray(origin, np.float64), resolution=np.float64(resolution),
-                        **extra)
+                        heading=np.float64(heading), **extra)

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gslam_jax.gridmap.grid import GridMap  # the one map value; metrics builds them
+from gslam_jax.gridmap.grid import GridMap, turn_poses  # the one map value; metrics builds them
 from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, known_positions
 
@@ -225,7 +225,8 @@ def pose_map(run: Run, poses: np.ndarray, margin: float = 2.0,
     """Fuse every local map of ``run`` at ``poses`` [T, 3] (one pose per frame) by the conjugate
     update (eq. 14: (k, S) add up), each local cell dropped into the nearest global cell.
 
-    The map lies on ``lattice`` (its origin, shape and resolution; its k and S are not used),
+    The map lies on ``lattice`` (its origin, shape, resolution and heading; its k and S are not
+    used),
     by default one that covers every pose plus the local-map half-width and ``margin`` metres.
     """
     poses = np.asarray(poses, dtype=np.float64)
@@ -269,8 +270,11 @@ def place_local_map(run: Run, t: int, pose: np.ndarray, lattice: GridMap
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frame ``t``'s local map placed at ``pose`` [3] on ``lattice`` (``pose_lattice``): the flat
     index of the lattice cell each of its known cells falls in (nearest cell centre), and
-    their k and S. The local map's own lattice is turned by its ``Run.lattice_headings``."""
+    their k and S. The local map's own lattice is turned by its ``Run.lattice_headings``; a
+    turned map lattice (``GridMap.heading``) takes the pose on its axes."""
     res = lattice.resolution
+    if lattice.heading:
+        pose = turn_poses(pose, -lattice.heading)
     cx, cy = local_cell_centres(run.local_maps.shape[1], res)
     index = int(run.obs_index[t])
     k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[index]), -1, 0)

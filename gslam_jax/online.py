@@ -127,6 +127,10 @@ class Online:
                  local_size: int | None = None, observed_cells: int = 0,
                  sensor: str | None = None, filter_config: rbpf.FilterConfig | None = None):
         self.config = config
+        if config.map.axes != "frame":
+            raise ConfigError(f"Online: [map] axes = '{config.map.axes}' is for whole runs "
+                              "(gslam run); Online's map lies on the frame's axes: give a "
+                              "start_pose whose heading is 0 for the robot's own")
         self.start = np.zeros(3) if start_pose is None else np.asarray(start_pose, np.float64)
         if self.start.shape != (3,) or not np.isfinite(self.start).all():
             raise ConfigError(f"Online: start_pose must be 3 finite numbers (x, y, theta), "

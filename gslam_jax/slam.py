@@ -19,7 +19,7 @@ import numpy as np
 from gslam_jax import rbpf
 from gslam_jax.config import Config
 from gslam_jax.errors import InputError
-from gslam_jax.gridmap import GridMap
+from gslam_jax.gridmap import GridMap, turn_poses
 from gslam_jax.map_reuse import PriorMap, prior_state, rebase
 from gslam_jax.observations import ObsSettings, map_observations, obs_settings, raw_observations
 from gslam_jax.rbpf import maps, tilestore
@@ -27,7 +27,8 @@ from gslam_jax.run import Run, known_positions
 from gslam_jax.sizing import filter_config, filter_params, map_memory
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
-           "run_slam", "ExtentWarning", "WeightError", "ChunkReport"]
+           "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "lattice_heading",
+           "on_lattice_axes"]
 
 
 class ExtentWarning(UserWarning):
@@ -70,9 +71,35 @@ def require_ground_truth(mask: jax.Array | np.ndarray, objective: str,
                     f"has no frame with a finite position (x, y); use objective 'loglik'")
 
 
+def lattice_heading(run: Run, config: Config, prior: PriorMap | None = None) -> float:
+    """The angle (radians) of the map lattice's axes in the run's frame: a prior map's
+    (``GridMap.heading``), else by ``[map] axes``: 0 ("frame"), or the run's start heading
+    ("start"), so that turning the frame the run is given in turns the result with it and
+    changes nothing else."""
+    if prior is not None:
+        return float(prior.grid.heading)
+    return float(run.start_pose()[2]) if config.map.axes == "start" else 0.0
+
+
+def on_lattice_axes(run: Run, heading: float) -> Run:
+    """``run`` in its frame turned by ``heading`` about the origin (the lattice's axes): its
+    start pose and ground truth expressed there; controls and local maps (robot frame) as
+    they are. ``turn_poses(x, heading)`` carries the filter's poses back."""
+    if not heading:
+        return run
+    truth = run.ground_truth
+    if truth is not None:
+        truth = turn_poses(truth, -heading)
+    return run._replace(initial_pose=turn_poses(run.start_pose(), -heading),
+                        ground_truth=truth)
+
+
 def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
     """Device arrays of ``run`` (raw observations, to be refined on the device with the
-    config's or searched settings) and the static filter config for it."""
+    config's or searched settings) and the static filter config for it; the start pose and
+    the reference on the map lattice's axes (``lattice_heading``; the errors against the
+    reference do not depend on them)."""
+    run = on_lattice_axes(run, lattice_heading(run, config))
     T = run.num_frames
     gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
     arrays = RunArrays(
@@ -165,7 +192,7 @@ class SlamResult(NamedTuple):
     exponent: np.ndarray       # [T] tempering exponent of each update (1: the paper's beta)
     kmap: np.ndarray           # [H, W] best particle's map
     smap: np.ndarray           # [H, W]
-    map_origin: tuple[float, float]
+    map_origin: tuple[float, float]  # in the lattice's axes (``GridMap``)
     resolution: float
     extent_violations: int     # particle-updates with observed cells off the map
     empty_observations: int    # local maps with no informative cell
@@ -176,6 +203,7 @@ class SlamResult(NamedTuple):
     map_peak_bytes: int = 0    # most bytes the maps held at once (shared: live tiles + tables)
     estimate: str = "best"     # [filter] estimate: which trajectory ``path`` is
     compile_frames: int = 0    # frames run in the first chunk, timed with the compilation
+    map_heading: float = 0.0   # the map lattice's axes in the run's frame (``lattice_heading``)
 
     @property
     def path(self) -> np.ndarray:
@@ -188,7 +216,7 @@ class SlamResult(NamedTuple):
     def grid(self) -> GridMap:
         """The best particle's map as a ``GridMap`` (float64), e.g. for ``align_maps``."""
         return GridMap(np.asarray(self.kmap, np.float64), np.asarray(self.smap, np.float64),
-                       tuple(self.map_origin), float(self.resolution))
+                       tuple(self.map_origin), float(self.resolution), float(self.map_heading))
 
 
 class ChunkReport(NamedTuple):
@@ -196,7 +224,8 @@ class ChunkReport(NamedTuple):
     values, except ``state``, which is donated to the next chunk's scan (use it within the
     call, e.g. ``rbpf.particle_map(state, int(state.best), cfg)`` for the best map so far)."""
 
-    run: Run                 # the run being filtered (rebased onto a prior map's start)
+    run: Run                 # the run being filtered (rebased onto a prior map's start), on
+    #                          the map lattice's axes, as are the poses and maps below
     start: int               # the chunk's first frame
     info: rbpf.StepInfo      # per frame of the chunk: particle poses [n, J, 3], ess [n], ...
     best_pose: np.ndarray    # [n, 3] highest-weight particle per frame
@@ -222,9 +251,15 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     Map reuse: with a ``prior`` map (``PriorMap``) every particle starts with it, at
     ``prior.start`` (spread by ``prior.start_sigma``), and extends it; the results (paths,
     ``vo_path``, map) are in the prior's frame, on its lattice (``filter_config``).
+
+    The filter runs on the map lattice's axes (``lattice_heading``); the paths are turned back
+    into the run's frame and the map keeps its axes (``SlamResult.map_heading``).
     """
     if prior is not None:
         run = rebase(run, prior.start)
+    given = run
+    heading = lattice_heading(run, config, prior)
+    run = on_lattice_axes(run, heading)
     cfg = filter_config(config, run, prior)
     params = filter_params(config, run)
     obs = map_observations(run, config)
@@ -243,7 +278,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     if prior is None:
         state = rbpf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
     else:
-        state = prior_state(prior, cfg, key)
+        state = prior_state(prior._replace(start=run.start_pose()), cfg, key)
     outputs = []
     available, what = map_memory()
     # an automatic pool keeps a copy of each chunk's start to run it again if it runs out:
@@ -290,13 +325,17 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         warnings.warn(f"{violations} particle updates reached the edge of the "
                       f"{cfg.map_shape} map; observed cells beyond the edge were skipped "
                       f"(neither weighed nor mapped). Increase [map] margin.", ExtentWarning)
+    def back(poses: np.ndarray) -> np.ndarray:  # the run's frame
+        return turn_poses(poses, heading) if heading else poses
+
     return SlamResult(
-        best_path=path, smoothed_path=smoothed, best_pose=best, mean_pose=mean,
-        vo_path=run.vo_poses(),
+        best_path=back(path), smoothed_path=back(smoothed), best_pose=back(best),
+        mean_pose=back(mean), vo_path=given.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
         exponent=infos.exponent, kmap=np.asarray(kmap), smap=np.asarray(smap),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
         empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
         compile_seconds=compile_s, compile_frames=min(chunk, T), store=cfg.store,
         map_bytes=maps.map_bytes(cfg),
-        map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate)
+        map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate,
+        map_heading=heading)

@@ -79,6 +79,28 @@ def test_map_path_is_the_path_of_the_written_map(mean_run):
     assert (_counts_at(run, reported, written) != written["k"]).any()
 
 
+def test_a_map_on_the_start_axes_is_written_with_its_heading(tmp_path):
+    """[map] axes = "start": map.npz's lattice lies on the robot's start axes (its heading is
+    the start heading), and the local maps placed along map_path_tum.txt (in the run's frame)
+    on that turned lattice give its counts in every cell."""
+    from gslam_jax.gridmap import load_map
+    from gslam_jax.io import read_tum
+    from gslam_jax.metrics import pose_map
+
+    start = np.array([0.4, -0.2, 0.9])
+    run, path = run_file(tmp_path / "r.npz", initial_pose=start)
+    out = tmp_path / "out"
+    assert main(["run", str(path), *RUN_SETTINGS, "--set", "map.axes=start",
+                 "--out", str(out)]) == 0
+    grid = load_map(out)
+    assert grid.heading == pytest.approx(start[2])
+    _, map_path = read_tum(out / "map_path_tum.txt")
+    np.testing.assert_allclose(map_path[0, :2], start[:2], atol=0.5)  # the run's frame
+    np.testing.assert_array_equal(pose_map(run, map_path, lattice=grid).k, grid.k)
+    assert (pose_map(run, map_path, lattice=grid._replace(heading=0.0)).k != grid.k).any()
+    assert (out / "map.png").is_file()
+
+
 def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
     assert main(["run", str(tmp_path / "missing.npz")]) == 2
     assert "missing.npz: no such file" in capsys.readouterr().err

@@ -185,7 +185,8 @@ class _Maps(NamedTuple):
 
 def _map_key(grid: GridMap) -> tuple:
     return (grid.k.tobytes(), grid.S.tobytes(), grid.k.shape,
-            np.asarray(grid.origin, np.float64).tobytes(), float(grid.resolution))
+            np.asarray(grid.origin, np.float64).tobytes(), float(grid.resolution),
+            float(grid.heading))
 
 
 class _AlignOnce:
@@ -271,6 +272,39 @@ def test_merge_recovers_an_unknown_placement_and_sums_the_statistics(maps, align
     good = agreement(merged.poses[1])
     assert good > 0.6
     assert agreement(merged.poses[1] + np.array([3.0, 0.0, 0.0])) < 0.5 * good
+
+
+def test_maps_on_turned_lattices_align_and_merge_in_their_frames(maps, align,
+                                                                  tmp_path) -> None:
+    """A and B with their lattices turned in their frames (``GridMap.heading``, a map of
+    ``[map] axes = "start"``): the alignment is found on the lattices' axes and carried into
+    the frames, where B's frame now lies at Ha (+) TRUTH (+) Hb^-1; the merge sums every
+    statistic onto A's turned lattice."""
+    ha, hb = 0.5, -0.9
+    a, b = maps.a._replace(heading=ha), maps.b._replace(heading=hb)
+    truth = compose(compose(np.array([0.0, 0.0, ha]), TRUTH), np.array([0.0, 0.0, -hb]))
+    merged = merge_maps([a, b])
+    al, plain = merged.alignments[1], align(maps.a, maps.b)
+    dist, deg = _pose_error(al.pose, truth)
+    assert dist < 0.5 * RES and deg < 0.5, (al.pose, truth)
+    # the same search as on the frames' axes, turned: the covariance too
+    J = np.eye(3)
+    J[:2, :2] = [[math.cos(ha), -math.sin(ha)], [math.sin(ha), math.cos(ha)]]
+    np.testing.assert_allclose(al.covariance, J @ plain.covariance @ J.T, rtol=1e-6, atol=1e-12)
+    assert merged.grid.heading == ha
+    assert merged.grid.k.sum() == pytest.approx(a.k.sum() + b.k.sum())
+    # gslam merge on run folders of these maps: the merge keeps A's turned lattice
+    from gslam_jax.app.cli import main
+
+    for name, grid in (("a", a), ("b", b)):
+        (tmp_path / name).mkdir()
+        save_map(tmp_path / name / "map.npz", grid)
+    out = tmp_path / "merged"
+    assert main(["merge", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(out)]) == 0
+    pose = np.array(json.loads((out / "summary.json").read_text())["runs"][1]
+                    ["pose_in_merged_frame"])
+    assert _pose_error(pose, truth)[0] < 0.5 * RES
+    assert load_map(out).heading == pytest.approx(ha) and (out / "map.png").is_file()
 
 
 def test_gslam_merge_writes_the_merge_or_refuses_it(maps, align, tmp_path, capsys) -> None:

@@ -178,7 +178,8 @@ def test_write_figures_writes_errors_png_only_with_ground_truth(tmp_path, monkey
     monkeypatch.setattr(metrics, "vo_only_map", lambda run: grid)
     path = np.stack([np.linspace(0, 4, 12), np.linspace(0, 2, 12), np.zeros(12)], axis=1)
     result = SimpleNamespace(kmap=grid.k, smap=grid.S, map_origin=grid.origin,
-                             resolution=grid.resolution, path=path, vo_path=path + 0.05,
+                             resolution=grid.resolution, map_heading=0.0, path=path,
+                             vo_path=path + 0.05,
                              ess=np.linspace(10, 4, 12), resampled=np.zeros(12, bool))
     for name, gt in (("with", path + 0.01), ("without", None)):
         out = tmp_path / name
@@ -188,3 +189,28 @@ def test_write_figures_writes_errors_png_only_with_ground_truth(tmp_path, monkey
             ({"ground_truth.png", "errors.png"} if gt is not None else set())
         assert {p.name for p in out.iterdir()} == figures
         assert all((out / f).stat().st_size > 0 for f in figures)
+
+
+def test_a_turned_lattice_is_drawn_turned() -> None:
+    """A map whose lattice lies at a heading in its frame (``GridMap.heading``): the image is
+    drawn through that rotation, and the window holds the turned known box."""
+    import math
+
+    import matplotlib.pyplot as plt
+
+    from gslam_jax.app.plots import _data_window, draw_map
+
+    std = np.full((10, 4), 0.1)
+    heading, origin, res = 0.6, (1.0, -2.0), 0.5
+    fig, ax = plt.subplots()
+    im = draw_map(ax, std, (*origin, heading), res)
+    u, v = origin[0] + 10 * res, origin[1] + 4 * res  # the lattice's far corner
+    c, s = math.cos(heading), math.sin(heading)
+    np.testing.assert_allclose(im.get_transform().transform([(u, v)]),
+                               ax.transData.transform([(c * u - s * v, s * u + c * v)]))
+    plt.close(fig)
+    corners = [(x, y) for x in (origin[0], u) for y in (origin[1], v)]
+    turned = np.array([(c * x - s * y, s * x + c * y) for x, y in corners])
+    window = _data_window(std, (*origin, heading), res, margin=0.0)
+    np.testing.assert_allclose(window, [turned[:, 0].min(), turned[:, 0].max(),
+                                        turned[:, 1].min(), turned[:, 1].max()])

@@ -72,9 +72,11 @@ def write_map_geotiff(path: str | Path, std: ArrayLike, k: ArrayLike,
 
 
 def write_run_geotiff(out: Path, std: ArrayLike, k: ArrayLike,
-                      map_origin: tuple[float, float], resolution: float) -> dict:
+                      map_origin: tuple[float, float], resolution: float,
+                      heading: float = 0.0) -> dict:
     """``map_utm.tif`` in the results folder ``out``, placed by the ``gps_alignment.npz``
-    written there (``georeference.write_gps_outputs``); the summary's figures: the file's
+    written there (``georeference.write_gps_outputs``; a lattice turned by ``heading`` in the
+    run's frame, ``GridMap.heading``, turned with it); the summary's figures: the file's
     name, or None and a note when rasterio is missing (printed, the run goes on)."""
     try:
         import rasterio  # noqa: F401 - only to know whether the GeoTIFF can be written
@@ -84,6 +86,8 @@ def write_run_geotiff(out: Path, std: ArrayLike, k: ArrayLike,
         return {"geotiff": None, "geotiff_note": note}
     with np.load(out / "gps_alignment.npz") as al:
         R, shift, site, epsg = (np.asarray(al[f]) for f in ("R", "l", "site_origin", "epsg"))
+    c, s = np.cos(heading), np.sin(heading)
+    R = np.asarray(R, np.float64) @ np.array([[c, -s], [s, c]])
     write_map_geotiff(out / GEOTIFF_NAME, std, k, map_origin, resolution, R, shift, site,
                       int(epsg))
     return {"geotiff": GEOTIFF_NAME}

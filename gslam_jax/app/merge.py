@@ -89,9 +89,10 @@ def write_merge(out: Path, runs, merged) -> dict:
             entry["alignment"] = al.summary()
         entries.append(entry)
         std = np.asarray(cells.expected_std(placed.k, placed.S))
-        panels.append((f"{run.name}" + (" placed" if i else ""), std, placed.origin, path))
+        panels.append((f"{run.name}" + (" placed" if i else ""), std,
+                       (*placed.origin, placed.heading), path))
     std = np.asarray(cells.expected_std(merged.grid.k, merged.grid.S))
-    panels.append(("merged", std, merged.grid.origin, None))
+    panels.append(("merged", std, (*merged.grid.origin, merged.grid.heading), None))
     plots.save_maps_png(out / "map.png", panels, res)
     summary = {"runs": entries, "known_cells": int(merged.grid.known.sum()),
                "resolution": res, "frame": f"the map frame of {runs[0].name}"}

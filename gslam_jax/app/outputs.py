@@ -57,13 +57,14 @@ def write_figures(out: Path, run, result, num_particles: int,
     from gslam_jax.rbpf import cells
 
     slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
+    slam_at = (*result.map_origin, result.map_heading)  # the lattice may be turned
     vo_map = metrics.vo_only_map(run)
     vo_std = np.asarray(cells.expected_std(vo_map.k, vo_map.S))
-    plots.save_map_png(out / "map.png", slam_std, result.map_origin, result.resolution,
+    plots.save_map_png(out / "map.png", slam_std, slam_at, result.resolution,
                        path=result.path, title="Gamma-SLAM map (best particle)",
                        path_label="Gamma-SLAM path")
     plots.save_map_comparison_png(out / "maps_vo_vs_slam.png", vo_std, vo_map.origin, slam_std,
-                                  result.map_origin, result.resolution, vo_path=result.vo_path,
+                                  slam_at, result.resolution, vo_path=result.vo_path,
                                   slam_path=result.path)
     plots.save_ess_png(out / "ess.png", result.ess, num_particles, resampled=result.resampled,
                        threshold=threshold)
@@ -71,7 +72,7 @@ def write_figures(out: Path, run, result, num_particles: int,
         gt = metrics.ground_truth_in_map_frame(run.ground_truth, result.vo_path)
         if np.isfinite(gt).any():
             plots.save_ground_truth_png(out / "ground_truth.png", vo_std, vo_map.origin,
-                                        slam_std, result.map_origin, result.resolution, gt,
+                                        slam_std, slam_at, result.resolution, gt,
                                         result.vo_path, result.path)
         if np.isfinite(np.asarray(run.ground_truth)[:, :2]).all(axis=1).sum() >= 2:
             plots.save_errors_png(out / "errors.png", run.ground_truth,
@@ -191,7 +192,8 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
         if known.any():
             write_tum(out / "ground_truth_tum.txt", np.asarray(run.timestamps)[known], gt[known],
                       origin_ns=origin)
-    save_map(out / "map.npz", result.kmap, result.smap, result.map_origin, result.resolution)
+    save_map(out / "map.npz", result.kmap, result.smap, result.map_origin, result.resolution,
+             heading=result.map_heading)
     np.savez_compressed(out / "trace.npz", ess=result.ess, exponent=result.exponent,
                         resampled=result.resampled,
                         updated=result.updated, log_lik=result.log_lik,
@@ -208,7 +210,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
         from gslam_jax.gps import georeference
         summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result, slam_std)
         summary["gps"].update(write_run_geotiff(out, slam_std, result.kmap, result.map_origin,
-                                                result.resolution))
+                                                result.resolution, result.map_heading))
     _write_json(out / "summary.json", summary)
     return summary
 

@@ -21,6 +21,7 @@ import numpy as np
 from matplotlib.colors import LogNorm
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
+from matplotlib.transforms import Affine2D
 
 __all__ = [
     "draw_line",
@@ -48,18 +49,21 @@ def draw_map(ax: plt.Axes, std: np.ndarray, origin: Sequence[float], resolution:
              std_range: tuple[float, float] = _STD_RANGE, cmap: str = "inferno",
              path_label: str | None = None, marks: bool = True):
     """Draw one expected-std map (and a path [T, >=2] in white, labelled ``path_label`` for the
-    legend, its start and end marked when ``marks``) on ``ax``; returns the image."""
+    legend, its start and end marked when ``marks``) on ``ax``; returns the image. ``origin``:
+    cell (0, 0)'s corner (x, y), or (x, y, heading) for a lattice turned by ``heading``
+    radians in the frame (``GridMap.heading``; a map of ``[map] axes = "start"``)."""
     std = np.asarray(std, dtype=np.float64)
     if std.ndim != 2:
         raise ValueError(f"std must be a 2-D [Nx, Ny] array, got shape {std.shape}")
     if not resolution > 0:
         raise ValueError(f"resolution must be positive, got {resolution}")
-    x0, y0 = float(origin[0]), float(origin[1])
+    x0, y0, heading = _placement(origin)
     extent = (x0, x0 + std.shape[0] * resolution, y0, y0 + std.shape[1] * resolution)
     colormap = matplotlib.colormaps[cmap].with_extremes(bad=_UNKNOWN)
     shown = np.ma.masked_invalid(np.clip(std, *std_range))
+    turn = {"transform": Affine2D().rotate(heading) + ax.transData} if heading else {}
     im = ax.imshow(shown.T, origin="lower", extent=extent, cmap=colormap,
-                   norm=LogNorm(*std_range), interpolation="nearest")
+                   norm=LogNorm(*std_range), interpolation="nearest", **turn)
     if path is not None:
         draw_line(ax, path, path_label, marks=marks, alpha=0.9, **_PATH)
     ax.set_aspect("equal")
@@ -273,17 +277,29 @@ def save_errors_png(out: str | Path, ground_truth: np.ndarray,
     return out
 
 
+def _placement(origin: Sequence[float]) -> tuple[float, float, float]:
+    """(x, y, heading) of a map's ``origin`` argument: (x, y) or (x, y, heading)."""
+    if len(origin) not in (2, 3):
+        raise ValueError(f"a map's origin must be (x, y) or (x, y, heading), got {origin}")
+    return float(origin[0]), float(origin[1]), float(origin[2]) if len(origin) == 3 else 0.0
+
+
 def _data_window(std: np.ndarray, origin: Sequence[float], resolution: float,
                  margin: float = 2.0) -> tuple[float, float, float, float] | None:
-    """(x0, x1, y0, y1) around the known (finite) cells plus ``margin`` metres; None if none."""
+    """(x0, x1, y0, y1) around the known (finite) cells plus ``margin`` metres; None if none.
+    A turned lattice (``draw_map``'s ``origin``): around its known box's turned corners."""
     known = np.isfinite(np.asarray(std))
     if not known.any():
         return None
     i = np.flatnonzero(known.any(axis=1))
     j = np.flatnonzero(known.any(axis=0))
-    x0, y0 = float(origin[0]), float(origin[1])
-    return (x0 + i[0] * resolution - margin, x0 + (i[-1] + 1) * resolution + margin,
-            y0 + j[0] * resolution - margin, y0 + (j[-1] + 1) * resolution + margin)
+    x0, y0, heading = _placement(origin)
+    xs = np.array([x0 + i[0] * resolution, x0 + (i[-1] + 1) * resolution])
+    ys = np.array([y0 + j[0] * resolution, y0 + (j[-1] + 1) * resolution])
+    cx, cy = (a.ravel() for a in np.meshgrid(xs, ys))
+    c, s = np.cos(heading), np.sin(heading)
+    cx, cy = c * cx - s * cy, s * cx + c * cy
+    return (cx.min() - margin, cx.max() + margin, cy.min() - margin, cy.max() + margin)
 
 
 def _figsize(shape: tuple[int, ...], panels: int) -> tuple[float, float]:

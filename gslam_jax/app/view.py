@@ -94,6 +94,9 @@ def read_results(folder: str | Path) -> ResultsRecord:
                 raise MapFileError(f"{trace}: field '{key}' has {len(value)} frames, "
                                    f"trajectory_tum.txt has {T}")
         best, mean, ess = (fields.get(k) for k in ("best_pose", "mean_pose", "ess"))
+    if grid.heading:  # shown on the frame's axes: each cell carried by its centre
+        from gslam_jax.gridmap import transform
+        grid = transform(grid, np.zeros(3))
     return ResultsRecord(folder.name, stamps - stamps[0], reported, vo, gt, best, mean, ess,
                          grid.expected_std(), tuple(grid.origin), float(grid.resolution))
 

@@ -378,7 +378,38 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
     aligned onto B as well (under the inverse prior's mean, its covariance taken as it is) and
     the disagreement of the two recorded. With ``refuse`` (default) an overlap too small, a
     match too weak, ambiguous or not mutual, or a flat score raises ``AlignmentRefused`` naming
-    the figures; otherwise the alignment is returned as found."""
+    the figures; otherwise the alignment is returned as found.
+
+    Maps whose lattices are turned in their frames (``GridMap.heading``) are aligned in their
+    lattices' axes and the result carried into their frames."""
+    if not (a.heading or b.heading):
+        return _align_lattices(a, b, params, prior, refuse)
+    ha, hb = np.array([0.0, 0.0, a.heading]), np.array([0.0, 0.0, b.heading])
+    # B's frame in A's = Ha (+) (B's lattice in A's lattice) (+) Hb^-1: linear in the latter,
+    # with the Jacobian J (the position turned by A's heading)
+    J = np.eye(3)
+    J[:2, :2] = [[math.cos(a.heading), -math.sin(a.heading)],
+                 [math.sin(a.heading), math.cos(a.heading)]]
+
+    def to_frames(pose: np.ndarray) -> np.ndarray:
+        return pose if not np.isfinite(pose).all() else compose(compose(ha, pose),
+                                                                invert_pose(hb))
+
+    lattice_prior = None if prior is None else PosePrior(
+        compose(compose(invert_pose(ha), np.asarray(prior.mean, np.float64)), hb),
+        J.T @ np.asarray(prior.cov, np.float64) @ J)
+    al = _align_lattices(a._replace(heading=0.0), b._replace(heading=0.0), params,
+                         lattice_prior, refuse=False)
+    al = al._replace(pose=to_frames(al.pose), covariance=J @ al.covariance @ J.T,
+                     runner_up_pose=to_frames(al.runner_up_pose))
+    if refuse:
+        check_alignment(al, params)
+    return al
+
+
+def _align_lattices(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrior | None,
+                    refuse: bool) -> Alignment:
+    """``align_maps`` of two maps on their frames' axes (heading 0)."""
     if not math.isclose(a.resolution, b.resolution, rel_tol=1e-6):
         raise InputError(f"the maps have different resolutions ({a.resolution} m and "
                          f"{b.resolution} m); align maps built with one [map] resolution")
@@ -429,8 +460,8 @@ def align_maps(a: GridMap, b: GridMap, params: AlignParams = AlignParams(),
     if params.mutual:
         reverse_prior = None if prior is None else PosePrior(
             invert_pose(prior.mean), prior.cov)
-        back = align_maps(b, a, params._replace(mutual=False), prior=reverse_prior,
-                          refuse=False)
+        back = _align_lattices(b, a, params._replace(mutual=False), reverse_prior,
+                               refuse=False)
         cycle = compose(result.pose, back.pose)
         result = result._replace(cycle_m=float(math.hypot(cycle[0], cycle[1])),
                                  cycle_rad=float(abs(cycle[2])))

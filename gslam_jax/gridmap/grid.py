@@ -1,8 +1,11 @@
 """A finished variance grid map as a value: its cell statistics and where they lie.
 
-A map is the (k, S) statistics of eq. 14 on a regular grid: cell (i, j) covers world
+A map is the (k, S) statistics of eq. 14 on a regular grid: cell (i, j) covers
 x in [origin_x + i r, origin_x + (i + 1) r) and y likewise with j (axis 0 along x, axis 1
-along y, as in ``gslam run``'s ``map.npz``). Because eq. 14 is a sum, two maps of the same
+along y, as in ``gslam run``'s ``map.npz``), in the lattice's own axes. Those are the map
+frame's turned by ``heading`` (0 unless the filter laid its lattice on the robot's start axes,
+``[map] axes = "start"``): a point p of the lattice's axes is R(heading) p in the map's frame.
+Because eq. 14 is a sum, two maps of the same
 terrain combine by adding their statistics cell by cell once they share a frame and a lattice:
 ``transform`` carries a map into another frame and ``add`` sums maps on a common lattice.
 """
@@ -18,7 +21,7 @@ import numpy as np
 from gslam_jax.errors import InputError
 
 __all__ = ["GridMap", "MapFileError", "load_map", "save_map", "known_cells", "transform",
-           "add", "place", "compose", "invert_pose", "apply_pose"]
+           "add", "place", "compose", "invert_pose", "apply_pose", "turn_poses"]
 
 
 class MapFileError(InputError):
@@ -27,13 +30,15 @@ class MapFileError(InputError):
 
 
 class GridMap(NamedTuple):
-    """Variance grid map: k, S [H, W] float64 (k = 0: unknown cell), the world x, y of cell
-    (0, 0)'s corner, the cell side in metres."""
+    """Variance grid map: k, S [H, W] float64 (k = 0: unknown cell), the x, y of cell
+    (0, 0)'s corner in the lattice's axes, the cell side in metres, and the angle of the
+    lattice's axes in the map's frame (radians; see the module)."""
 
     k: np.ndarray
     S: np.ndarray
     origin: tuple[float, float]
     resolution: float
+    heading: float = 0.0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -77,6 +82,9 @@ def load_map(path: str | Path) -> GridMap:
         raise MapFileError(f"{file}: origin must be two finite numbers, got {origin.tolist()}")
     if resolution.size != 1 or not (np.isfinite(resolution) and float(resolution) > 0):
         raise MapFileError(f"{file}: resolution must be a positive number, got {resolution}")
+    heading = fields.get("heading", np.float64(0.0))  # older files: the frame's axes
+    if heading.size != 1 or not np.isfinite(heading):
+        raise MapFileError(f"{file}: heading must be a finite number (radians), got {heading}")
     bad = ~np.isfinite(k) | ~np.isfinite(S) | (k < 0) | (S < 0) | ((k > 0) & (S <= 0))
     if bad.any():
         i, j = np.argwhere(bad)[0]
@@ -84,21 +92,24 @@ def load_map(path: str | Path) -> GridMap:
                            f"be finite, k >= 0, S > 0 where k > 0), first at cell ({i}, {j}): "
                            f"k = {k[i, j]}, S = {S[i, j]}")
     return GridMap(k, np.where(k > 0, S, 0.0), (float(origin[0]), float(origin[1])),
-                   float(resolution))
+                   float(resolution), float(heading))
 
 
 def save_map(path: str | Path, grid: GridMap) -> None:
     """``grid`` as a ``map.npz`` (the format ``gslam run`` writes and ``load_map`` reads)."""
     from gslam_jax.io import save_map as save
 
-    save(path, grid.k, grid.S, grid.origin, grid.resolution)
+    save(path, grid.k, grid.S, grid.origin, grid.resolution, heading=grid.heading)
 
 
 def known_cells(grid: GridMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(centres [N, 2] in world metres, k [N], S [N]) of the known cells, in row-major order."""
+    """(centres [N, 2] in the map's frame, metres; k [N], S [N]) of the known cells, in
+    row-major order."""
     i, j = np.nonzero(grid.known)
     r = grid.resolution
     centres = np.column_stack([grid.origin[0] + (i + 0.5) * r, grid.origin[1] + (j + 0.5) * r])
+    if grid.heading:
+        centres = apply_pose(np.array([0.0, 0.0, grid.heading]), centres)
     return centres, grid.k[i, j], grid.S[i, j]
 
 
@@ -122,9 +133,22 @@ def invert_pose(a: np.ndarray) -> np.ndarray:
     return np.array([-(c * a[0] + s * a[1]), s * a[0] - c * a[1], -a[2]])
 
 
+def turn_poses(poses: np.ndarray, heading: float) -> np.ndarray:
+    """Poses [..., 3] of a frame expressed in that frame turned by ``heading`` about its
+    origin: each pose (0, 0, heading) (+) pose (``compose``), headings wrapped to (-pi, pi]."""
+    poses = np.asarray(poses, np.float64)
+    c, s = math.cos(heading), math.sin(heading)
+    x, y = poses[..., 0], poses[..., 1]
+    return np.stack([c * x - s * y, s * x + c * y,
+                     np.angle(np.exp(1j * (poses[..., 2] + heading)))], axis=-1)
+
+
 def _lattice_index(grid: GridMap, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cell (i, j) of ``grid``'s lattice under each point (may lie outside its extent)."""
+    """Cell (i, j) of ``grid``'s lattice under each point of the map's frame (may lie outside
+    its extent)."""
     r = grid.resolution
+    if grid.heading:
+        points = apply_pose(np.array([0.0, 0.0, -grid.heading]), points)
     return (np.floor((points[:, 0] - grid.origin[0]) / r).astype(np.int64),
             np.floor((points[:, 1] - grid.origin[1]) / r).astype(np.int64))
 
@@ -132,14 +156,15 @@ def _lattice_index(grid: GridMap, points: np.ndarray) -> tuple[np.ndarray, np.nd
 def transform(grid: GridMap, pose: np.ndarray, like: GridMap | None = None) -> GridMap:
     """``grid`` carried into an outer frame by ``pose`` (its frame's pose there): each known
     cell's centre is placed by the pose and its (k, S) added to the cell of the target lattice
-    it falls in (the lattice of ``like``, else ``grid``'s own resolution with origin 0), so no
-    statistic is lost or counted twice. The result spans exactly the cells that received one."""
+    it falls in (the lattice of ``like``, else ``grid``'s own resolution with origin 0 on the
+    outer frame's axes), so no statistic is lost or counted twice. The result spans exactly the
+    cells that received one."""
     centres, k, S = known_cells(grid)
     res = grid.resolution if like is None else like.resolution
     base = GridMap(np.zeros((1, 1)), np.zeros((1, 1)), (0.0, 0.0) if like is None
-                   else like.origin, res)
+                   else like.origin, res, 0.0 if like is None else like.heading)
     if not k.size:
-        return GridMap(np.zeros((1, 1)), np.zeros((1, 1)), base.origin, res)
+        return base
     i, j = _lattice_index(base, apply_pose(np.asarray(pose, np.float64), centres))
     i0, j0 = i.min(), j.min()
     shape = (int(i.max() - i0 + 1), int(j.max() - j0 + 1))
@@ -147,11 +172,17 @@ def transform(grid: GridMap, pose: np.ndarray, like: GridMap | None = None) -> G
     np.add.at(kk, (i - i0, j - j0), k)
     np.add.at(SS, (i - i0, j - j0), S)
     origin = (base.origin[0] + i0 * res, base.origin[1] + j0 * res)
-    return GridMap(kk, SS, origin, res)
+    return GridMap(kk, SS, origin, res, base.heading)
 
 
-def _offset(grid: GridMap, origin: tuple[float, float], resolution: float) -> tuple[int, int]:
-    """Whole-cell offset of ``grid``'s origin from ``origin`` on a common lattice."""
+def _offset(grid: GridMap, origin: tuple[float, float], resolution: float,
+            heading: float = 0.0) -> tuple[int, int]:
+    """Whole-cell offset of ``grid``'s origin from ``origin`` on a common lattice (axes at
+    ``heading``)."""
+    if abs(math.remainder(grid.heading - heading, 2 * math.pi)) > 1e-9:
+        raise ValueError(f"maps whose lattices lie at {math.degrees(grid.heading):.4g} and "
+                         f"{math.degrees(heading):.4g} deg do not share a lattice; transform "
+                         "one onto the other first")
     if not math.isclose(grid.resolution, resolution, rel_tol=1e-9):
         raise ValueError(f"maps of resolution {grid.resolution} m and {resolution} m do not "
                          "share a lattice; transform one onto the other first")
@@ -165,8 +196,9 @@ def _offset(grid: GridMap, origin: tuple[float, float], resolution: float) -> tu
 
 def place(grid: GridMap, origin: tuple[float, float], shape: tuple[int, int]) -> GridMap:
     """``grid`` on the same lattice cut or padded to ``shape`` cells from ``origin`` (a whole
-    number of cells away). Raises ValueError when a known cell would fall outside."""
-    di, dj = _offset(grid, origin, grid.resolution)
+    number of cells away, in the lattice's axes). Raises ValueError when a known cell would
+    fall outside."""
+    di, dj = _offset(grid, origin, grid.resolution, grid.heading)
     H, W = shape
     kk, SS = np.zeros(shape), np.zeros(shape)
     i, j = np.nonzero(grid.known)
@@ -177,7 +209,8 @@ def place(grid: GridMap, origin: tuple[float, float], shape: tuple[int, int]) ->
                          f"{H} x {W} grid at origin {origin}")
     kk[ti, tj] = grid.k[i, j]
     SS[ti, tj] = grid.S[i, j]
-    return GridMap(kk, SS, (float(origin[0]), float(origin[1])), grid.resolution)
+    return GridMap(kk, SS, (float(origin[0]), float(origin[1])), grid.resolution,
+                   grid.heading)
 
 
 def add(*grids: GridMap) -> GridMap:
@@ -185,7 +218,7 @@ def add(*grids: GridMap) -> GridMap:
     their extents."""
     res = grids[0].resolution
     first = grids[0].origin
-    offsets = [_offset(g, first, res) for g in grids]
+    offsets = [_offset(g, first, res, grids[0].heading) for g in grids]
     lo = [min(o[a] for o in offsets) for a in (0, 1)]
     hi = [max(o[a] + g.shape[a] for o, g in zip(offsets, grids)) for a in (0, 1)]
     shape = (hi[0] - lo[0], hi[1] - lo[1])
@@ -195,4 +228,5 @@ def add(*grids: GridMap) -> GridMap:
         sl = (slice(i0, i0 + g.shape[0]), slice(j0, j0 + g.shape[1]))
         kk[sl] += g.k
         SS[sl] += g.S
-    return GridMap(kk, SS, (first[0] + lo[0] * res, first[1] + lo[1] * res), res)
+    return GridMap(kk, SS, (first[0] + lo[0] * res, first[1] + lo[1] * res), res,
+                   grids[0].heading)

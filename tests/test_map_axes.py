@@ -1,0 +1,129 @@
+"""``[map] axes``: a map lattice turned in its frame (``GridMap.heading``), and the filter run
+on the robot's start axes, whose result turns with the frame the run is given in and changes
+in nothing else (the maze's walls showed that the frame's axes matter, docs/results.md)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from gslam_jax.config import Config, ConfigError
+from gslam_jax.gridmap import (GridMap, add, known_cells, load_map, place, save_map, transform,
+                               turn_poses)
+
+RES = 0.25
+
+
+def _grid(heading: float, seed: int = 0) -> GridMap:
+    rng = np.random.default_rng(seed)
+    k = rng.integers(0, 4, (7, 5)).astype(float)
+    S = np.where(k > 0, rng.uniform(0.1, 1.0, k.shape), 0.0)
+    return GridMap(k, S, (-0.8, 0.3), RES, heading)
+
+
+def _centre(grid: GridMap, i: int, j: int) -> tuple[float, float]:
+    """Cell (i, j)'s centre in the map's frame, written out by hand."""
+    u = grid.origin[0] + (i + 0.5) * grid.resolution
+    v = grid.origin[1] + (j + 0.5) * grid.resolution
+    c, s = math.cos(grid.heading), math.sin(grid.heading)
+    return c * u - s * v, s * u + c * v
+
+
+def test_known_cells_and_transform_place_each_cell_by_the_lattice_heading() -> None:
+    grid = _grid(0.7)
+    centres, k, _ = known_cells(grid)
+    expected = [_centre(grid, i, j) for i, j in zip(*np.nonzero(grid.k > 0))]
+    np.testing.assert_allclose(centres, expected, atol=1e-12)
+    for like_heading in (0.0, -0.4):
+        like = GridMap(np.zeros((1, 1)), np.zeros((1, 1)), (0.1, -0.05), RES, like_heading)
+        pose = np.array([1.3, -0.6, 0.25])
+        moved = transform(grid, pose, like=like)
+        assert moved.heading == like_heading
+        # brute force: each known cell's centre carried by the pose, then into like's axes
+        want = {}
+        for i, j in zip(*np.nonzero(grid.k > 0)):
+            x, y = _centre(grid, i, j)
+            X = pose[0] + math.cos(pose[2]) * x - math.sin(pose[2]) * y
+            Y = pose[1] + math.sin(pose[2]) * x + math.cos(pose[2]) * y
+            c, s = math.cos(-like_heading), math.sin(-like_heading)
+            u, v = c * X - s * Y, s * X + c * Y
+            cell = (math.floor((u - like.origin[0]) / RES), math.floor((v - like.origin[1]) / RES))
+            want[cell] = want.get(cell, 0.0) + grid.k[i, j]
+        got = {}
+        for i, j in zip(*np.nonzero(moved.k > 0)):
+            cell = (round((moved.origin[0] - like.origin[0]) / RES) + i,
+                    round((moved.origin[1] - like.origin[1]) / RES) + j)
+            got[cell] = moved.k[i, j]
+        assert got == pytest.approx(want)
+
+
+def test_a_turned_lattice_is_saved_and_only_summed_with_its_own(tmp_path) -> None:
+    grid = _grid(-1.1)
+    save_map(tmp_path / "map.npz", grid)
+    back = load_map(tmp_path / "map.npz")
+    assert back.heading == pytest.approx(-1.1) and back.origin == grid.origin
+    np.testing.assert_array_equal(back.k, grid.k)
+    # a file written before the heading existed: the frame's axes
+    np.savez(tmp_path / "old.npz", k=grid.k, S=grid.S, origin=np.array(grid.origin),
+             resolution=RES)
+    assert load_map(tmp_path / "old.npz").heading == 0.0
+    assert add(grid, grid).heading == grid.heading
+    assert place(grid, (-1.05, 0.05), (9, 7)).heading == grid.heading
+    with pytest.raises(ValueError, match="do not share a lattice"):
+        add(grid, grid._replace(heading=0.0))
+
+
+def _maze_run(frames: int = 260):
+    from gslam_jax.datasets.sim import simulate_run
+    from gslam_jax.vo.localmap import LocalMapParams
+
+    run, _ = simulate_run("maze", 0, LocalMapParams(resolution=0.16, max_range=6.0, travel=1.0),
+                          max_frames=frames)
+    return run
+
+
+def _turned(run, degrees: float):
+    """The same log in a frame turned by ``degrees`` about its start (as
+    ``experiments.common.turned_run``, written out here)."""
+    a = math.radians(degrees)
+    start = run.start_pose()
+    truth = turn_poses(run.ground_truth - np.array([start[0], start[1], 0.0]), a)
+    truth[:, :2] += start[:2]
+    return run._replace(initial_pose=start + np.array([0.0, 0.0, a]), ground_truth=truth)
+
+
+def _config(axes: str) -> Config:
+    c = Config()
+    return dataclasses.replace(c, map=dataclasses.replace(c.map, axes=axes, margin=3.0),
+                               filter=dataclasses.replace(c.filter, particles=16))
+
+
+def test_on_the_start_axes_the_result_turns_with_the_frame_and_nothing_else() -> None:
+    from gslam_jax.slam import run_slam
+
+    run = _maze_run()
+    turn = 30.0
+    start = run_slam(run, _config("start")), run_slam(_turned(run, turn), _config("start"))
+    assert start[0].map_heading == pytest.approx(run.start_pose()[2])
+    assert start[1].map_heading == pytest.approx(run.start_pose()[2] + math.radians(turn))
+    np.testing.assert_array_equal(start[0].kmap, start[1].kmap)
+    np.testing.assert_array_equal(start[0].smap, start[1].smap)
+    for name in ("best_path", "mean_pose", "smoothed_path", "vo_path"):
+        a, b = getattr(start[0], name), getattr(start[1], name)
+        d = turn_poses(a, math.radians(turn)) - b
+        d[:, 2] = np.angle(np.exp(1j * d[:, 2]))
+        assert np.abs(d).max() < 1e-9, name
+    # on the frame's axes the same turn gives another map: the property is not trivial
+    frame = run_slam(_turned(run, turn), _config("frame"))
+    assert frame.map_heading == 0.0
+    assert frame.kmap.shape != start[1].kmap.shape or (frame.kmap != start[1].kmap).any()
+
+
+def test_online_refuses_the_start_axes() -> None:
+    from gslam_jax.online import Online
+
+    with pytest.raises(ConfigError, match="axes"):
+        Online(_config("start"), 20.0)
