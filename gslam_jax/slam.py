@@ -253,7 +253,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     ``vo_path``, map) are in the prior's frame, on its lattice (``filter_config``).
 
     The filter runs on the map lattice's axes (``lattice_heading``); the paths are turned back
-    into the run's frame and the map keeps its axes (``SlamResult.map_heading``).
+    into the run's frame and the map keeps its axes (``SlamResult.map_heading``). A prior's
+    start spread is drawn on its lattice's axes.
     """
     if prior is not None:
         run = rebase(run, prior.start)

@@ -341,6 +341,7 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     from gslam_jax.machine import environment
     from gslam_jax.observations import local_observations
     from gslam_jax.sizing import filter_config, filter_params
+    from gslam_jax.slam import lattice_heading, on_lattice_axes
 
     config = config or Config()
     if config.filter.range_noise != "none":
@@ -348,6 +349,8 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
                           f"reference implements eq. 26 as the paper has it; compare with "
                           f"range_noise = \"none\"")
     run = run if run is not None else _default_run()
+    # both implementations on the map lattice's axes, as ``gslam run`` filters ([map] axes)
+    run = on_lattice_axes(run, lattice_heading(run, config))
     config = dataclasses.replace(
         config,
         filter=dataclasses.replace(config.filter, particles=particles,
