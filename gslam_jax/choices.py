@@ -43,7 +43,7 @@ SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] es
 LOCALMAP_LATTICES = ("robot", "map", "auto")
 # ``[map] axes``: the global map's lattice on the axes of the frame the run is given in (its
 # start pose's and ground truth's), or on the robot's at its start pose, so that the result does
-# not depend on how that frame is turned (``slam.lattice_heading``)
+# not depend on how that frame is turned (``slam.map_heading``)
 MAP_AXES = ("frame", "start")
 BAD_FRAME_POLICIES = ("error", "fallback")  # ``gslam run --on-bad-frame``
 STEREO_ALGORITHMS = ("sgbm", "bm")  # ``[stereo] algorithm`` (vo.stereo.DenseStereoParams)

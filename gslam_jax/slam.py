@@ -27,8 +27,8 @@ from gslam_jax.run import Run, known_positions
 from gslam_jax.sizing import filter_config, filter_params, map_memory
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
-           "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "lattice_heading",
-           "on_lattice_axes"]
+           "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "map_heading",
+           "on_map_axes"]
 
 
 class ExtentWarning(UserWarning):
@@ -71,7 +71,7 @@ def require_ground_truth(mask: jax.Array | np.ndarray, objective: str,
                     f"has no frame with a finite position (x, y); use objective 'loglik'")
 
 
-def lattice_heading(run: Run, config: Config, prior: PriorMap | None = None) -> float:
+def map_heading(run: Run, config: Config, prior: PriorMap | None = None) -> float:
     """The angle (radians) of the map lattice's axes in the run's frame: a prior map's
     (``GridMap.heading``), else by ``[map] axes``: 0 ("frame"), or the run's start heading
     ("start"), so that turning the frame the run is given in turns the result with it and
@@ -81,7 +81,7 @@ def lattice_heading(run: Run, config: Config, prior: PriorMap | None = None) -> 
     return float(run.start_pose()[2]) if config.map.axes == "start" else 0.0
 
 
-def on_lattice_axes(run: Run, heading: float) -> Run:
+def on_map_axes(run: Run, heading: float) -> Run:
     """``run`` in its frame turned by ``heading`` about the origin (the lattice's axes): its
     start pose and ground truth expressed there; controls and local maps (robot frame) as
     they are. ``turn_poses(x, heading)`` carries the filter's poses back."""
@@ -97,9 +97,9 @@ def on_lattice_axes(run: Run, heading: float) -> Run:
 def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
     """Device arrays of ``run`` (raw observations, to be refined on the device with the
     config's or searched settings) and the static filter config for it; the start pose and
-    the reference on the map lattice's axes (``lattice_heading``; the errors against the
+    the reference on the map lattice's axes (``map_heading``; the errors against the
     reference do not depend on them)."""
-    run = on_lattice_axes(run, lattice_heading(run, config))
+    run = on_map_axes(run, map_heading(run, config))
     T = run.num_frames
     gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
     arrays = RunArrays(
@@ -203,7 +203,7 @@ class SlamResult(NamedTuple):
     map_peak_bytes: int = 0    # most bytes the maps held at once (shared: live tiles + tables)
     estimate: str = "best"     # [filter] estimate: which trajectory ``path`` is
     compile_frames: int = 0    # frames run in the first chunk, timed with the compilation
-    map_heading: float = 0.0   # the map lattice's axes in the run's frame (``lattice_heading``)
+    map_heading: float = 0.0   # radians: the map lattice's axes in the run's frame ([map] axes)
 
     @property
     def path(self) -> np.ndarray:
@@ -252,15 +252,15 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     ``prior.start`` (spread by ``prior.start_sigma``), and extends it; the results (paths,
     ``vo_path``, map) are in the prior's frame, on its lattice (``filter_config``).
 
-    The filter runs on the map lattice's axes (``lattice_heading``); the paths are turned back
+    The filter runs on the map lattice's axes (``map_heading``); the paths are turned back
     into the run's frame and the map keeps its axes (``SlamResult.map_heading``). A prior's
     start spread is drawn on its lattice's axes.
     """
     if prior is not None:
         run = rebase(run, prior.start)
     given = run
-    heading = lattice_heading(run, config, prior)
-    run = on_lattice_axes(run, heading)
+    heading = map_heading(run, config, prior)
+    run = on_map_axes(run, heading)
     cfg = filter_config(config, run, prior)
     params = filter_params(config, run)
     obs = map_observations(run, config)

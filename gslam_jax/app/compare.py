@@ -341,7 +341,7 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     from gslam_jax.machine import environment
     from gslam_jax.observations import local_observations
     from gslam_jax.sizing import filter_config, filter_params
-    from gslam_jax.slam import lattice_heading, on_lattice_axes
+    from gslam_jax.slam import map_heading, on_map_axes
 
     config = config or Config()
     if config.filter.range_noise != "none":
@@ -350,7 +350,7 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
                           f"range_noise = \"none\"")
     run = run if run is not None else _default_run()
     # both implementations on the map lattice's axes, as ``gslam run`` filters ([map] axes)
-    run = on_lattice_axes(run, lattice_heading(run, config))
+    run = on_map_axes(run, map_heading(run, config))
     config = dataclasses.replace(
         config,
         filter=dataclasses.replace(config.filter, particles=particles,
