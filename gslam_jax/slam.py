@@ -8,6 +8,7 @@ map reuse in ``prior``.
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from typing import Callable, NamedTuple
@@ -28,7 +29,7 @@ from gslam_jax.sizing import filter_config, filter_params, map_memory
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
            "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "map_heading",
-           "on_map_axes"]
+           "on_map_axes", "LatticeWarning", "local_lattice_axes"]
 
 
 class ExtentWarning(UserWarning):
@@ -92,6 +93,39 @@ def on_map_axes(run: Run, heading: float) -> Run:
         truth = turn_poses(truth, -heading)
     return run._replace(initial_pose=turn_poses(run.start_pose(), -heading),
                         ground_truth=truth)
+
+
+class LatticeWarning(UserWarning):
+    """A run's local maps were binned on the map's axes ("map" lattice) at another angle than
+    the map lattice the filter runs on: each local cell is then placed by its centre, two into
+    some map cells and none into others (docs/results.md, "The map frame's orientation")."""
+
+
+def local_lattice_axes(run: Run, tolerance: float = 1e-4) -> float | None:
+    """The angle (radians) in the run's frame of the axes its local maps were binned on: the
+    VO heading of each local map's frame plus its lattice heading (``Run.lattice_headings``),
+    when that is one angle for every local map (a "map" lattice); None otherwise (the robot's
+    axes, or no local map)."""
+    if run.lattice_headings is None or not run.num_local_maps:
+        return None
+    t = np.flatnonzero(run.obs_index >= 0)
+    turns = np.exp(1j * (run.vo_poses()[t, 2]
+                         + np.asarray(run.lattice_headings, np.float64)[run.obs_index[t]]))
+    mean = turns.mean()
+    if np.max(np.abs(np.angle(turns / mean))) > tolerance:
+        return None
+    return float(np.angle(mean))
+
+
+def _check_local_lattices(run: Run, heading: float) -> None:
+    """``LatticeWarning`` when the local maps lie on other axes than the map's at ``heading``."""
+    axes = local_lattice_axes(run)
+    if axes is not None and abs(math.remainder(axes - heading, 2 * math.pi)) > 1e-4:
+        warnings.warn(LatticeWarning(
+            f"the run's local maps were binned on the map's axes at {math.degrees(axes):.3f} "
+            f"deg in its frame, but the map lattice lies at {math.degrees(heading):.3f} deg "
+            "([map] axes, or a prior map's): each local cell is placed by its centre. Build the "
+            "run with the [map] axes it is filtered with"), stacklevel=3)
 
 
 def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
@@ -260,6 +294,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         run = rebase(run, prior.start)
     given = run
     heading = map_heading(run, config, prior)
+    _check_local_lattices(run, heading)
     run = on_map_axes(run, heading)
     cfg = filter_config(config, run, prior)
     params = filter_params(config, run)

@@ -127,3 +127,70 @@ def test_online_refuses_the_start_axes() -> None:
 
     with pytest.raises(ConfigError, match="axes"):
         Online(_config("start"), 20.0)
+
+
+def _local_maps(axes: str, turn: float):
+    """Local maps on the map's lattice ("map") of one drive seen in a frame turned by ``turn``
+    radians about its start: the same points, the VO poses turned."""
+    from gslam_jax.vo.localmap import LocalMapParams, build_local_maps
+
+    rng = np.random.default_rng(3)
+    T = 40
+    heading = 0.4 + np.cumsum(rng.normal(0.0, 0.03, T))
+    xy = np.cumsum(0.3 * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    poses = turn_poses(np.column_stack([xy, heading]), turn)
+    frames = [np.column_stack([rng.uniform(-3, 3, (200, 2)), rng.normal(0, 0.1, 200)])
+              for _ in range(T)]
+    params = LocalMapParams(resolution=0.2, max_range=3.0, travel=1.0, lattice="map", axes=axes)
+    return build_local_maps(poses, iter(frames), params, poses[0]), poses
+
+
+def test_a_map_lattice_on_the_start_axes_is_binned_alike_in_any_frame() -> None:
+    """``[localmap] lattice = "map"`` with ``[map] axes = "start"``: each local map is binned on
+    the robot's start axes, so a drive seen in a turned frame gives the same local maps; on the
+    frame's axes it does not. ``slam.local_lattice_axes`` reads the axes back from a Run."""
+    from gslam_jax.run import Run
+    from gslam_jax.slam import local_lattice_axes
+    from gslam_jax.vo.geometry import increments_2d
+
+    (a, _), (b, poses_b) = _local_maps("start", 0.0), _local_maps("start", 0.9)
+    np.testing.assert_array_equal(a.obs_index, b.obs_index)
+    np.testing.assert_allclose(a.local_maps, b.local_maps, atol=1e-9)
+    np.testing.assert_allclose(a.lattice_headings, b.lattice_headings, atol=1e-9)
+    (f0, _), (f1, _) = _local_maps("frame", 0.0), _local_maps("frame", 0.9)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (f1.lattice_headings - f0.lattice_headings))),
+                               -0.9, atol=1e-9)
+    assert not np.allclose(f0.local_maps, f1.local_maps)
+    for maps, poses, axes in ((b, poses_b, poses_b[0, 2]), (f1, poses_b, 0.0)):
+        controls = increments_2d(poses)
+        run = Run(controls, maps.obs_index, maps.local_maps, 0.2, np.arange(len(poses)) * 0.1,
+                  initial_pose=poses[0], lattice_headings=maps.lattice_headings)
+        assert local_lattice_axes(run) == pytest.approx(axes, abs=1e-9)
+
+
+def test_local_maps_binned_on_other_axes_than_the_map_are_named() -> None:
+    """A Run whose "map" lattice lies on the frame's axes, filtered on the start axes (or the
+    other way round), warns: each local cell would be placed by its centre."""
+    import warnings
+
+    from gslam_jax.run import Run
+    from gslam_jax.slam import LatticeWarning, run_slam
+    from gslam_jax.vo.geometry import increments_2d
+
+    def run_of(axes: str) -> Run:
+        maps, poses = _local_maps(axes, 0.9)
+        return Run(increments_2d(poses), maps.obs_index, maps.local_maps, 0.2,
+                   np.arange(len(poses)) * 0.1, initial_pose=poses[0],
+                   lattice_headings=maps.lattice_headings)
+
+    c = Config()
+    for built, filtered, warns in (("frame", "start", True), ("start", "frame", True),
+                                   ("start", "start", False), ("frame", "frame", False)):
+        config = dataclasses.replace(
+            c, map=dataclasses.replace(c.map, resolution=0.2, axes=filtered, margin=2.0),
+            filter=dataclasses.replace(c.filter, particles=4))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            run_slam(run_of(built), config)
+        named = [w for w in caught if issubclass(w.category, LatticeWarning)]
+        assert bool(named) == warns, (built, filtered)

@@ -191,7 +191,7 @@ def sense_run(odo: Odometry, world: World, seed: int, params: LocalMapParams,
 
     t1 = time.perf_counter()
     obs_index, local_maps, dropped, lattice_headings = build_local_maps(vo_poses, frames(),
-                                                                         params)
+                                                                         params, gt[0])
     timings["sensor_and_maps_s"] = time.perf_counter() - t1
     timings["total_s"] = time.perf_counter() - t0
 

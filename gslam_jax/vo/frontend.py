@@ -15,7 +15,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from gslam_jax.vo.localmap import LocalMapBuilder, LocalMapParams
+from gslam_jax.vo.localmap import LocalMapBuilder, LocalMapParams, map_axes_heading
 from gslam_jax.run import Run, validate_run
 from gslam_jax.vo.calib import ImageError, RectifiedRig
 from gslam_jax.vo.estimate import Camera
@@ -127,9 +127,10 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
                       "far points: raise stereo.num_disparities", stacklevel=2)
     vo = StereoVO(cam, params.vo)
     matcher = params.stereo.matcher() if params.dense else None
-    builder = LocalMapBuilder(params.local_map)
     m, m_inv = t_robot_cam, invert(t_robot_cam)
     start = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=np.float64)
+    builder = LocalMapBuilder(params.local_map,
+                              axes_heading=map_axes_heading(params.local_map, start))
     pose = planar_transform(start)
     summary = FrontEndSummary(frames=num_frames)
     poses, poses_2d, results, failed, maps, obs_index = [], [], [], [], [], []

@@ -20,7 +20,8 @@ if TYPE_CHECKING:
     from gslam_jax.config import Config
 
 __all__ = ["LocalMapParams", "localmap_params", "LocalMapBuilder", "LocalMaps", "points_to_stats",
-           "relative_pose", "transform_points", "lattice_heading", "build_local_maps"]
+           "relative_pose", "transform_points", "lattice_heading", "map_axes_heading",
+           "build_local_maps"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,8 @@ class LocalMapParams:
         against the map's places cells by their centres, two into some map cells and none
         into others, and the result then depends on the map frame's orientation
         (docs/results.md, "The map frame's orientation").
+    axes: the map's axes a "map" lattice lies on (``[map] axes``): the frame's ("frame"), or
+        the robot's at its start pose ("start"; ``map_axes_heading``).
     """
 
     resolution: float = 0.16
@@ -50,6 +53,7 @@ class LocalMapParams:
     max_height: float = 2.0
     travel: float = 2.0
     lattice: str = "robot"
+    axes: str = "frame"
 
     @property
     def size(self) -> int:
@@ -73,7 +77,17 @@ def localmap_params(config: Config, sensor: str | None = None) -> LocalMapParams
         lattice = AUTO_LOCALMAP_LATTICE[sensor or "points"]
     return LocalMapParams(resolution=config.map.resolution, cells=lm.cells,
                           max_range=lm.max_range, min_height=lm.min_height,
-                          max_height=lm.max_height, travel=lm.travel, lattice=lattice)
+                          max_height=lm.max_height, travel=lm.travel, lattice=lattice,
+                          axes=config.map.axes)
+
+
+def map_axes_heading(params: LocalMapParams, start_pose: np.ndarray | None) -> float:
+    """The angle of the map's axes in the frame of the VO poses that start at ``start_pose``
+    (None: zeros): 0 for the frame's, the start heading for the robot's (``params.axes``).
+    A "map" lattice is turned onto them (``LocalMapBuilder.axes_heading``)."""
+    if params.axes == "start" and start_pose is not None:
+        return float(np.asarray(start_pose, np.float64)[2])
+    return 0.0
 
 
 def relative_pose(ref: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -156,6 +170,7 @@ class LocalMapBuilder:
     """
 
     params: LocalMapParams
+    axes_heading: float = 0.0  # the map's axes in the VO poses' frame (``map_axes_heading``)
     dropped_points: int = 0
     lattice_headings: list[float] = field(default_factory=list)
     _frames: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
@@ -178,7 +193,7 @@ class LocalMapBuilder:
         if not self._frames:
             return None
         ref = self._frames[-1][0]
-        heading = lattice_heading(float(ref[2]), self.params.lattice)
+        heading = lattice_heading(float(ref[2]) - self.axes_heading, self.params.lattice)
         stats = np.zeros((self.params.size, self.params.size, 3))
         for pose, pts in self._frames:
             _, dropped = points_to_stats(transform_points(pts, relative_pose(ref, pose)),
@@ -200,14 +215,15 @@ class LocalMaps(NamedTuple):
 
 
 def build_local_maps(vo_poses: np.ndarray, frames: Iterable[np.ndarray],
-                     params: LocalMapParams) -> LocalMaps:
+                     params: LocalMapParams, start_pose: np.ndarray | None = None) -> LocalMaps:
     """Fuse a whole sequence: obs_index [T], local_maps [M, L, L, 3], the dropped points and
-    the lattice headings [M].
+    the lattice headings [M] (a "map" lattice on the axes ``map_axes_heading`` gives for the
+    Run's ``start_pose``).
 
     The first local map is emitted at frame 0 (the robot starts with an observation of where it
     stands), then every ``travel`` metres; a trailing partial segment is not emitted.
     """
-    builder = LocalMapBuilder(params)
+    builder = LocalMapBuilder(params, axes_heading=map_axes_heading(params, start_pose))
     obs_index, maps = [], []
     it: Iterator[np.ndarray] = iter(frames)
     poses = np.asarray(vo_poses)
