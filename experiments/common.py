@@ -30,9 +30,10 @@ def turned_run(run: Run, degrees: float) -> Run:
     """``run`` with its map frame turned by ``degrees`` about its start pose: the start heading
     and the ground truth turned with it; the controls and local maps (robot frame) as they are.
     The same log, seen in another frame: a filter that does not depend on the frame's
-    orientation gives the same result up to the turn. Turning the frame moves the map's
-    lattice against the terrain; shifting it does not (the map's lattice is laid from the
-    start pose, ``sizing.map_extent``)."""
+    orientation gives the same result up to the turn. On the frame's axes (``[map] axes =
+    "frame"``) turning the frame moves the map's lattice against the terrain; on the robot's
+    start axes ("start") it does not; shifting it does neither (the map's lattice is laid from
+    the start pose, ``sizing.map_extent``)."""
     start = np.asarray(run.start_pose(), np.float64)
     a = math.radians(degrees)
     turned_start = start + np.array([0.0, 0.0, a])
