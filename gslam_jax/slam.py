@@ -266,6 +266,8 @@ class ChunkReport(NamedTuple):
     mean_pose: np.ndarray    # [n, 3] weighted mean per frame
     state: rbpf.FilterState  # after the chunk's last frame
     cfg: rbpf.FilterConfig
+    heading: float = 0.0     # the map lattice's axes in the run's frame: ``turn_poses(x,
+    #                          heading)`` carries the poses above into it
 
 
 def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | None = None,
@@ -336,7 +338,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         if on_chunk is not None:  # its time (e.g. a viewer's logging) is not the filter's
             h0, n = time.perf_counter(), min(chunk, T - start)
             on_chunk(ChunkReport(run, start, jax.tree.map(lambda x: x[:n], out[0]),
-                                 out[1][:n], out[2][:n], state, cfg))
+                                 out[1][:n], out[2][:n], state, cfg, heading))
             hook_s += time.perf_counter() - h0
         if progress is not None:
             progress(min(start + chunk, T), T)

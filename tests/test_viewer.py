@@ -234,3 +234,34 @@ def test_viewer_without_a_display_points_to_the_file(tmp_path, capsys, monkeypat
 def test_viewer_every_alone_is_refused(tmp_path, capsys, no_work):
     assert main(["run", "--viewer-every", "5", "--out", str(tmp_path / "o")]) == 2
     assert "--viewer-every" in capsys.readouterr().err
+
+
+def test_a_map_on_the_start_axes_is_shown_turned_and_the_poses_in_the_runs_frame(tmp_path):
+    """[map] axes = "start" on a run that starts turned: the filter runs on the robot's start
+    axes, the recording shows the poses in the run's frame (as trace.npz) and the map turned by
+    map.npz's heading about its frame's origin."""
+    import math
+
+    run, _ = make_run(steps=FRAMES)
+    run = run._replace(initial_pose=np.array([0.3, -0.2, 0.7]))
+    save_run(tmp_path / "r.npz", run)
+    rrd = tmp_path / "live.rrd"
+    assert main(["run", str(tmp_path / "r.npz"), *SETTINGS, "--set", "map.axes=start",
+                 "--viewer-save", str(rrd), "--viewer-every", str(EVERY),
+                 "--out", str(tmp_path / "out")]) == 0
+    ent = _entities(rrd)
+    with np.load(tmp_path / "out" / "trace.npz") as trace:
+        best = trace["best_pose"]
+    rows = _temporal(ent["/world/pose/best"], "Points3D:positions")
+    np.testing.assert_allclose([r["Points3D:positions"][0][:2] for r in rows], best[:, :2],
+                               atol=1e-4)
+    with np.load(tmp_path / "out" / "map.npz") as m:
+        origin, heading = m["origin"], float(m["heading"])
+    assert heading == pytest.approx(0.7)
+    c, s = math.cos(heading), math.sin(heading)
+    corner = [c * origin[0] - s * origin[1], s * origin[0] + c * origin[1]]
+    for row in _temporal(ent["/world/map"], "GridMap:data")[-2:]:  # last chunk's, results'
+        np.testing.assert_allclose(row["GridMap:translation"][0][:2], corner, atol=1e-4)
+        turn = row["GridMap:rotation_axis_angle"][0]
+        assert turn["axis"] == pytest.approx([0.0, 0.0, 1.0])
+        assert turn["angle"] == pytest.approx(heading, abs=1e-6)

@@ -39,8 +39,9 @@ class ResultsRecord(NamedTuple):
     mean_pose: np.ndarray | None       # [T, 3] trace.npz
     ess: np.ndarray | None             # [T] trace.npz
     std: np.ndarray                    # [nx, ny] the map's expected std (NaN: unobserved)
-    origin: tuple[float, float]
+    origin: tuple[float, float]        # on the lattice's axes (``GridMap``)
     resolution: float
+    heading: float = 0.0               # the lattice's axes in the map frame (``GridMap``)
 
 
 def _tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -94,11 +95,9 @@ def read_results(folder: str | Path) -> ResultsRecord:
                 raise MapFileError(f"{trace}: field '{key}' has {len(value)} frames, "
                                    f"trajectory_tum.txt has {T}")
         best, mean, ess = (fields.get(k) for k in ("best_pose", "mean_pose", "ess"))
-    if grid.heading:  # shown on the frame's axes: each cell carried by its centre
-        from gslam_jax.gridmap import transform
-        grid = transform(grid, np.zeros(3))
     return ResultsRecord(folder.name, stamps - stamps[0], reported, vo, gt, best, mean, ess,
-                         grid.expected_std(), tuple(grid.origin), float(grid.resolution))
+                         grid.expected_std(), tuple(grid.origin), float(grid.resolution),
+                         float(grid.heading))
 
 
 def log_results(viewer: RunViewer, record: ResultsRecord, live: bool = False) -> None:
@@ -113,7 +112,7 @@ def log_results(viewer: RunViewer, record: ResultsRecord, live: bool = False) ->
         paths.update({k: v for k, v in (("vo", record.vo), ("ground_truth", record.ground_truth))
                       if v is not None})
     viewer.paths(paths, frame, time_s)
-    viewer.map(record.std, record.origin, record.resolution, frame, time_s)
+    viewer.map(record.std, record.origin, record.resolution, frame, time_s, record.heading)
 
 
 class RunWatch:

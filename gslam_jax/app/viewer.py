@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gslam_jax.errors import InputError
+from gslam_jax.gridmap.grid import turn_poses
 
 if TYPE_CHECKING:
     from gslam_jax.online import Online, OnlineFrame
@@ -213,8 +214,10 @@ class RunViewer:
                 static=frame is None)
 
     def map(self, std: np.ndarray, origin: tuple[float, float], resolution: float,
-            frame: int | None = None, time_s: float | None = None) -> None:
-        """The map's expected std [nx, ny] (cell (i, j) at origin + (i, j) resolution) as
+            frame: int | None = None, time_s: float | None = None,
+            heading: float = 0.0) -> None:
+        """The map's expected std [nx, ny] (cell (i, j) at origin + (i, j) resolution on the
+        lattice's axes, turned by ``heading`` in the frame: ``GridMap.heading``) as
         ``world/map`` at ``frame`` (None: static)."""
         rr = self.rr
         img = map_rgba(std)
@@ -222,9 +225,14 @@ class RunViewer:
             self._at(frame, time_s)
         fmt = rr.components.ImageFormat(width=img.shape[1], height=img.shape[0],
                                         color_model="RGBA", channel_datatype="U8")
+        c, s = np.cos(heading), np.sin(heading)
+        corner = [float(c * origin[0] - s * origin[1]), float(s * origin[0] + c * origin[1])]
+        turn = {"rotation_axis_angle": rr.RotationAxisAngle(axis=[0.0, 0.0, 1.0],
+                                                            radians=float(heading))} \
+            if heading else {}
         self.rec.log("world/map", rr.GridMap(
             data=img.tobytes(), format=fmt, cell_size=float(resolution),
-            translation=[float(origin[0]), float(origin[1]), MAP_Z]), static=frame is None)
+            translation=[*corner, MAP_Z], **turn), static=frame is None)
 
     def chunk(self, report: ChunkReport) -> None:
         """``slam.run_slam``'s ``on_chunk``: the chunk's frames (particles, poses, ESS), then
@@ -236,21 +244,25 @@ class RunViewer:
         run, start, n = report.run, report.start, len(report.best_pose)
         stop = start + n
         t = np.asarray(run.timestamps, np.float64)
-        self.frames(start, t[start:stop], report.best_pose, report.mean_pose,
-                    report.info.ess, report.info.pose)
+
+        def framed(poses) -> np.ndarray:  # the run's frame (the filter's are on the map's axes)
+            return turn_poses(poses, report.heading) if report.heading else np.asarray(poses)
+
+        best, mean = framed(report.best_pose), framed(report.mean_pose)
+        self.frames(start, t[start:stop], best, mean, report.info.ess, framed(report.info.pose))
         if start == 0:
             self._best, self._mean = [], []
-        self._best.append(np.asarray(report.best_pose))
-        self._mean.append(np.asarray(report.mean_pose))
+        self._best.append(best)
+        self._mean.append(mean)
         paths = {"best": np.concatenate(self._best), "mean": np.concatenate(self._mean),
-                 "vo": run.vo_poses()[:stop]}
+                 "vo": framed(run.vo_poses()[:stop])}
         if run.ground_truth is not None:
-            paths["ground_truth"] = np.asarray(run.ground_truth)[:stop]
+            paths["ground_truth"] = framed(np.asarray(run.ground_truth)[:stop])
         self.paths(paths, stop - 1, t[stop - 1])
         cfg, state = report.cfg, report.state
         k, S = rbpf.particle_map(state, int(state.best), cfg)
         self.map(np.asarray(cells.expected_std(k, S)), cfg.map_origin, cfg.resolution,
-                 stop - 1, t[stop - 1])
+                 stop - 1, t[stop - 1], heading=report.heading)
 
     def online(self, online: Online, frame: OnlineFrame, time_s: float | None = None,
                map_every: int = 10) -> None:
