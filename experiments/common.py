@@ -17,7 +17,7 @@ import numpy as np
 from gslam_jax import choices, sizing, slam
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
-from gslam_jax.gridmap.grid import apply_pose
+from gslam_jax.gridmap.grid import turn_poses
 from gslam_jax.run import Run
 from gslam_jax.sim.vonoise import VO_PROFILES
 from gslam_jax.tuning.evaluation import evaluate
@@ -39,9 +39,8 @@ def turned_run(run: Run, degrees: float) -> Run:
     turned_start = start + np.array([0.0, 0.0, a])
     truth = run.ground_truth
     if truth is not None:
-        truth = np.asarray(truth, np.float64)
-        turned = apply_pose(np.array([start[0], start[1], a]), truth[:, :2] - start[:2])
-        truth = np.column_stack([turned, np.angle(np.exp(1j * (truth[:, 2] + a)))])
+        shift = np.array([start[0], start[1], 0.0])
+        truth = turn_poses(np.asarray(truth, np.float64) - shift, a) + shift
     return run._replace(initial_pose=turned_start, ground_truth=truth)
 
 

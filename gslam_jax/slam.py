@@ -26,6 +26,7 @@ from gslam_jax.observations import ObsSettings, map_observations, obs_settings, 
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.run import Run, known_positions
 from gslam_jax.sizing import filter_config, filter_params, map_memory
+from gslam_jax.vo.localmap import map_axes_heading
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
            "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "map_heading",
@@ -79,7 +80,7 @@ def map_heading(run: Run, config: Config, prior: PriorMap | None = None) -> floa
     changes nothing else."""
     if prior is not None:
         return float(prior.grid.heading)
-    return float(run.start_pose()[2]) if config.map.axes == "start" else 0.0
+    return map_axes_heading(config.map.axes, run.start_pose())
 
 
 def on_map_axes(run: Run, heading: float) -> Run:

@@ -194,3 +194,21 @@ def test_local_maps_binned_on_other_axes_than_the_map_are_named() -> None:
             run_slam(run_of(built), config)
         named = [w for w in caught if issubclass(w.category, LatticeWarning)]
         assert bool(named) == warns, (built, filtered)
+
+
+def test_a_turned_lattice_is_georeferenced_where_its_cells_lie() -> None:
+    """The world file of a map on turned axes (``gps.lattice_rotation``) puts the top-left
+    cell's centre where the GPS alignment (R, l) carries that cell's centre in the map's frame
+    (``known_cells``)."""
+    from gslam_jax.gps import lattice_rotation, world_file_params
+
+    grid = _grid(0.8)
+    a = 0.3
+    R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    shift = np.array([500.0, -20.0])
+    A, D, B, E, C, F = world_file_params(grid.origin, grid.resolution, grid.shape,
+                                         lattice_rotation(R, grid.heading), shift)
+    only = grid._replace(k=np.zeros(grid.shape), S=np.zeros(grid.shape))
+    only.k[0, -1], only.S[0, -1] = 1.0, 1.0  # the top-left pixel: cell (0, ny - 1)
+    centre = known_cells(only)[0][0]
+    np.testing.assert_allclose([C, F], R @ centre + shift, atol=1e-9)

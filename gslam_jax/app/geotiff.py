@@ -84,10 +84,10 @@ def write_run_geotiff(out: Path, std: ArrayLike, k: ArrayLike,
         note = f"no {GEOTIFF_NAME} (GeoTIFF): rasterio is not installed; {INSTALL_HINT}"
         print(f"note: {note}")
         return {"geotiff": None, "geotiff_note": note}
+    from gslam_jax.gps.raster import lattice_rotation
+
     with np.load(out / "gps_alignment.npz") as al:
         R, shift, site, epsg = (np.asarray(al[f]) for f in ("R", "l", "site_origin", "epsg"))
-    c, s = np.cos(heading), np.sin(heading)
-    R = np.asarray(R, np.float64) @ np.array([[c, -s], [s, c]])
-    write_map_geotiff(out / GEOTIFF_NAME, std, k, map_origin, resolution, R, shift, site,
-                      int(epsg))
+    write_map_geotiff(out / GEOTIFF_NAME, std, k, map_origin, resolution,
+                      lattice_rotation(R, heading), shift, site, int(epsg))
     return {"geotiff": GEOTIFF_NAME}

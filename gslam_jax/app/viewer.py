@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gslam_jax.errors import InputError
-from gslam_jax.gridmap.grid import turn_poses
+from gslam_jax.gridmap.grid import apply_pose, turn_poses
 
 if TYPE_CHECKING:
     from gslam_jax.online import Online, OnlineFrame
@@ -225,14 +225,13 @@ class RunViewer:
             self._at(frame, time_s)
         fmt = rr.components.ImageFormat(width=img.shape[1], height=img.shape[0],
                                         color_model="RGBA", channel_datatype="U8")
-        c, s = np.cos(heading), np.sin(heading)
-        corner = [float(c * origin[0] - s * origin[1]), float(s * origin[0] + c * origin[1])]
+        corner = apply_pose(np.array([0.0, 0.0, heading]), np.asarray(origin)[None])[0]
         turn = {"rotation_axis_angle": rr.RotationAxisAngle(axis=[0.0, 0.0, 1.0],
                                                             radians=float(heading))} \
             if heading else {}
         self.rec.log("world/map", rr.GridMap(
             data=img.tobytes(), format=fmt, cell_size=float(resolution),
-            translation=[*corner, MAP_Z], **turn), static=frame is None)
+            translation=[*map(float, corner), MAP_Z], **turn), static=frame is None)
 
     def chunk(self, report: ChunkReport) -> None:
         """``slam.run_slam``'s ``on_chunk``: the chunk's frames (particles, poses, ESS), then

@@ -13,7 +13,8 @@ from gslam_jax.gps.align import (
 )
 from gslam_jax.gps.log import GpsLog, GpsLogError, read_gps_log, write_gps_log
 from gslam_jax.gps.raster import (
-    map_corners, world_file_params, write_georeferenced_png, write_world_file,
+    lattice_rotation, map_corners, world_file_params, write_georeferenced_png,
+    write_world_file,
 )
 from gslam_jax.gps.utm import (
     WGS84, Ellipsoid, latlon_to_utm, transverse_mercator, utm_epsg, utm_to_latlon, utm_zone,
@@ -24,6 +25,7 @@ __all__ = [
     "online_solve", "transform_points", "transform_poses", "interpolate_path",
     "GpsLog", "GpsLogError", "read_gps_log", "write_gps_log", "latlon_to_utm", "utm_to_latlon",
     "utm_zone", "utm_epsg", "transverse_mercator", "Ellipsoid", "WGS84",
-    "align_to_gps", "readings_in_span", "map_corners", "world_file_params", "write_world_file",
+    "align_to_gps", "readings_in_span", "map_corners", "lattice_rotation", "world_file_params",
+    "write_world_file",
     "write_georeferenced_png",
 ]

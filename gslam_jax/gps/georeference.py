@@ -100,17 +100,14 @@ def write_gps_outputs(out: Path, readings: GpsInput, run, result,
                fmt="%.4f", header=f"time easting northing heading (UTM zone {log.zone}"
                f"{'N' if log.north else 'S'}, EPSG:{log.epsg})")
     shape = result.kmap.shape
-    # the map's lattice axes in the run's frame (``SlamResult.map_heading``)
-    c, s = np.cos(result.map_heading), np.sin(result.map_heading)
-    turn = np.array([[c, -s], [s, c]])
-    corners_slam = np.asarray(gps.map_corners(result.map_origin, result.resolution, shape),
-                              np.float64) @ turn.T
-    corners = np.asarray(gps.transform_points(al, corners_slam), np.float64) + log.origin
+    # the map is read on its lattice's axes (``SlamResult.map_heading`` in the run's frame)
+    R = gps.lattice_rotation(al.R, result.map_heading)
+    corners = (gps.map_corners(result.map_origin, result.resolution, shape) @ R.T
+               + np.asarray(al.l, np.float64) + log.origin)
     if std is None:
         std = np.asarray(cells.expected_std(result.kmap, result.smap))
     gps.write_georeferenced_png(out / "map_utm.png", std, result.map_origin, result.resolution,
-                                np.asarray(al.R, np.float64) @ turn, al.l, log.origin,
-                                cmap="inferno")
+                                R, al.l, log.origin, cmap="inferno")
     np.savez(out / "gps_alignment.npz", R=np.asarray(al.R), l=np.asarray(al.l),
              site_origin=np.asarray(log.origin), zone=log.zone, epsg=log.epsg,
              map_corners_utm=corners)

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 from jax.typing import ArrayLike
 
-__all__ = ["map_corners", "world_file_params", "write_world_file", "write_georeferenced_png"]
+__all__ = ["map_corners", "lattice_rotation", "world_file_params", "write_world_file",
+           "write_georeferenced_png"]
 
 
 def map_corners(map_origin: tuple[float, float], resolution: float,
@@ -21,6 +22,15 @@ def map_corners(map_origin: tuple[float, float], resolution: float,
     x0, y0 = map_origin
     w, h = map_shape[0] * resolution, map_shape[1] * resolution
     return np.array([[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h]], np.float64)
+
+
+def lattice_rotation(R: ArrayLike, heading: float) -> np.ndarray:
+    """The GPS alignment's rotation ``R`` (SLAM frame -> site frame) of a map whose lattice lies
+    at ``heading`` radians in the SLAM frame (``GridMap.heading``): R R(heading), which takes
+    the lattice's axes to the site frame (``map_corners`` and ``world_file_params`` read the
+    map on them)."""
+    c, s = np.cos(heading), np.sin(heading)
+    return np.asarray(R, np.float64) @ np.array([[c, -s], [s, c]])
 
 
 def world_file_params(map_origin: tuple[float, float], resolution: float,

@@ -130,7 +130,7 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
     m, m_inv = t_robot_cam, invert(t_robot_cam)
     start = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=np.float64)
     builder = LocalMapBuilder(params.local_map,
-                              axes_heading=map_axes_heading(params.local_map, start))
+                              axes_heading=map_axes_heading(params.local_map.axes, start))
     pose = planar_transform(start)
     summary = FrontEndSummary(frames=num_frames)
     poses, poses_2d, results, failed, maps, obs_index = [], [], [], [], [], []

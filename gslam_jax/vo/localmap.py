@@ -81,11 +81,13 @@ def localmap_params(config: Config, sensor: str | None = None) -> LocalMapParams
                           axes=config.map.axes)
 
 
-def map_axes_heading(params: LocalMapParams, start_pose: np.ndarray | None) -> float:
-    """The angle of the map's axes in the frame of the VO poses that start at ``start_pose``
-    (None: zeros): 0 for the frame's, the start heading for the robot's (``params.axes``).
-    A "map" lattice is turned onto them (``LocalMapBuilder.axes_heading``)."""
-    if params.axes == "start" and start_pose is not None:
+def map_axes_heading(axes: str, start_pose: np.ndarray | None) -> float:
+    """The angle of the map's axes in the frame of a run that starts at ``start_pose`` (None:
+    zeros), by ``[map] axes`` (``choices.MAP_AXES``): 0 for the frame's ("frame"), the start
+    heading for the robot's ("start"). The filter's map lattice lies on them
+    (``slam.map_heading``), and a "map" local lattice is turned onto them
+    (``LocalMapBuilder.axes_heading``)."""
+    if axes == "start" and start_pose is not None:
         return float(np.asarray(start_pose, np.float64)[2])
     return 0.0
 
@@ -223,7 +225,7 @@ def build_local_maps(vo_poses: np.ndarray, frames: Iterable[np.ndarray],
     The first local map is emitted at frame 0 (the robot starts with an observation of where it
     stands), then every ``travel`` metres; a trailing partial segment is not emitted.
     """
-    builder = LocalMapBuilder(params, axes_heading=map_axes_heading(params, start_pose))
+    builder = LocalMapBuilder(params, axes_heading=map_axes_heading(params.axes, start_pose))
     obs_index, maps = [], []
     it: Iterator[np.ndarray] = iter(frames)
     poses = np.asarray(vo_poses)
