@@ -3,6 +3,7 @@ as A itself (and as B without the map)?
 
     python -m experiments.prior_map --out results/prior_map [--courses ...] [--seeds 0 1]
         [--max-frames N] [--sigma 0.5,0.5,0.1] [--config configs/table1.toml]
+        [--set map.axes=start]
 
 For each course and seed s:
 
@@ -18,7 +19,8 @@ as ``initial_pose``), so A's map frame is the simulator's world frame, exactly a
 B drives the same course, so its true start in that frame is B's ``initial_pose`` (read from
 the Run file, printed in the commands). With ``--config`` every run (A, B's local maps and B's
 runs) uses that config, a Table I config's ``[course.<name>.*]`` tables resolved per course and
-written to OUT/<course>-<seed>/config.toml. Every command is run through ``gslam_jax.app.cli.main``
+written to OUT/<course>-<seed>/config.toml; ``--set`` settings apply to every run the same way
+(``--b-set``: to B's runs only). Every command is run through ``gslam_jax.app.cli.main``
 and written to OUT/commands.txt; the figures come from each run's summary.json (RMS after the
 rigid fit, over every frame).
 """
@@ -69,13 +71,13 @@ def gslam(args: list[str], log: Path) -> dict:
 
 def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
         b_set: tuple[str, ...] = (), located: bool = False,
-        config: Path | None = None) -> dict:
+        config: Path | None = None, overrides: tuple[str, ...] = ()) -> dict:
     """A, B plain, B on A's map (exact start, then spread by ``sigma``) for one course/seed;
     ``b_set``: ``--set KEY=VALUE`` settings of B's runs only. With
     ``located``, also B on A's map with no --start (the start located from B's first metres:
     ``relocalise``), and the located start's error against B's true start in A's frame.
     ``config``: a TOML config of every run, its course tables resolved for ``course`` (None:
-    the defaults)."""
+    the defaults); ``overrides``: ``section.key=value`` settings of every run, over it."""
     from gslam_jax.config import config_to_toml, layered_config
     from gslam_jax.run import load_run
 
@@ -84,11 +86,12 @@ def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
     log = out / "commands.txt"
     frames = [] if max_frames is None else ["--max-frames", str(max_frames)]
     row: dict = {"course": course, "seed": seed, "b_noise_seed": seed + 100,
-                 "b_set": list(b_set), "config": None if config is None else str(config)}
+                 "b_set": list(b_set), "config": None if config is None else str(config),
+                 "set": list(overrides)}
     resolved = None
-    if config is not None:  # this course's config, so that every run reads the same file
+    if config is not None or overrides:  # this course's config: every run reads one file
         resolved = d / "config.toml"
-        resolved.write_text(config_to_toml(layered_config(config, course)))
+        resolved.write_text(config_to_toml(layered_config(config, course, list(overrides))))
     common = [] if resolved is None else ["--config", str(resolved)]
     t0 = time.perf_counter()
     a = gslam(["run", "--course", course, "--seed", str(seed), *frames, *common,
@@ -173,6 +176,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--config", type=Path, default=None,
                     help="TOML config of every run (default: the defaults); a Table I config's "
                          "[course.<name>.*] tables apply per course")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                    help="--set of every run (repeatable, over --config), e.g. map.axes=start")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -185,7 +190,8 @@ def main(argv: list[str] | None = None) -> None:
             if (course, seed) in done:
                 continue
             rows.append(one(course, seed, args.out, args.max_frames, args.sigma,
-                            tuple(args.b_set), args.located, args.config))
+                            tuple(args.b_set), args.located, args.config,
+                            tuple(args.overrides)))
             table.write_text(json.dumps(rows, indent=1))
     rows = [{**r, **agreement(args.out, r)} for r in rows]
     table.write_text(json.dumps(rows, indent=1))

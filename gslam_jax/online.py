@@ -31,10 +31,10 @@ import numpy as np
 from gslam_jax import observations, rbpf, sizing, slam
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
-from gslam_jax.gridmap import GridMap
+from gslam_jax.gridmap import GridMap, turn_poses
 from gslam_jax.rbpf import cells, maps
 from gslam_jax.run import coordinate_limit, integrate_controls
-from gslam_jax.vo.localmap import LocalMapBuilder, localmap_params
+from gslam_jax.vo.localmap import LocalMapBuilder, localmap_params, map_axes_heading
 
 __all__ = ["Online", "OnlineFrame", "OnlineStats", "Particles", "MapEdgeError",
            "DEFAULT_SIZE", "online_step"]
@@ -110,9 +110,13 @@ class Online:
     """Gamma-SLAM one frame at a time (see the module docstring).
 
     config: the run's settings ([filter], [motion], [map], [localmap]).
-    map_extent: ``sizing.MapExtent`` (origin, shape in cells), or a float: the side in metres of
-        the square centred on ``start_pose`` the robot may drive in; None: ``DEFAULT_SIZE``.
-    start_pose: [3] the pose before the first frame (zeros: the robot's own frame).
+    map_extent: ``sizing.MapExtent`` (origin, shape in cells, on the map's axes), or a float:
+        the side in metres of the square centred on ``start_pose`` the robot may drive in;
+        None: ``DEFAULT_SIZE``.
+    start_pose: [3] the pose before the first frame (zeros: the robot's own frame). With
+        ``[map] axes = "start"`` the map lies on the robot's axes there (``heading``, its
+        angle in the frame) and the filter runs on them, as ``gslam run``'s; the poses, paths
+        and particles given back are in the frame, the map (``GridMap.heading``) on its axes.
     seed: the filter's seed (None: [filter] seed); the batch run with that seed draws the same.
     local_size: side L of the local maps pushed (None: from [localmap], ``localmap_params``).
     observed_cells: the cap M on informative cells per local map (0: L*L, no cap).
@@ -127,20 +131,19 @@ class Online:
                  local_size: int | None = None, observed_cells: int = 0,
                  sensor: str | None = None, filter_config: rbpf.FilterConfig | None = None):
         self.config = config
-        if config.map.axes != "frame":
-            raise ConfigError(f"Online: [map] axes = '{config.map.axes}' is for whole runs "
-                              "(gslam run); Online's map lies on the frame's axes: give a "
-                              "start_pose whose heading is 0 for the robot's own")
         self.start = np.zeros(3) if start_pose is None else np.asarray(start_pose, np.float64)
         if self.start.shape != (3,) or not np.isfinite(self.start).all():
             raise ConfigError(f"Online: start_pose must be 3 finite numbers (x, y, theta), "
                               f"got {np.asarray(start_pose).tolist()}")
+        # the map's axes ([map] axes): the filter runs on them, as ``slam.on_map_axes``
+        self.heading = map_axes_heading(config.map.axes, self.start)
+        start_on_axes = turn_poses(self.start, -self.heading)
         self.localmap = localmap_params(config, sensor)
         if filter_config is None:
             L = self.localmap.size if local_size is None else int(local_size)
             if map_extent is None or isinstance(map_extent, (int, float)):
                 size = DEFAULT_SIZE if map_extent is None else float(map_extent)
-                extent = _extent(config, size, self.start, L)
+                extent = _extent(config, size, start_on_axes, L)
             else:
                 extent = sizing.MapExtent(*map_extent)
             filter_config = sizing.extent_filter_config(config, extent, L, observed_cells, sensor)
@@ -162,10 +165,10 @@ class Online:
             config, range_noise=None if self._range_noise is None else self._range_noise.profile)
         self.settings = observations.obs_settings(config)
         self.key = jax.random.key(config.filter.seed if seed is None else seed)
-        self.state = rbpf.init(cfg, jnp.asarray(self.start, jnp.float32))
+        self.state = rbpf.init(cfg, jnp.asarray(start_on_axes, jnp.float32))
         self._growth = maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, available, what)
         self._zero_obs = jnp.zeros((cfg.local_size, cfg.local_size, 2), jnp.float32)
-        self._builder = LocalMapBuilder(self.localmap)
+        self._builder = LocalMapBuilder(self.localmap, axes_heading=self.heading)
         self._vo_pose = self.start.copy()
         self._poses: list[np.ndarray] = []      # per frame [J, 3]
         self._ancestors: list[np.ndarray] = []  # per frame [J]
@@ -174,6 +177,11 @@ class Online:
         self._updated: list[bool] = []
         self.best: list[np.ndarray] = []        # per frame best pose [3]
         self.mean: list[np.ndarray] = []        # per frame mean pose [3]
+
+    def _in_frame(self, poses: np.ndarray) -> np.ndarray:
+        """Poses [..., 3] of the filter (on the map's axes) in the frame (as given when the
+        axes are the frame's)."""
+        return turn_poses(poses, self.heading) if self.heading else poses
 
     def _check_reach(self, cfg: rbpf.FilterConfig) -> None:
         lo = np.asarray(cfg.map_origin, np.float64)
@@ -240,6 +248,7 @@ class Online:
             jnp.bool_(local_map is not None), jnp.float32(lattice_heading), self.settings,
             self.params, self.cfg)
         info, best, mean = jax.device_get((info, best, mean))
+        best, mean = self._in_frame(best), self._in_frame(mean)
         seconds = time.perf_counter() - t0
         self._times.append(stamp)
         self._latency.append(seconds)
@@ -285,21 +294,22 @@ class Online:
     def particles(self) -> Particles:
         """The particles now: poses [J, 3] and normalised weights [J]."""
         pose, log_w = jax.device_get((self.state.pose, self.state.log_w))
-        return Particles(np.asarray(pose, np.float64), np.exp(np.asarray(log_w, np.float64)))
+        return Particles(self._in_frame(np.asarray(pose, np.float64)),
+                         np.exp(np.asarray(log_w, np.float64)))
 
     def map(self) -> GridMap:
         """The highest-weight particle's map now (k, S float64 on the live extent)."""
         k, S = rbpf.particle_map(self.state, self.state.best, self.cfg)
         return GridMap(np.asarray(k, np.float64), np.asarray(S, np.float64),
-                       tuple(self.cfg.map_origin), float(self.cfg.resolution))
+                       tuple(self.cfg.map_origin), float(self.cfg.resolution), self.heading)
 
     def path(self) -> np.ndarray:
         """[T, 3] the best particle's path through its ancestry (``SlamResult.best_path``)."""
         if not self._poses:
             return np.zeros((0, 3))
-        return np.asarray(rbpf.backtrack_path(jnp.asarray(np.stack(self._poses)),
-                                              jnp.asarray(np.stack(self._ancestors)),
-                                              self.state.best), np.float64)
+        return self._in_frame(np.asarray(rbpf.backtrack_path(
+            jnp.asarray(np.stack(self._poses)), jnp.asarray(np.stack(self._ancestors)),
+            self.state.best), np.float64))
 
     def stats(self) -> OnlineStats:
         """Timing so far (``OnlineStats``)."""

@@ -122,13 +122,6 @@ def test_on_the_start_axes_the_result_turns_with_the_frame_and_nothing_else() ->
     assert frame.kmap.shape != start[1].kmap.shape or (frame.kmap != start[1].kmap).any()
 
 
-def test_online_refuses_the_start_axes() -> None:
-    from gslam_jax.online import Online
-
-    with pytest.raises(ConfigError, match="axes"):
-        Online(_config("start"), 20.0)
-
-
 def _local_maps(axes: str, turn: float):
     """Local maps on the map's lattice ("map") of one drive seen in a frame turned by ``turn``
     radians about its start: the same points, the VO poses turned."""

@@ -200,3 +200,39 @@ def test_map_lattice_local_maps_fused_online_reproduce_the_batch_run(frames):
     np.testing.assert_array_equal(np.stack(fused.best), res.best_pose)
     robot = slam.run_slam(run0, CONFIG)
     assert not np.array_equal(res.best_pose, robot.best_pose)  # the lattice changed the run
+
+
+def test_on_the_start_axes_online_reproduces_the_batch_run(frames):
+    """[map] axes = "start" with a turned start pose: Online runs on the robot's start axes
+    as the batch run does (its "map" local lattice binned on them), and gives back its poses,
+    path and particles in the frame and its map on those axes."""
+    run0, points = frames
+    start = np.array([0.4, -0.3, 0.7])
+    config = dataclasses.replace(
+        CONFIG, map=dataclasses.replace(CONFIG.map, axes="start"),
+        localmap=dataclasses.replace(CONFIG.localmap, lattice="map"))
+    obs_index, local_maps, _, headings = build_local_maps(
+        integrate_controls(run0.controls, start), points, localmap_params(config), start)
+    run = run0._replace(obs_index=obs_index, local_maps=local_maps, lattice_headings=headings,
+                        initial_pose=start, ground_truth=None)
+    res = slam.run_slam(run, config)
+    assert res.map_heading == pytest.approx(0.7)
+    cfg = sizing.filter_config(config, slam.on_map_axes(run, res.map_heading))
+    live = Online(config, filter_config=cfg, start_pose=start)
+    assert live.heading == pytest.approx(0.7)
+    for t in range(run.num_frames):
+        live.push_points(run.controls[t], points[t], run.timestamps[t])
+    np.testing.assert_array_equal(np.stack(live.best), res.best_pose)
+    np.testing.assert_array_equal(np.stack(live.mean), res.mean_pose)
+    np.testing.assert_array_equal(live.path(), res.best_path)
+    grid = live.map()
+    np.testing.assert_array_equal(grid.k, res.kmap)
+    assert grid.heading == pytest.approx(res.map_heading)
+    best = live.particles().pose[int(np.argmax(live.particles().weight))]
+    np.testing.assert_allclose(best, res.best_pose[-1], atol=1e-6)
+    # the poses are the frame's: the first lies by the VO's first pose from the start
+    vo = integrate_controls(run.controls, start)
+    assert np.hypot(*(live.best[0][:2] - vo[0][:2])) < 0.05
+    plain = Online(dataclasses.replace(config, map=CONFIG.map), filter_config=cfg,
+                   start_pose=start)
+    assert plain.heading == 0.0
