@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from gslam_jax.config import Config, ConfigError
+from gslam_jax.config import Config
 from gslam_jax.gridmap import (GridMap, add, known_cells, load_map, place, save_map, transform,
                                turn_poses)
 
