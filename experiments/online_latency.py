@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gslam_jax import sizing, slam
+from gslam_jax import slam
 from gslam_jax.config import layered_config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.machine import environment
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> dict:
                           max_frames=args.frames or None)
     # with --batch, the batch run's map extent, so that the two differ only in the filter
     live = (Online(config, start_pose=run.start_pose(),
-                   filter_config=sizing.filter_config(config, run)) if args.batch
+                   filter_config=slam.run_filter_config(run, config)) if args.batch
             else Online(config, args.size, start_pose=run.start_pose()))
     for t in range(run.num_frames):
         m = run.obs_index[t]

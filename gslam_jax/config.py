@@ -114,10 +114,11 @@ class MapSection:
     store: str = "dense"
     tile: int = 32
     pool_tiles: int = 0
-    # The lattice's axes: the run's frame's ("frame") or the robot's at its start pose ("start":
-    # the filter runs on those axes and turns its paths back; the map keeps them, map.npz's
-    # heading). choices.MAP_AXES
-    axes: str = "frame"
+    # The lattice's axes: the robot's at its start pose ("start": the filter runs on those axes
+    # and turns its paths back; the map keeps them, map.npz's heading), so the result does not
+    # depend on the angle of the frame the run is given in; or the frame's ("frame": the
+    # paper's, and the default before; e.g. a map on a GPS frame's axes). choices.MAP_AXES
+    axes: str = "start"
 
 
 @dataclass(frozen=True)

@@ -122,8 +122,8 @@ class Online:
     observed_cells: the cap M on informative cells per local map (0: L*L, no cap).
     sensor: how the pushed local maps are made, one of ``choices.SENSORS`` ("stereo" for a
         stereo rig's dense points), for the automatic ``[filter] ess_target``; None: "points".
-    filter_config: a ready ``rbpf.FilterConfig`` instead of the five above (e.g. a batch run's
-        ``sizing.filter_config``, to reproduce it).
+    filter_config: a ready ``rbpf.FilterConfig`` instead of the five above (e.g. a batch run's,
+        ``slam.run_filter_config``, to reproduce it).
     """
 
     def __init__(self, config: Config, map_extent: sizing.MapExtent | tuple | float | None = None,

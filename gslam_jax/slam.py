@@ -30,7 +30,7 @@ from gslam_jax.vo.localmap import map_axes_heading
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
            "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "map_heading",
-           "on_map_axes", "LatticeWarning", "local_lattice_axes"]
+           "on_map_axes", "run_filter_config", "LatticeWarning", "local_lattice_axes"]
 
 
 class ExtentWarning(UserWarning):
@@ -147,6 +147,12 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
         start=jnp.asarray(run.start_pose(), jnp.float32),
         obs=obs_settings(config))
     return arrays, filter_config(config, run)
+
+
+def run_filter_config(run: Run, config: Config) -> rbpf.FilterConfig:
+    """The static filter config ``run_slam`` runs ``run`` with: sized on the map lattice's axes
+    (``map_heading``), e.g. for ``online.Online(filter_config=...)`` to reproduce the run."""
+    return filter_config(config, on_map_axes(run, map_heading(run, config)))
 
 
 def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.ndarray) -> None:

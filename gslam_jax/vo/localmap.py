@@ -42,8 +42,8 @@ class LocalMapParams:
         against the map's places cells by their centres, two into some map cells and none
         into others, and the result then depends on the map frame's orientation
         (docs/results.md, "The map frame's orientation").
-    axes: the map's axes a "map" lattice lies on (``[map] axes``): the frame's ("frame"), or
-        the robot's at its start pose ("start"; ``map_axes_heading``).
+    axes: the map's axes a "map" lattice lies on (``[map] axes``): the robot's at its start
+        pose ("start"; ``map_axes_heading``), or the frame's ("frame").
     """
 
     resolution: float = 0.16
@@ -53,7 +53,7 @@ class LocalMapParams:
     max_height: float = 2.0
     travel: float = 2.0
     lattice: str = "robot"
-    axes: str = "frame"
+    axes: str = "start"
 
     @property
     def size(self) -> int:
