@@ -101,7 +101,8 @@ def _extent(config: Config, size: float, start: np.ndarray, local_size: int) -> 
     if not (math.isfinite(size) and size >= 0):
         raise ConfigError(f"Online: map_extent must be a size >= 0 metres, got {size}")
     probe = rbpf.FilterConfig(num_particles=1, map_shape=(8, 8), map_origin=(0.0, 0.0),
-                              resolution=config.map.resolution, local_size=local_size)
+                              resolution=config.map.resolution, local_size=local_size,
+                              unknown_cells=config.filter.unknown_cells)
     return sizing.map_extent(start[None], local_size, config.map.resolution, 0.5 * size,
                            probe.window)
 

@@ -123,9 +123,10 @@ def test_the_map_edge_is_refused_naming_the_frame(frames):
     with pytest.raises(MapEdgeError, match=r"frame \d+: the local map reached past the edge "
                                            r"of the live map .* give Online a larger "
                                            r"map_extent"):
-        for t in range(run.num_frames):
+        for t in range(run.num_frames):  # the loop driven at three times its size
             m = run.obs_index[t]
-            live.push(run.controls[t], run.local_maps[m] if m >= 0 else None)
+            live.push(run.controls[t] * [3.0, 3.0, 1.0],
+                      run.local_maps[m] if m >= 0 else None)
 
 
 def test_bad_frames_are_refused_before_the_filter(frames, batch):

@@ -115,7 +115,7 @@ def _small_case(points: int = 3, J: int = 4, seed: int = 0):
     rng = np.random.default_rng(seed)
     cfg = FilterConfig(num_particles=J, map_shape=(64, 64), map_origin=(0.0, 0.0),
                        resolution=0.16, local_size=16, proposal="informed",
-                       proposal_points=points, tempering="fixed")
+                       proposal_points=points, tempering="fixed", unknown_cells="ignore")
     known = rng.uniform(size=(64, 64)) < 0.8
     k = np.where(known, rng.integers(1, 30, (64, 64)), 0).astype(np.float32)
     S = np.where(known, k * rng.uniform(0.001, 0.05, (64, 64)), 0).astype(np.float32)

@@ -60,12 +60,16 @@ def test_maps_larger_than_memory_are_a_config_error_before_allocating(monkeypatc
         slam.run_slam(run, config)
 
 
-def test_map_memory_check_against_a_given_budget():
+@pytest.mark.parametrize("unknown_cells", ["ignore", "sample"])
+def test_map_memory_check_against_a_given_budget(unknown_cells):
     run, _ = make_run(steps=15)
-    cfg = sizing.filter_config(_small_config(), run)
+    config = Config(filter=FilterSection(particles=8, unknown_cells=unknown_cells))
+    cfg = sizing.filter_config(config, run)
     H, W = cfg.map_shape
     need = maps.map_bytes(cfg)
-    assert need == 8 * H * W * 2 * 4  # ignore mode: k and S only
+    # k and S float32; "sample" mode adds two uint32 known-cell bit words per 8 x 8 block
+    bits = (H // 8) * (W // 8) * 2 * 4 if unknown_cells == "sample" else 0
+    assert need == 8 * (H * W * 2 * 4 + bits)
     maps.check_memory(cfg, available=need)
     with pytest.raises(ConfigError, match="the particle maps need"):
         maps.check_memory(cfg, available=need - 1)

@@ -257,7 +257,8 @@ def test_filter_on_shared_store_equals_dense(mode):
 
 
 def _pool_run_and_config():
-    """A 12-frame course and a config whose 30-tile pool (5 particles) runs out on it."""
+    """A 12-frame course and a config whose 30-tile pool (5 particles, eq. 30) runs out on
+    it."""
     import dataclasses
 
     from cached_runs import shared_run
@@ -266,7 +267,7 @@ def _pool_run_and_config():
 
     c = Config()
     config = dataclasses.replace(
-        c, filter=dataclasses.replace(c.filter, particles=5),
+        c, filter=dataclasses.replace(c.filter, particles=5, unknown_cells="ignore"),
         map=dataclasses.replace(c.map, store="shared", tile=16, pool_tiles=30))
     return shared_run(12, seed=2), config
 
@@ -371,7 +372,8 @@ def test_auto_store_is_dense_when_it_fits_and_shared_with_a_notice_otherwise():
     from gslam_jax import rbpf as gf
     from gslam_jax.rbpf import maps
 
-    cfg = gf.FilterConfig(100, (256, 256), (0.0, 0.0), 0.16, 64, store="auto")
+    cfg = gf.FilterConfig(100, (256, 256), (0.0, 0.0), 0.16, 64, store="auto",
+                          unknown_cells="ignore")
     need = maps.map_bytes(cfg._replace(store="dense"))
     assert need == 100 * 256 * 256 * 2 * 4  # k and S, float32
     assert maps.choose_store(cfg, available=need).store == "dense"
