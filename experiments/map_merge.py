@@ -22,9 +22,10 @@ own run's check against itself (``consistency``; ``gslam merge`` refuses it when
 Then A of each course is aligned to B of the next
 course (no overlap), ``--cross`` pairs in all: each should be refused. Every run takes the
 defaults, or ``--config`` (with its tables for each course: ``configs/table1.toml`` gives each
-course its calibrated noise) and ``--set``. B's frame is turned at random, so on the frame's
-axes its map lattice lies at a random angle to the terrain; ``--set map.axes=start`` lays every
-run's on its start axes (on the maze it is what keeps B's maps sound, docs/results.md).
+course its calibrated noise) and ``--set``. B's frame is turned at random; on the robot's start
+axes (the default) every run's map lattice lies on them, while on the frame's (``--set
+map.axes=frame``, which ``configs/table1.toml`` pins) B's lies at a random angle to the
+terrain (on the maze that breaks B's maps, docs/results.md).
 """
 
 from __future__ import annotations

@@ -3,8 +3,9 @@
 A map is the (k, S) statistics of eq. 14 on a regular grid: cell (i, j) covers
 x in [origin_x + i r, origin_x + (i + 1) r) and y likewise with j (axis 0 along x, axis 1
 along y, as in ``gslam run``'s ``map.npz``), in the lattice's own axes. Those are the map
-frame's turned by ``heading`` (0 unless the filter laid its lattice on the robot's start axes,
-``[map] axes = "start"``): a point p of the lattice's axes is R(heading) p in the map's frame.
+frame's turned by ``heading`` (the robot's start heading under ``[map] axes = "start"``, the
+default; 0 on the frame's axes): a point p of the lattice's axes is R(heading) p in the map's
+frame.
 Because eq. 14 is a sum, two maps of the same
 terrain combine by adding their statistics cell by cell once they share a frame and a lattice:
 ``transform`` carries a map into another frame and ``add`` sums maps on a common lattice.
