@@ -30,7 +30,8 @@ from gslam_jax.vo.localmap import map_axes_heading
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
            "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "map_heading",
-           "on_map_axes", "run_filter_config", "LatticeWarning", "local_lattice_axes"]
+           "on_map_axes", "filtered_run", "run_filter_config", "LatticeWarning",
+           "local_lattice_axes"]
 
 
 class ExtentWarning(UserWarning):
@@ -134,7 +135,7 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
     config's or searched settings) and the static filter config for it; the start pose and
     the reference on the map lattice's axes (``map_heading``; the errors against the
     reference do not depend on them)."""
-    run = on_map_axes(run, map_heading(run, config))
+    run = filtered_run(run, config)[2]
     T = run.num_frames
     gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
     arrays = RunArrays(
@@ -149,10 +150,22 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
     return arrays, filter_config(config, run)
 
 
-def run_filter_config(run: Run, config: Config) -> rbpf.FilterConfig:
-    """The static filter config ``run_slam`` runs ``run`` with: sized on the map lattice's axes
-    (``map_heading``), e.g. for ``online.Online(filter_config=...)`` to reproduce the run."""
-    return filter_config(config, on_map_axes(run, map_heading(run, config)))
+def filtered_run(run: Run, config: Config, prior: PriorMap | None = None
+                 ) -> tuple[Run, float, Run]:
+    """``run`` as given (rebased on a ``prior``'s start), the angle of the map lattice's axes
+    in its frame (``map_heading``) and the run on those axes (``on_map_axes``): what
+    ``run_slam`` filters."""
+    if prior is not None:
+        run = rebase(run, prior.start)
+    heading = map_heading(run, config, prior)
+    return run, heading, on_map_axes(run, heading)
+
+
+def run_filter_config(run: Run, config: Config, prior: PriorMap | None = None
+                      ) -> rbpf.FilterConfig:
+    """The static filter config ``run_slam`` runs ``run`` with (sized on the map lattice's
+    axes, ``filtered_run``), e.g. for ``online.Online(filter_config=...)`` to reproduce it."""
+    return filter_config(config, filtered_run(run, config, prior)[2], prior)
 
 
 def _check_weights(info: rbpf.StepInfo, start: int, frames: int, obs_index: np.ndarray) -> None:
@@ -299,12 +312,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     into the run's frame and the map keeps its axes (``SlamResult.map_heading``). A prior's
     start spread is drawn on its lattice's axes.
     """
-    if prior is not None:
-        run = rebase(run, prior.start)
-    given = run
-    heading = map_heading(run, config, prior)
-    _check_local_lattices(run, heading)
-    run = on_map_axes(run, heading)
+    given, heading, run = filtered_run(run, config, prior)
+    _check_local_lattices(given, heading)
     cfg = filter_config(config, run, prior)
     params = filter_params(config, run)
     obs = map_observations(run, config)
