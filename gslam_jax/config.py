@@ -39,12 +39,11 @@ class FilterSection:
     particles: int = 200
     resampler: str = "multinomial"
     resample_ratio: float = 0.5
-    # "sample" (eq. 31): an observed cell unknown to a particle's map is scored against a random
-    # known cell of it, so every particle is scored on the same cells; "ignore" (eq. 30, as the
-    # paper ran the Mars Yard courses) averages over the known ones only, which favours
-    # hypotheses placed off the old map at a revisit (docs/results.md: long loops closed less
-    # often). "ignore" is about 3x faster per update.
-    unknown_cells: str = "sample"
+    # eq. 30 ("ignore"), as the paper ran the Mars Yard courses; "sample" is eq. 31 (an unknown
+    # cell scored against a random known cell), which closes long loops more often but was no
+    # better on the simulator's courses (it broke one of five default maze runs) and is 2-3x
+    # slower per run (docs/results.md, "Unknown cells: eq. 30 against eq. 31").
+    unknown_cells: str = "ignore"
     unknown_samples: int = 1024
     beta_prev: float = 0.05
     beta_new: float = 0.05

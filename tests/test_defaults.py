@@ -63,22 +63,21 @@ def test_local_map_defaults_are_the_config_defaults():
 
 
 def test_paper_config_file_holds_every_default():
-    """configs/paper.toml lists every field, each the built-in default but for the six it says
-    differ: the paper's fixed tempering, best-particle path, independent draws, unknown cells
-    ignored (eq. 30), local maps on the robot's axes and map on the frame's."""
+    """configs/paper.toml lists every field, each the built-in default but for the five it says
+    differ: the paper's fixed tempering, best-particle path, independent draws, local maps
+    on the robot's axes and map on the frame's."""
     path = ROOT / "configs" / "paper.toml"
     paper = load_config(path)
     default = Config()
     assert dataclasses.replace(paper, filter=dataclasses.replace(
         paper.filter, tempering=default.filter.tempering, estimate=default.filter.estimate,
-        proposal_draws=default.filter.proposal_draws,
-        unknown_cells=default.filter.unknown_cells), localmap=default.localmap,
+        proposal_draws=default.filter.proposal_draws), localmap=default.localmap,
         map=default.map) == Config()
     assert dataclasses.replace(paper.localmap, lattice="auto") == default.localmap
     assert dataclasses.replace(paper.map, axes="start") == default.map
     assert (paper.filter.tempering, paper.filter.estimate, paper.filter.proposal_draws,
-            paper.filter.unknown_cells, paper.localmap.lattice, paper.map.axes) == (
-        "fixed", "best", "independent", "ignore", "robot", "frame")
+            paper.localmap.lattice, paper.map.axes) == ("fixed", "best", "independent", "robot",
+                                                        "frame")
     data = tomllib.loads(path.read_text())
     for section in ("filter", "motion", "map", "localmap"):
         assert set(data[section]) == set(dataclasses.asdict(getattr(Config(), section)))
