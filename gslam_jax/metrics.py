@@ -273,8 +273,7 @@ def place_local_map(run: Run, t: int, pose: np.ndarray, lattice: GridMap
     their k and S. The local map's own lattice is turned by its ``Run.lattice_headings``; a
     turned map lattice (``GridMap.heading``) takes the pose on its axes."""
     res = lattice.resolution
-    if lattice.heading:
-        pose = turn_poses(pose, -lattice.heading)
+    pose = turn_poses(pose, -lattice.heading)
     cx, cy = local_cell_centres(run.local_maps.shape[1], res)
     index = int(run.obs_index[t])
     k, S = np.moveaxis(cells.obs_from_stats(run.local_maps[index]), -1, 0)

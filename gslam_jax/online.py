@@ -179,11 +179,6 @@ class Online:
         self.best: list[np.ndarray] = []        # per frame best pose [3]
         self.mean: list[np.ndarray] = []        # per frame mean pose [3]
 
-    def _in_frame(self, poses: np.ndarray) -> np.ndarray:
-        """Poses [..., 3] of the filter (on the map's axes) in the frame (as given when the
-        axes are the frame's)."""
-        return turn_poses(poses, self.heading) if self.heading else poses
-
     def _check_reach(self, cfg: rbpf.FilterConfig) -> None:
         lo = np.asarray(cfg.map_origin, np.float64)
         hi = lo + np.asarray(cfg.map_shape, np.float64) * cfg.resolution
@@ -249,7 +244,7 @@ class Online:
             jnp.bool_(local_map is not None), jnp.float32(lattice_heading), self.settings,
             self.params, self.cfg)
         info, best, mean = jax.device_get((info, best, mean))
-        best, mean = self._in_frame(best), self._in_frame(mean)
+        best, mean = turn_poses(best, self.heading), turn_poses(mean, self.heading)
         seconds = time.perf_counter() - t0
         self._times.append(stamp)
         self._latency.append(seconds)
@@ -295,7 +290,7 @@ class Online:
     def particles(self) -> Particles:
         """The particles now: poses [J, 3] and normalised weights [J]."""
         pose, log_w = jax.device_get((self.state.pose, self.state.log_w))
-        return Particles(self._in_frame(np.asarray(pose, np.float64)),
+        return Particles(turn_poses(np.asarray(pose, np.float64), self.heading),
                          np.exp(np.asarray(log_w, np.float64)))
 
     def map(self) -> GridMap:
@@ -308,9 +303,9 @@ class Online:
         """[T, 3] the best particle's path through its ancestry (``SlamResult.best_path``)."""
         if not self._poses:
             return np.zeros((0, 3))
-        return self._in_frame(np.asarray(rbpf.backtrack_path(
+        return turn_poses(np.asarray(rbpf.backtrack_path(
             jnp.asarray(np.stack(self._poses)), jnp.asarray(np.stack(self._ancestors)),
-            self.state.best), np.float64))
+            self.state.best), np.float64), self.heading)
 
     def stats(self) -> OnlineStats:
         """Timing so far (``OnlineStats``)."""

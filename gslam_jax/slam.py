@@ -380,7 +380,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
                       f"{cfg.map_shape} map; observed cells beyond the edge were skipped "
                       f"(neither weighed nor mapped). Increase [map] margin.", ExtentWarning)
     def back(poses: np.ndarray) -> np.ndarray:  # the run's frame
-        return turn_poses(poses, heading) if heading else poses
+        return turn_poses(poses, heading)
 
     return SlamResult(
         best_path=back(path), smoothed_path=back(smoothed), best_pose=back(best),

@@ -245,7 +245,7 @@ class RunViewer:
         t = np.asarray(run.timestamps, np.float64)
 
         def framed(poses) -> np.ndarray:  # the run's frame (the filter's are on the map's axes)
-            return turn_poses(poses, report.heading) if report.heading else np.asarray(poses)
+            return turn_poses(poses, report.heading)
 
         best, mean = framed(report.best_pose), framed(report.mean_pose)
         self.frames(start, t[start:stop], best, mean, report.info.ess, framed(report.info.pose))

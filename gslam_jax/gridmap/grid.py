@@ -136,7 +136,11 @@ def invert_pose(a: np.ndarray) -> np.ndarray:
 
 def turn_poses(poses: np.ndarray, heading: float) -> np.ndarray:
     """Poses [..., 3] of a frame expressed in that frame turned by ``heading`` about its
-    origin: each pose (0, 0, heading) (+) pose (``compose``), headings wrapped to (-pi, pi]."""
+    origin: each pose (0, 0, heading) (+) pose (``compose``), headings wrapped to (-pi, pi].
+    A heading of 0 gives the poses as they are (unwrapped, their dtype kept), so that a run on
+    the frame's own axes is the same to the bit whichever way it is carried."""
+    if not heading:
+        return np.asarray(poses)
     poses = np.asarray(poses, np.float64)
     c, s = math.cos(heading), math.sin(heading)
     x, y = poses[..., 0], poses[..., 1]
