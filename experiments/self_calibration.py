@@ -58,11 +58,14 @@ def self_fit(run: Run, path: np.ndarray) -> tuple[float, float, float]:
             float(np.clip(fit.alpha_theta, MIN_ALPHA_THETA, ALPHA_THETA_MAX)))
 
 
-def rms(run: Run, config: Config) -> tuple[float, np.ndarray]:
-    """The filter's RMS against the ground truth (after the rigid fit) and its path."""
+def rms(run: Run, config: Config, reference: str = "smoothed") -> tuple[float, np.ndarray]:
+    """The filter's RMS against the ground truth (after the rigid fit) of its reported path,
+    and the path to fit the next alphas to: the reported one, or with ``reference = "best"``
+    the final best particle's path through its ancestry (one path of the posterior, with its
+    own noise, where the smoothed path averages the particles' noise out)."""
     res = slam.run_slam(run, config)
     err = metrics.errors_over_known_frames({"slam": res.path}, run.ground_truth)
-    return err["slam_rms_m"], res.path
+    return err["slam_rms_m"], res.best_path if reference == "best" else res.path
 
 
 def main() -> int:
@@ -77,6 +80,9 @@ def main() -> int:
     ap.add_argument("--noise-scale", type=float, nargs="+", default=[10.0],
                     help="the given noise: the config's alphas times this")
     ap.add_argument("--iterations", type=int, default=2)
+    ap.add_argument("--reference", choices=("smoothed", "best"), default="smoothed",
+                    help="the path the alphas are fitted to: the reported (smoothed) one, or "
+                    "the final best particle's")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args()
     env = environment()
@@ -100,8 +106,9 @@ def main() -> int:
         for scale in args.noise_scale:
             alphas = tuple(a * scale for a in alphas_of(config))
             for it in range(args.iterations + 1):
-                value, path = rms(run, with_alphas(config, alphas))
+                value, path = rms(run, with_alphas(config, alphas), args.reference)
                 row = {"source": name, "noise_scale": scale, "iteration": it,
+                       "reference": args.reference,
                        "alphas": alphas, "slam_rms_m": value, "calibrated_rms_m": calibrated,
                        "ratio": value / calibrated}
                 print(f"  x{scale:g} iteration {it}: alphas {alphas[0]:.4f} {alphas[1]:.4f} "
