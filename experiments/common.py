@@ -15,13 +15,13 @@ import jax
 import numpy as np
 
 from gslam_jax import choices, sizing, slam
-from gslam_jax.config import Config
+from gslam_jax.config import Config, layered_config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.gridmap.grid import turn_poses
-from gslam_jax.run import Run
+from gslam_jax.run import Run, load_run
 from gslam_jax.sim.vonoise import VO_PROFILES
 from gslam_jax.tuning.evaluation import evaluate
-from gslam_jax.vo.localmap import LocalMapParams
+from gslam_jax.vo.localmap import LocalMapParams, localmap_params
 
 ALPHAS = ("alpha_d", "alpha_theta_d", "alpha_theta")
 
@@ -78,6 +78,32 @@ def key_averaged(run: Run, config: Config, names: tuple[str, ...] = ALPHAS
                                  objective) for k in keys], axis=0)
 
     return f
+
+
+def add_case_arguments(ap: argparse.ArgumentParser) -> None:
+    """--runs, --courses, --sim-seeds, --max-frames, --config, --set: the cases of
+    ``cases_from_arguments``."""
+    ap.add_argument("--runs", type=Path, nargs="*", default=[], help="Run files (.npz)")
+    ap.add_argument("--courses", nargs="*", default=[], help="simulated courses")
+    ap.add_argument("--sim-seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--max-frames", type=int, help="cut simulated courses")
+    ap.add_argument("--config", type=Path, help="TOML config (a Table I config's course tables "
+                    "apply to its courses)")
+    ap.add_argument("--set", action="append", default=[])
+
+
+def cases_from_arguments(args: argparse.Namespace) -> list[tuple[str, Run, Config]]:
+    """(name, Run, config) of every Run file and every simulated course and sim seed named by
+    ``add_case_arguments``' options, each with the config layered for it."""
+    cases = [(str(p), load_run(p), layered_config(args.config, None, args.set))
+             for p in args.runs]
+    for course in args.courses:
+        config = layered_config(args.config, course, args.set)
+        for s in args.sim_seeds:
+            run, _ = simulate_run(course, seed=s, params=localmap_params(config),
+                                  max_frames=args.max_frames)
+            cases.append((f"{course}/sim{s}", run, config))
+    return cases
 
 
 def report(figures: dict, out: str | None) -> dict:

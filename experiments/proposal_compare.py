@@ -31,13 +31,11 @@ import time
 from pathlib import Path
 
 from gslam_jax import metrics, slam
-from gslam_jax.config import apply_overrides, layered_config
-from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.config import apply_overrides
 from gslam_jax.machine import environment
-from gslam_jax.run import known_positions, load_run
-from gslam_jax.vo.localmap import localmap_params
+from gslam_jax.run import known_positions
 
-from experiments.common import turned_run
+from experiments.common import add_case_arguments, cases_from_arguments, turned_run
 
 
 def _scaled(config, scale: float):
@@ -73,13 +71,7 @@ def case_row(name, run, config, scale, proposal, seed) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=Path, nargs="*", default=[], help="Run files (.npz)")
-    ap.add_argument("--courses", nargs="*", default=[], help="simulated courses")
-    ap.add_argument("--sim-seeds", type=int, nargs="+", default=[0])
-    ap.add_argument("--max-frames", type=int, help="cut simulated courses")
-    ap.add_argument("--config", type=Path, help="TOML config (a Table I config's course tables "
-                    "apply to its courses)")
-    ap.add_argument("--set", action="append", default=[])
+    add_case_arguments(ap)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3], help="filter seeds")
     ap.add_argument("--noise-scale", type=float, nargs="+", default=[1.0])
     ap.add_argument("--proposals", nargs="+", default=["motion", "informed"])
@@ -90,16 +82,8 @@ def main() -> int:
     env = environment()
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | --set "
           f"{' '.join(args.set) or '(none)'}", flush=True)
-    cases = [(str(p), load_run(p), layered_config(args.config, None, args.set))
-             for p in args.runs]
-    for course in args.courses:
-        config = layered_config(args.config, course, args.set)
-        for s in args.sim_seeds:
-            run, _ = simulate_run(course, seed=s, params=localmap_params(config),
-                                  max_frames=args.max_frames)
-            cases.append((f"{course}/sim{s}", run, config))
     cases = [(name if turn == 0 else f"{name}@{turn:g}deg", turned_run(run, turn), config)
-             for name, run, config in cases for turn in args.frame_turns]
+             for name, run, config in cases_from_arguments(args) for turn in args.frame_turns]
     out = args.json.open("w") if args.json else None
     for name, run, config in cases:
         for scale in args.noise_scale:

@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax import metrics, slam
-from gslam_jax.config import Config, layered_config
-from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.config import Config
 from gslam_jax.machine import environment
-from gslam_jax.run import Run, load_run
+from gslam_jax.run import Run
 from gslam_jax.tuning.motion_fit import ALPHA_THETA_MAX, fit_run
-from gslam_jax.vo.localmap import localmap_params
+
+from experiments.common import add_case_arguments, cases_from_arguments
 
 # a heading-per-turn alpha of exactly 0 would make a turn in place noiseless
 MIN_ALPHA_THETA = 1e-4
@@ -70,13 +70,7 @@ def rms(run: Run, config: Config, reference: str = "smoothed") -> tuple[float, n
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=Path, nargs="*", default=[], help="Run files (.npz)")
-    ap.add_argument("--courses", nargs="*", default=[], help="simulated courses")
-    ap.add_argument("--sim-seeds", type=int, nargs="+", default=[0])
-    ap.add_argument("--max-frames", type=int, help="cut simulated courses")
-    ap.add_argument("--config", type=Path, help="TOML config (a Table I config's course tables "
-                    "apply to its courses)")
-    ap.add_argument("--set", action="append", default=[])
+    add_case_arguments(ap)
     ap.add_argument("--noise-scale", type=float, nargs="+", default=[10.0],
                     help="the given noise: the config's alphas times this")
     ap.add_argument("--iterations", type=int, default=2)
@@ -88,16 +82,8 @@ def main() -> int:
     env = environment()
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | --set "
           f"{' '.join(args.set) or '(none)'}", flush=True)
-    cases = [(str(p), load_run(p), layered_config(args.config, None, args.set))
-             for p in args.runs]
-    for course in args.courses:
-        config = layered_config(args.config, course, args.set)
-        for s in args.sim_seeds:
-            run, _ = simulate_run(course, seed=s, params=localmap_params(config),
-                                  max_frames=args.max_frames)
-            cases.append((f"{course}/sim{s}", run, config))
     out = args.json.open("w") if args.json else None
-    for name, run, config in cases:
+    for name, run, config in cases_from_arguments(args):
         truth_fit = fit_run(run)
         calibrated, _ = rms(run, config)
         print(f"{name}: calibrated alphas {alphas_of(config)} RMS {calibrated:.3f}; fitted to "
