@@ -15,7 +15,7 @@ uncertainty from the fit: the alphas can only shrink towards what the path expla
 Each line: the case, the iteration (0: the given noise), the alphas run with, the RMS after
 the rigid fit against the ground truth (which the iterations never see) and its ratio to the
 calibrated run (the config's own alphas, run once per case first). The alphas fitted to the
-ground truth itself (``fit_run``) are printed per case for reference.
+ground truth itself (``fit_run``), and the RMS with them, are printed per case for reference.
 """
 
 from __future__ import annotations
@@ -84,11 +84,13 @@ def main() -> int:
           f"{' '.join(args.set) or '(none)'}", flush=True)
     out = args.json.open("w") if args.json else None
     for name, run, config in cases_from_arguments(args):
-        truth_fit = fit_run(run)
         calibrated, _ = rms(run, config)
+        truth_alphas = self_fit(run, run.ground_truth)
+        truth_rms, _ = rms(run, with_alphas(config, truth_alphas))
         print(f"{name}: calibrated alphas {alphas_of(config)} RMS {calibrated:.3f}; fitted to "
-              f"the ground truth {truth_fit.alpha_d:.4f} {truth_fit.alpha_theta_d:.4f} "
-              f"{truth_fit.alpha_theta:.4f}", flush=True)
+              f"the ground truth {truth_alphas[0]:.4f} {truth_alphas[1]:.4f} "
+              f"{truth_alphas[2]:.4f} RMS {truth_rms:.3f} ({truth_rms / calibrated:.2f}x)",
+              flush=True)
         for scale in args.noise_scale:
             alphas = tuple(a * scale for a in alphas_of(config))
             for it in range(args.iterations + 1):

@@ -219,7 +219,7 @@ def test_run_reports_the_fit_and_notes_motion_noise_far_off_it(tmp_path, capsys)
     fit = fit_run(load_run(path))
     fitted = [f"motion.alpha_d={fit.alpha_d}", f"motion.alpha_theta_d={fit.alpha_theta_d}",
               f"motion.alpha_theta={fit.alpha_theta}"]
-    for scale, noted in ((1.0, False), (10.0, True)):
+    for scale, noted in ((1.0, False), (20.0, True), (0.1, True)):
         out = tmp_path / f"out{scale}"
         sets = fitted[:1] + [f"motion.alpha_theta_d={fit.alpha_theta_d * scale}",
                              f"motion.alpha_theta={fit.alpha_theta * scale}"]
@@ -229,6 +229,27 @@ def test_run_reports_the_fit_and_notes_motion_noise_far_off_it(tmp_path, capsys)
         assert summary["alpha_d"] == pytest.approx(fit.alpha_d)
         assert summary["configured_over_fitted_heading"] == pytest.approx(scale, rel=1e-6)
         assert ("note: the [motion] noise" in capsys.readouterr().out) == noted
+
+
+@pytest.mark.parametrize("along, heading, sensor, side", [
+    (8.1, 10.7, "stereo", None),       # KITTI's defaults: its best measured
+    (1.0, 1.0, "stereo", "under 3x"),  # the fit itself: no better than VO-only there
+    (16.0, 21.0, "stereo", "over 15x"),
+    (1.0, 1.0, "points", None),        # the simulator: the fit does as well as the calibration
+    (0.2, 1.0, "points", "under 0.33x"),
+    (12.0, 45.0, "points", "over 10x"),
+])
+def test_the_motion_noise_note_follows_the_sensors_measured_range(along, heading, sensor, side):
+    from gslam_jax.app.outputs import motion_noise_note
+
+    fit = {"alpha_d": 0.006, "alpha_theta_d": 0.001, "alpha_theta": 0.0,
+           "configured_over_fitted_along": along, "configured_over_fitted_heading": heading}
+    note = motion_noise_note(fit, sensor)
+    if side is None:
+        assert note is None
+    else:
+        assert f"{along:.2g}x (along-track)" in note and f"lost accuracy {side}" in note
+        assert f"On {sensor} local maps" in note
 
 
 def test_a_vehicle_standing_still_is_refused_naming_how_many_frames_moved():
