@@ -11,9 +11,11 @@ calibrated value (robustness), on Run files and simulated courses.
 Each line: source, noise scale, proposal, particles, filter seed, VO RMS, SLAM RMS, their ratio,
 final drift of both (% of the true distance), the rotation of the rigid fit of each path to the
 ground truth (a path rotated as a whole drifts at its end while its RMS after the fit stays
-small), filter seconds (after compilation). ``--frame-turns`` also runs each case with its map
-frame turned by each angle about the start (``common.turned_run``: the start heading and the
-ground truth turned, the log as it is): the result should not depend on it (docs/results.md,
+small), the length of each path against the true length (a path shortened or stretched as a
+whole: the rigid fit cannot take that out), filter seconds (after compilation).
+``--frame-turns`` also runs each case with its map frame turned by each angle about the start
+(``common.turned_run``: the start heading and the ground truth turned, the log as it is): the
+result should not depend on it (docs/results.md,
 "The map frame's orientation"); the fit turn is then the path's turn against the truth in
 every frame.
 
@@ -59,12 +61,16 @@ def case_row(name, run, config, scale, proposal, seed) -> dict:
     known = known_positions(run.ground_truth)
     turn = {name: math.degrees(metrics.rigid_fit_2d(p[known], run.ground_truth[known]).angle)
             for name, p in paths.items()}
+    true_length = metrics.path_length(run.ground_truth[known])
+    length = {name: 100.0 * (metrics.path_length(p[known]) / true_length - 1.0)
+              for name, p in paths.items()}
     return {"source": name, "noise_scale": scale, "proposal": proposal,
             "particles": cfg.filter.particles, "seed": seed, "vo_rms_m": err["vo_rms_m"],
             "slam_rms_m": err["slam_rms_m"], "ratio": err["slam_rms_m"] / err["vo_rms_m"],
             "vo_drift_pct": drift.get("vo_drift_pct"),
             "slam_drift_pct": drift.get("slam_drift_pct"),
             "vo_fit_turn_deg": turn["vo"], "slam_fit_turn_deg": turn["slam"],
+            "vo_length_pct": length["vo"], "slam_length_pct": length["slam"],
             "filter_seconds": res.seconds, "wall_seconds": wall,
             "resampling_events": int(res.resampled.sum())}
 
@@ -95,7 +101,9 @@ def main() -> int:
                           f"({row['ratio']:.2f}x) drift VO {row['vo_drift_pct']:.2f} % SLAM "
                           f"{row['slam_drift_pct']:.2f} % fit turn VO "
                           f"{row['vo_fit_turn_deg']:+.2f} "
-                          f"SLAM {row['slam_fit_turn_deg']:+.2f} deg  {row['wall_seconds']:.1f} s",
+                          f"SLAM {row['slam_fit_turn_deg']:+.2f} deg length VO "
+                          f"{row['vo_length_pct']:+.2f} % SLAM {row['slam_length_pct']:+.2f} %  "
+                          f"{row['wall_seconds']:.1f} s",
                           flush=True)
                     if out:
                         out.write(json.dumps(row) + "\n")
