@@ -35,7 +35,7 @@ SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --desig
 # ``[filter] estimate``: the trajectory a run reports, the final best particle's ancestral path
 # (the paper), the per-frame weighted posterior mean, or the smoother's mean over every final
 # particle's ancestral path
-ESTIMATES = ("best", "mean", "smoothed")
+ESTIMATES = ("best", "mean", "smoothed", "steps")
 SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] estimate``)
 # ``[localmap] lattice``: each local map binned on the robot's axes (the paper's) or on the
 # map's at its VO pose (``vo.localmap.LocalMapParams``); "auto" resolves by the sensor that

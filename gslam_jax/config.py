@@ -61,7 +61,10 @@ class FilterSection:
     # the reported trajectory (slam.SlamResult.path): "best", the final best particle's path
     # through its ancestry (the paper); "mean", each frame's weighted mean pose (filtering);
     # "smoothed" (default), the final weights' mean over every final particle's ancestral path,
-    # as good as "best" or better on every course and clip in docs/results.md
+    # as good as "best" or better on every course and clip in docs/results.md; "steps", the
+    # path of those paths' mean steps (rbpf.smoothed_step_path), which does not come out
+    # shorter where the particles' headings spread (docs/real-data.md, "What the gain over VO
+    # is made of")
     estimate: str = "smoothed"
     # "motion": each particle's pose drawn from the motion model alone (eq. 24, the paper);
     # "informed": at a local map, drawn from a Gaussian fitted to its map score times its

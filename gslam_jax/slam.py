@@ -258,13 +258,14 @@ class SlamResult(NamedTuple):
     estimate: str = "best"     # [filter] estimate: which trajectory ``path`` is
     compile_frames: int = 0    # frames run in the first chunk, timed with the compilation
     map_heading: float = 0.0   # radians: the map lattice's axes in the run's frame ([map] axes)
+    steps_path: np.ndarray | None = None  # [T, 3] the smoother's mean steps, composed
 
     @property
     def path(self) -> np.ndarray:
-        """[T, 3] the reported trajectory ([filter] estimate): ``best_path``, ``mean_pose`` or
-        ``smoothed_path``."""
+        """[T, 3] the reported trajectory ([filter] estimate): ``best_path``, ``mean_pose``,
+        ``smoothed_path`` or ``steps_path``."""
         return {"best": self.best_path, "mean": self.mean_pose,
-                "smoothed": self.smoothed_path}[self.estimate]
+                "smoothed": self.smoothed_path, "steps": self.steps_path}[self.estimate]
 
     @property
     def grid(self) -> GridMap:
@@ -370,6 +371,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     poses, ancestry = jnp.asarray(infos.pose), jnp.asarray(infos.ancestors)
     path = np.asarray(rbpf.backtrack_path(poses, ancestry, jnp.int32(final_best)))
     smoothed = np.asarray(rbpf.smoothed_mean_path(poses, ancestry, state.log_w))
+    steps = np.asarray(rbpf.smoothed_step_path(poses, ancestry, state.log_w))
     dropped = int(np.sum(infos.dropped_cells))
     if dropped:  # observed_cells(run) sizes M so that this cannot happen
         raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "
@@ -392,4 +394,4 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         compile_seconds=compile_s, compile_frames=min(chunk, T), store=cfg.store,
         map_bytes=maps.map_bytes(cfg),
         map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate,
-        map_heading=heading)
+        map_heading=heading, steps_path=back(steps))

@@ -1,6 +1,6 @@
 """Trajectory estimates from the particles' per-frame poses and resampling ancestry: each
 frame's weighted mean pose, the best particle's path through its ancestry (the paper's
-estimate) and the particle smoother's mean path."""
+estimate), the particle smoother's mean path and the path of its mean steps."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-__all__ = ["weighted_mean_pose", "backtrack_path", "smoothed_mean_path"]
+__all__ = ["weighted_mean_pose", "backtrack_path", "smoothed_mean_path", "smoothed_step_path"]
 
 
 def weighted_mean_pose(w: Array, pose: Array) -> Array:
@@ -48,3 +48,52 @@ def smoothed_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     _, path = lax.scan(back, jnp.exp(log_w - jax.nn.logsumexp(log_w)), (poses, ancestors),
                        reverse=True)
     return path
+
+
+def _step(parent: Array, pose: Array) -> Array:
+    """The step [J, 3] from poses ``parent`` to ``pose`` [J, 3], in the parent's frame."""
+    c, s = jnp.cos(parent[:, 2]), jnp.sin(parent[:, 2])
+    dx, dy = pose[:, 0] - parent[:, 0], pose[:, 1] - parent[:, 1]
+    dth = pose[:, 2] - parent[:, 2]
+    return jnp.stack([c * dx + s * dy, -s * dx + c * dy, jnp.arctan2(jnp.sin(dth), jnp.cos(dth))],
+                     -1)
+
+
+def _compose(pose: Array, step: Array) -> Array:
+    """``pose`` [3] moved by ``step`` [3] given in its frame."""
+    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+    return jnp.stack([pose[0] + c * step[0] - s * step[1], pose[1] + s * step[0] + c * step[1],
+                      pose[2] + step[2]])
+
+
+@jax.jit
+def smoothed_step_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
+    """The path of the particle smoother's mean steps: at each frame the final weights' mean
+    of the step every final particle's ancestral path takes there (in the frame of the step's
+    start), composed from their mean start: [T, J, 3] -> [T, 3].
+
+    ``smoothed_mean_path`` averages positions. Where the particles' headings spread and the
+    weights are nearly flat (stereo's ESS target), their positions lie inside the arc the
+    headings span, so that mean path is shorter than each particle's by about the mean of
+    1 - cos of the spread, a scale error the rigid fit behind the RMS cannot remove
+    (docs/real-data.md, "What the gain over VO is made of"). Mean steps do not shorten: their
+    lengths are the particles' mean step lengths. The heading is the sum of mean turns (not
+    wrapped). One backward pass as ``smoothed_mean_path`` (the weight shares of each frame's
+    slots), then a forward composition."""
+    J = log_w.shape[0]
+
+    def back(w, xs):
+        pose_t, anc_t, prev = xs
+        return jax.ops.segment_sum(w, anc_t, num_segments=J), w @ _step(prev[anc_t], pose_t)
+
+    w_final = jnp.exp(log_w - jax.nn.logsumexp(log_w))
+    w_first, steps = lax.scan(back, w_final, (poses[1:], ancestors[1:], poses[:-1]),
+                              reverse=True)
+    start = weighted_mean_pose(w_first, poses[0])
+
+    def forward(pose, step):
+        nxt = _compose(pose, step)
+        return nxt, nxt
+
+    _, path = lax.scan(forward, start, steps)
+    return jnp.concatenate([start[None], path], axis=0)
