@@ -60,12 +60,13 @@ class FilterSection:
     ess_target: float = 0.0
     # the reported trajectory (slam.SlamResult.path): "best", the final best particle's path
     # through its ancestry (the paper); "mean", each frame's weighted mean pose (filtering);
-    # "smoothed" (default), the final weights' mean over every final particle's ancestral path,
-    # as good as "best" or better on every course and clip in docs/results.md; "steps", the
-    # path of those paths' mean steps (rbpf.smoothed_step_path), which does not come out
-    # shorter where the particles' headings spread (docs/real-data.md, "What the gain over VO
-    # is made of")
-    estimate: str = "smoothed"
+    # "smoothed", the final weights' mean over every final particle's ancestral path (the
+    # default until 2026-12-05); "steps" (default), the path of those paths' mean steps
+    # (rbpf.smoothed_step_path): the same on the simulator's Table I (within 0.3 mm), but where
+    # the particles' headings spread under stereo's flat weights the smoothed path comes out
+    # shorter than any particle's, a scale error that made most of the KITTI clip's gain over
+    # VO-only (docs/real-data.md, "What the gain over VO is made of")
+    estimate: str = "steps"
     # "motion": each particle's pose drawn from the motion model alone (eq. 24, the paper);
     # "informed": at a local map, drawn from a Gaussian fitted to its map score times its
     # motion prior, with the exact importance weight (rbpf/proposal.py)
