@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import observations, rbpf, sizing, slam
+from gslam_jax import choices, observations, rbpf, sizing, slam
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap, turn_poses
@@ -299,13 +299,29 @@ class Online:
         return GridMap(np.asarray(k, np.float64), np.asarray(S, np.float64),
                        tuple(self.cfg.map_origin), float(self.cfg.resolution), self.heading)
 
-    def path(self) -> np.ndarray:
-        """[T, 3] the best particle's path through its ancestry (``SlamResult.best_path``)."""
+    def path(self, estimate: str | None = None) -> np.ndarray:
+        """[T, 3] the trajectory so far as the batch run would report it after this frame:
+        ``estimate`` one of ``choices.ESTIMATES`` (None: the config's ``[filter] estimate``),
+        "best" the best particle's path through its ancestry (``SlamResult.best_path``), "mean"
+        each frame's weighted mean (``Online.mean``), "smoothed" and "steps" the particle
+        smoother's mean path and mean-step path over the ancestry with the weights now."""
+        estimate = self.config.filter.estimate if estimate is None else estimate
+        if estimate not in choices.ESTIMATES:
+            raise ConfigError(f"Online.path: estimate must be one of "
+                              f"{', '.join(choices.ESTIMATES)}, got {estimate!r}")
         if not self._poses:
             return np.zeros((0, 3))
-        return turn_poses(np.asarray(rbpf.backtrack_path(
-            jnp.asarray(np.stack(self._poses)), jnp.asarray(np.stack(self._ancestors)),
-            self.state.best), np.float64), self.heading)
+        if estimate == "mean":
+            return np.stack(self.mean)
+        poses, ancestors = (jnp.asarray(np.stack(self._poses)),
+                            jnp.asarray(np.stack(self._ancestors)))
+        if estimate == "best":
+            path = rbpf.backtrack_path(poses, ancestors, self.state.best)
+        else:
+            smoother = {"smoothed": rbpf.smoothed_mean_path,
+                        "steps": rbpf.smoothed_step_path}[estimate]
+            path = smoother(poses, ancestors, self.state.log_w)
+        return turn_poses(np.asarray(path, np.float64), self.heading)
 
     def stats(self) -> OnlineStats:
         """Timing so far (``OnlineStats``)."""

@@ -41,6 +41,17 @@ def batch(frames):
     return slam.run_slam(run, CONFIG), slam.run_filter_config(run, CONFIG)
 
 
+
+def _check_paths(live: Online, res) -> None:
+    """Online's path by every estimate, and by the config's, is the batch run's."""
+    want = {"best": res.best_path, "mean": res.mean_pose, "smoothed": res.smoothed_path,
+            "steps": res.steps_path}
+    for estimate, path in want.items():
+        np.testing.assert_allclose(live.path(estimate), path, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(live.path(), res.path, rtol=0, atol=1e-9)
+    with pytest.raises(ConfigError, match="estimate must be one of"):
+        live.path("median")
+
 def test_online_reproduces_the_batch_run_with_one_compilation(frames, batch):
     run, points = frames
     res, cfg = batch
@@ -54,7 +65,7 @@ def test_online_reproduces_the_batch_run_with_one_compilation(frames, batch):
         compiled.append(online_step._cache_size())
     assert compiled[-1] == compiled[0]  # every frame after the first reuses its compilation
     np.testing.assert_array_equal(np.stack(live.mean), res.mean_pose)
-    np.testing.assert_array_equal(live.path(), res.best_path)
+    _check_paths(live, res)
     grid = live.map()
     np.testing.assert_array_equal(grid.k, res.kmap)
     np.testing.assert_array_equal(grid.S, res.smap)
@@ -226,7 +237,7 @@ def test_on_the_start_axes_online_reproduces_the_batch_run(frames):
         live.push_points(run.controls[t], points[t], run.timestamps[t])
     np.testing.assert_array_equal(np.stack(live.best), res.best_pose)
     np.testing.assert_array_equal(np.stack(live.mean), res.mean_pose)
-    np.testing.assert_array_equal(live.path(), res.best_path)
+    _check_paths(live, res)
     grid = live.map()
     np.testing.assert_array_equal(grid.k, res.kmap)
     assert grid.heading == pytest.approx(res.map_heading)
