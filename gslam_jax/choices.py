@@ -33,8 +33,8 @@ TUNE_OBJECTIVES = ("loglik", "supervised")  # ``gslam tune --objective``
 SEARCH_OBJECTIVES = ("rms", "loglik")  # ``gslam search --objective``
 SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --design``
 # ``[filter] estimate``: the trajectory a run reports, the final best particle's ancestral path
-# (the paper), the per-frame weighted posterior mean, or the smoother's mean over every final
-# particle's ancestral path
+# (the paper), the per-frame weighted posterior mean, the smoother's mean over every final
+# particle's ancestral path, or the path of those paths' mean steps (``rbpf.paths``)
 ESTIMATES = ("best", "mean", "smoothed", "steps")
 SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] estimate``)
 # ``[localmap] lattice``: each local map binned on the robot's axes (the paper's) or on the

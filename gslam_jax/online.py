@@ -313,14 +313,9 @@ class Online:
             return np.zeros((0, 3))
         if estimate == "mean":
             return np.stack(self.mean)
-        poses, ancestors = (jnp.asarray(np.stack(self._poses)),
-                            jnp.asarray(np.stack(self._ancestors)))
-        if estimate == "best":
-            path = rbpf.backtrack_path(poses, ancestors, self.state.best)
-        else:
-            smoother = {"smoothed": rbpf.smoothed_mean_path,
-                        "steps": rbpf.smoothed_step_path}[estimate]
-            path = smoother(poses, ancestors, self.state.log_w)
+        path = rbpf.ancestry_path(estimate, jnp.asarray(np.stack(self._poses)),
+                                  jnp.asarray(np.stack(self._ancestors)), self.state.log_w,
+                                  self.state.best)
         return turn_poses(np.asarray(path, np.float64), self.heading)
 
     def stats(self) -> OnlineStats:

@@ -23,7 +23,8 @@ from gslam_jax.rbpf.kernel import (Proposal, Resampler, frame_keys, init, motion
                                    predict, resample, run_filter, scan_frames, standard_normals,
                                    step, update, update_noise)
 from gslam_jax.rbpf.maps import particle_map
-from gslam_jax.rbpf.paths import backtrack_path, smoothed_mean_path, smoothed_step_path
+from gslam_jax.rbpf.paths import (ancestry_path, backtrack_path, smoothed_mean_path,
+                                  smoothed_step_path)
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, RunOutput, StepInfo,
                                   UpdateInfo, UpdateNoise)
 
@@ -35,5 +36,5 @@ __all__ = [
     "init", "standard_normals", "motion_noise", "update_noise", "predict", "update", "resample",
     "observe", "step", "scan_frames", "frame_keys", "run_filter",
     # results
-    "backtrack_path", "smoothed_mean_path", "smoothed_step_path", "particle_map",
+    "backtrack_path", "smoothed_mean_path", "smoothed_step_path", "ancestry_path", "particle_map",
 ]

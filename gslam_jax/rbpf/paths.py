@@ -8,7 +8,10 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-__all__ = ["weighted_mean_pose", "backtrack_path", "smoothed_mean_path", "smoothed_step_path"]
+from gslam_jax.rbpf.motion import world_step
+
+__all__ = ["weighted_mean_pose", "backtrack_path", "smoothed_mean_path", "smoothed_step_path",
+           "ancestry_path"]
 
 
 def weighted_mean_pose(w: Array, pose: Array) -> Array:
@@ -59,13 +62,6 @@ def _step(parent: Array, pose: Array) -> Array:
                      -1)
 
 
-def _compose(pose: Array, step: Array) -> Array:
-    """``pose`` [3] moved by ``step`` [3] given in its frame."""
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    return jnp.stack([pose[0] + c * step[0] - s * step[1], pose[1] + s * step[0] + c * step[1],
-                      pose[2] + step[2]])
-
-
 @jax.jit
 def smoothed_step_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     """The path of the particle smoother's mean steps: at each frame the final weights' mean
@@ -92,8 +88,20 @@ def smoothed_step_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     start = weighted_mean_pose(w_first, poses[0])
 
     def forward(pose, step):
-        nxt = _compose(pose, step)
+        nxt = pose + jnp.stack([*world_step(pose, step), step[2]])  # eq. 1 without noise
         return nxt, nxt
 
     _, path = lax.scan(forward, start, steps)
     return jnp.concatenate([start[None], path], axis=0)
+
+
+def ancestry_path(estimate: str, poses: Array, ancestors: Array, log_w: Array,
+                  best: Array) -> Array:
+    """The path [T, 3] by ``estimate`` from the particles' poses [T, J, 3], ancestry [T, J],
+    final log weights [J] and final best slot: "best" (``backtrack_path``), "smoothed"
+    (``smoothed_mean_path``) or "steps" (``smoothed_step_path``). ("mean", the other
+    ``[filter] estimate``, is each frame's weighted mean, kept as the filter runs.)"""
+    if estimate == "best":
+        return backtrack_path(poses, ancestors, best)
+    return {"smoothed": smoothed_mean_path, "steps": smoothed_step_path}[estimate](
+        poses, ancestors, log_w)

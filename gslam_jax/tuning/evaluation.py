@@ -72,11 +72,9 @@ def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask:
     if objective == "loglik":
         value = jnp.sum(out.infos.log_lik)
     else:
-        est = {"mean": lambda: out.mean_pose, "best": lambda: out.best_path,
-               "smoothed": lambda: rbpf.smoothed_mean_path(out.infos.pose, out.infos.ancestors,
-                                                           out.final_state.log_w),
-               "steps": lambda: rbpf.smoothed_step_path(out.infos.pose, out.infos.ancestors,
-                                                        out.final_state.log_w)}[path]()
+        est = {"mean": lambda: out.mean_pose, "best": lambda: out.best_path}.get(
+            path, lambda: rbpf.ancestry_path(path, out.infos.pose, out.infos.ancestors,
+                                             out.final_state.log_w, out.final_state.best))()
         value = rigid_rms(est, reference, mask)
     return jnp.where(jnp.max(out.infos.map_status) > 0, jnp.nan, value)
 
