@@ -1,6 +1,7 @@
 """The alignment's uncertainty counts cells that err together: the delete-one-block jackknife
 of ``gridmap.align`` against a brute force (each block removed from B and the whole alignment
-run again), on a consistent map and on one bent by its own run's drift."""
+run again), on a consistent map and on one bent by its own run's drift; and the mutual check's
+term, against the reverse alignment run on its own and inverted by matrix inversion."""
 
 from __future__ import annotations
 
@@ -96,3 +97,23 @@ def test_jackknife_matches_the_brute_force_and_widens_a_bent_map() -> None:
                                rtol=0.35, atol=0.01)
     across = np.array([-math.sin(truth[2]), math.cos(truth[2]), 0.0])
     assert across @ full.covariance @ across > 9 * across @ plain.covariance @ across
+
+
+def _inverse_by_matrix(pose: np.ndarray) -> np.ndarray:
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    m = np.linalg.inv(np.array([[c, -s, pose[0]], [s, c, pose[1]], [0.0, 0.0, 1.0]]))
+    return np.array([m[0, 2], m[1, 2], math.atan2(m[1, 0], m[0, 0])])
+
+
+def test_mutual_check_adds_half_the_two_searches_disagreement() -> None:
+    a = _strip(np.zeros(3), (4.5, 2.0), noise=1)
+    b = _strip(np.array([0.7, -0.4, 0.3]), (3.0, 1.2), noise=2, bend=0.35)
+    one_way = align_maps(a, b, AlignParams(mutual=False), refuse=False)
+    both = align_maps(a, b, AlignParams(), refuse=False)
+    reverse = align_maps(b, a, AlignParams(mutual=False), refuse=False)
+    d = one_way.pose - _inverse_by_matrix(reverse.pose)
+    d[2] = math.remainder(d[2], 2 * math.pi)
+    assert np.all(np.abs(d) > 1e-4)  # the two searches do disagree here
+    np.testing.assert_allclose(both.pose, one_way.pose)
+    np.testing.assert_allclose(both.covariance - one_way.covariance, 0.5 * np.outer(d, d),
+                               atol=1e-12)
