@@ -33,13 +33,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import tomllib
 import time
 from pathlib import Path
 
 import numpy as np
 
 from gslam_jax import slam
-from gslam_jax.config import Config, config_to_toml, layered_config
+from gslam_jax.config import Config, config_to_toml, layered_config, parse_config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.gps import align_to_gps
 from gslam_jax.gps.georeference import gps_input
@@ -120,7 +121,8 @@ def _cached(cache: Path | None, name: str, config: Config, make) -> dict:
         np.savez(file, config_toml=np.array(toml), **make())
     with np.load(file) as data:
         made_with = str(data["config_toml"]) if "config_toml" in data.files else None
-        if made_with is not None and made_with != toml:
+        # compared as configs, not as text: a setting added since, at its default, is the same
+        if made_with is not None and parse_config(tomllib.loads(made_with), str(file)) != config:
             raise SystemExit(f"{file}: cached with another config; give this config its own "
                              "--cache")
         return {k: data[k] for k in data.files if k != "config_toml"}
