@@ -77,11 +77,6 @@ class FilterSection:
     # "informed": the fit scores every n-th observed cell (as GMapping's lskip skips beams in
     # its scan matching); the weights always use every cell
     proposal_cell_stride: int = 1
-    # "informed": poses drawn per particle from its proposal (the fitted Gaussian; with
-    # proposal_points = 1 the motion prior itself), one kept with probability proportional to
-    # its importance weight, the weight the tries' mean (importance resampling within a
-    # particle: an unbiased estimate of the normaliser, so the filter stays a correct SMC)
-    proposal_tries: int = 1
     # the proposals' standard normals: "independent" per particle (the paper), or "antithetic"
     # pairs (particle j + ceil(J/2) moves by the negated draw of particle j), so that where the
     # weights are flat the particles' mean heading is the VO's; "auto": by the run's sensor,
@@ -254,11 +249,6 @@ class Config:
             (f.proposal_span > 0, "filter", "proposal_span", "must be positive"),
             (f.proposal_stages >= 1, "filter", "proposal_stages", "must be at least 1"),
             (f.proposal_cell_stride >= 1, "filter", "proposal_cell_stride", "must be at least 1"),
-            (f.proposal_tries >= 1, "filter", "proposal_tries", "must be at least 1"),
-            (f.proposal_tries == 1 or f.proposal == "informed", "filter", "proposal_tries",
-             "more than 1 needs proposal = \"informed\" (its prior between local maps)"),
-            (f.proposal_tries == 1 or f.proposal_cell_stride == 1, "filter", "proposal_tries",
-             "more than 1 needs proposal_cell_stride = 1 (the tries' scores are their weights)"),
             (f.proposal_draws in choices.PROPOSAL_DRAWS, "filter", "proposal_draws",
              f"must be one of {', '.join(choices.PROPOSAL_DRAWS)}"),
             (f.range_noise in choices.RANGE_NOISE, "filter", "range_noise",

@@ -116,20 +116,12 @@ def update_noise(key: Array, cfg: FilterConfig) -> UpdateNoise:
     """Uniforms for one update (unknown-cell sampling, then resampling)."""
     k_unknown, k_resample = jax.random.split(key)
     n = cfg.unknown_samples if cfg.unknown_cells == "sample" else 0
-    J, tries = cfg.num_particles, cfg.proposal_tries
-    z = u = None
-    if cfg.proposal == "informed":
-        k_z = jax.random.fold_in(key, 1)
-        z = standard_normals(k_z, (J, 3), cfg.proposal_draws)
-        if tries > 1:  # the first try is the single draw's
-            z = jnp.stack([z] + [standard_normals(jax.random.fold_in(k_z, m), (J, 3),
-                                                  cfg.proposal_draws)
-                                 for m in range(1, tries)], axis=1)
-            u = jax.random.uniform(jax.random.fold_in(key, 3), (J,), jnp.float32)
+    z = (standard_normals(jax.random.fold_in(key, 1), (cfg.num_particles, 3),
+                          cfg.proposal_draws) if cfg.proposal == "informed" else None)
     return UpdateNoise(
-        unknown_u=jax.random.uniform(k_unknown, (J, n), jnp.float32),
-        resample_u=resampling.draw_uniforms(k_resample, J),
-        proposal_z=z, proposal_u=u,
+        unknown_u=jax.random.uniform(k_unknown, (cfg.num_particles, n), jnp.float32),
+        resample_u=resampling.draw_uniforms(k_resample, cfg.num_particles),
+        proposal_z=z,
     )
 
 
@@ -210,20 +202,18 @@ def best_slot(log_w: Array, ancestors: Array) -> Array:
 
 
 def _informed_draw(state: FilterState, obs: Observation, unknown_u: Array, z: Array,
-                   u: Array | None, params: FilterParams, cfg: FilterConfig
-                   ) -> tuple[FilterState, proposal.Draw]:
+                   params: FilterParams, cfg: FilterConfig) -> tuple[FilterState, proposal.Draw]:
     """The "informed" proposal's draw of every particle's pose at this update (``proposal``),
     its prior covariance spent."""
 
     def exponent(log_lam: Array, log_prior: Array) -> Array:
-        # the candidates of every particle as one weighted cloud: w_j N(g_k; 0, I) (a grid's
-        # points; drawn tries: their prior density over their proposal's), normalised
+        # the candidates of every particle as one weighted cloud: w_j N(g_k; 0, I), normalised
         cloud = state.log_w[:, None] + log_prior
         cloud = cloud - jax.nn.logsumexp(cloud)
         return _exponent(cloud.reshape(-1), log_lam.reshape(-1), cfg)
 
     d = proposal.draw(state.maps, state.pose, state.prior_cov, z, exponent, unknown_u, obs,
-                      params, cfg, u)
+                      params, cfg)
     return state._replace(pose=d.pose, prior_cov=jnp.zeros_like(state.prior_cov)), d
 
 
@@ -237,18 +227,16 @@ def _exponent(log_w: Array, log_lam: Array, cfg: FilterConfig) -> Array:
 
 def update(state: FilterState, local_obs: Array, unknown_u: Array, params: FilterParams,
            cfg: FilterConfig, proposal_z: Array | None = None,
-           lattice_heading: Array | float = 0.0, proposal_u: Array | None = None
-           ) -> tuple[FilterState, UpdateInfo]:
+           lattice_heading: Array | float = 0.0) -> tuple[FilterState, UpdateInfo]:
     """Weigh, write, normalise: eq. 26 with eq. 30 / 31 against each particle's map, eq. 14
     into it, the weights multiplied (eq. 27; with ``cfg.tempering == "adaptive"`` the log
     factors are first scaled by ``tempering.adaptive_exponent``) and normalised. No resampling
     (``resample``).
 
     With ``cfg.proposal == "informed"`` each particle's pose is first drawn from its informed
-    proposal (``proposal.draw``, standard normals ``proposal_z`` [J, 3], or [J, tries, 3] and
-    uniforms ``proposal_u`` [J] with ``cfg.proposal_tries`` > 1) and its weight takes the
-    proposal's exact correction; with more than one candidate or try the exponent is the one
-    the proposal chose (from the scores at the prior means, or at the tries).
+    proposal (``proposal.draw``, standard normals ``proposal_z`` [J, 3]) and its weight takes
+    the proposal's exact correction; with more than one candidate the exponent is the one the
+    proposal was fitted with (chosen from the scores at the prior means).
 
     local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred, on a lattice
     turned by ``lattice_heading`` against the robot (``Run.lattice_headings``); unknown_u:
@@ -259,9 +247,9 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     correction = jnp.zeros((J,), state.log_w.dtype)
     fitted_phi = None
     if cfg.proposal == "informed":
-        state, d = _informed_draw(state, obs, unknown_u, proposal_z, proposal_u, params, cfg)
+        state, d = _informed_draw(state, obs, unknown_u, proposal_z, params, cfg)
         correction = d.log_correction
-        fitted_phi = d.phi if cfg.proposal_points > 1 or cfg.proposal_tries > 1 else None
+        fitted_phi = d.phi if cfg.proposal_points > 1 else None
     w = _weigh_and_write(state, obs, unknown_u, params, cfg)
     phi = _exponent(state.log_w, w.log_lam, cfg) if fitted_phi is None else fitted_phi
     unnorm = state.log_w + phi * w.log_lam + correction
@@ -322,7 +310,7 @@ def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fi
             lattice_heading: Array | float = 0.0) -> tuple[FilterState, StepInfo]:
     """``update`` with ``noise.unknown_u``, then ``resampler`` with ``noise.resample_u``."""
     state, upd = update(state, local_obs, noise.unknown_u, params, cfg, noise.proposal_z,
-                        lattice_heading, noise.proposal_u)
+                        lattice_heading)
     state, anc, resampled = resampler(state, noise.resample_u, cfg)
     return state, StepInfo(pose=state.pose, ancestors=anc, best=state.best, log_w=state.log_w,
                            ess=upd.ess, resampled=resampled, updated=jnp.bool_(True),

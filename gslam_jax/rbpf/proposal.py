@@ -54,8 +54,8 @@ from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
 __all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
            "candidate_window", "WINDOW_BYTES", "thin_observation", "score_candidates",
-           "candidate_scorer", "fit_proposal", "draw", "draw_tries", "quadratic_design",
-           "quadratic_hessian", "JITTER"]
+           "candidate_scorer", "fit_proposal", "draw", "quadratic_design", "quadratic_hessian",
+           "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
 # moves the position along-track only (with alpha_cross = 0), so the covariance is singular
@@ -196,39 +196,6 @@ def candidate_scorer(store: maps.Maps, mean: Array, chol: Array, unknown_u: Arra
 
     return score
 
-def draw_tries(score: Score, mu: Array, q_chol: Array, z: Array, u: Array,
-               exponent: Exponent, phi: Array | None) -> tuple[Array, Array, Array]:
-    """Importance resampling within each particle: ``tries`` draws g_m = mu + L z_m [J, tries,
-    3] from the proposal N(mu, L L^T) (whitened coordinates), each with the importance weight of
-    the tempered target, r_m = phi log lambda(g_m) + log N(g_m; 0, I) - log N(g_m; mu, L L^T);
-    one kept with probability proportional to exp(r_m) (inverse CDF at the uniform u [J]).
-    The particle's weight increment is log mean_m exp(r_m), an unbiased estimate of the
-    normaliser of the tempered target, which keeps the filter a correct SMC on the space
-    extended by the tries (random-weight / nested importance sampling: Fearnhead, Papaspiliopoulos
-    and Roberts 2008; Naesseth, Lindsten and Schon 2015). With one try it is the single
-    draw's weight.
-
-    ``phi`` None: chosen here by ``exponent`` from the tries, each weighted by its prior
-    density over its proposal's. Returns the kept g [J, 3], the correction [J] that the
-    update adds to phi log lambda at the kept pose (increment - phi log lambda(g_kept)), and
-    phi."""
-    g = mu[:, None, :] + jnp.einsum("jab,jmb->jma", q_chol, z)
-    log_lam = score(g)
-    log_det = jnp.sum(jnp.log(jnp.abs(jnp.diagonal(q_chol, axis1=-2, axis2=-1))), axis=-1)
-    log_ratio = -0.5 * jnp.sum(g * g, -1) + 0.5 * jnp.sum(z * z, -1) + log_det[:, None]
-    if phi is None:
-        phi = exponent(log_lam, log_ratio).astype(mu.dtype)
-    r = phi * log_lam + log_ratio
-    r = jnp.where(jnp.isfinite(r), r, -jnp.inf)
-    increment = jax.nn.logsumexp(r, axis=1) - math.log(z.shape[1])
-    cdf = jnp.cumsum(jax.nn.softmax(r, axis=1), axis=1)
-    kept = jnp.minimum(jnp.sum(cdf < u[:, None] * cdf[:, -1:], axis=1), z.shape[1] - 1)
-    take = partial(jnp.take_along_axis, indices=kept[:, None], axis=1)
-    lam_kept = take(log_lam)[:, 0]
-    correction = jnp.where(jnp.isfinite(lam_kept), increment - phi * lam_kept, -jnp.inf)
-    return jnp.take_along_axis(g, kept[:, None, None], axis=1)[:, 0], correction, phi
-
-
 Score = Callable[[Array], Array]
 """Candidates g [J, K, 3] (whitened) -> their log importance factors [J, K]."""
 
@@ -326,31 +293,21 @@ class Draw(NamedTuple):
 
 def draw(store: maps.Maps, mean: Array, cov: Array, z: Array,
          exponent: Exponent, unknown_u: Array, obs: Observation,
-         params: FilterParams, cfg: FilterConfig, u: Array | None = None) -> Draw:
+         params: FilterParams, cfg: FilterConfig) -> Draw:
     """Each particle's pose from its informed proposal, given standard-normal draws z [J, 3];
     ``exponent`` chooses the update's tempering exponent from the first grid's scores.
 
     With ``cfg.proposal_points == 1`` no candidate is scored: the proposal is the prior
-    N(m_j, P_j), the correction is exactly 0 and phi is left to the update (NaN here).
-    With ``cfg.proposal_tries`` > 1, z is [J, tries, 3] and u [J] uniforms: ``draw_tries``."""
+    N(m_j, P_j), the correction is exactly 0 and phi is left to the update (NaN here)."""
     chol = _factor(cov)
     J = mean.shape[0]
-    tries = cfg.proposal_tries > 1
-    if cfg.proposal_points == 1 and not tries:
+    if cfg.proposal_points == 1:
         return Draw(mean + jnp.einsum("jab,jb->ja", chol, z), jnp.zeros(J, mean.dtype),
                     jnp.full((), jnp.nan, mean.dtype))
 
     score = candidate_scorer(store, mean, chol, unknown_u, obs, params, cfg)
-    if cfg.proposal_points == 1:
-        mu = jnp.zeros((J, 3), mean.dtype)
-        q_chol = jnp.broadcast_to(jnp.eye(3, dtype=mean.dtype), (J, 3, 3))
-        phi = None
-    else:
-        mu, q_chol, phi = fit_proposal(score, J, cfg.proposal_points, cfg.proposal_span,
-                                       cfg.proposal_stages, exponent)
-    if tries:
-        g, correction, phi = draw_tries(score, mu, q_chol, z, u, exponent, phi)
-        return Draw(mean + jnp.einsum("jab,jb->ja", chol, g), correction, phi)
+    mu, q_chol, phi = fit_proposal(score, J, cfg.proposal_points, cfg.proposal_span,
+                                   cfg.proposal_stages, exponent)
     g = mu + jnp.einsum("jab,jb->ja", q_chol, z)
     eye = jnp.broadcast_to(jnp.eye(3, dtype=mean.dtype), q_chol.shape)
     correction = _log_normal(g, jnp.zeros_like(mu), eye) - _log_normal(g, mu, q_chol)

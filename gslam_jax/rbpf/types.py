@@ -58,7 +58,6 @@ class FilterConfig(NamedTuple):
     proposal_span: float = FilterSection.proposal_span
     proposal_stages: int = FilterSection.proposal_stages
     proposal_cell_stride: int = FilterSection.proposal_cell_stride
-    proposal_tries: int = FilterSection.proposal_tries
     # ``kernel.standard_normals`` ("auto" is resolved before, ``sizing.resolve_proposal_draws``;
     # this default is a sensorless run's)
     proposal_draws: str = choices.AUTO_PROPOSAL_DRAWS["points"]
@@ -141,10 +140,6 @@ class FilterConfig(NamedTuple):
             raise ValueError("proposal_span must be positive and proposal_stages at least 1")
         if self.proposal_cell_stride < 1:
             raise ValueError(f"proposal_cell_stride {self.proposal_cell_stride} must be >= 1")
-        if self.proposal_tries < 1 or (self.proposal_tries > 1 and (
-                self.proposal != "informed" or self.proposal_cell_stride != 1)):
-            raise ValueError(f"proposal_tries {self.proposal_tries}: must be >= 1, and more "
-                             "than 1 needs the informed proposal with proposal_cell_stride 1")
         if self.tile < unknown.BLOCK or self.tile % unknown.BLOCK:
             raise ValueError(f"tile {self.tile} must be a positive multiple of {unknown.BLOCK}")
         if self.pool_tiles < 0:
@@ -189,9 +184,7 @@ class UpdateNoise(NamedTuple):
 
     unknown_u: Array   # [J, unknown_samples] uniforms ([J, 0] in "ignore" mode)
     resample_u: Array  # [J]
-    # standard normals of the "informed" proposal: [J, 3], or [J, tries, 3] with tries > 1
-    proposal_z: Array | None = None
-    proposal_u: Array | None = None  # [J] uniforms choosing among the tries (tries > 1)
+    proposal_z: Array | None = None  # [J, 3] standard normals of the "informed" proposal
 
 
 class Observation(NamedTuple):
