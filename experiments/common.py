@@ -80,6 +80,17 @@ def key_averaged(run: Run, config: Config, names: tuple[str, ...] = ALPHAS
     return f
 
 
+def alphas_of(config: Config) -> tuple[float, float, float]:
+    """``[motion]`` alpha_d, alpha_theta_d, alpha_theta (``ALPHAS``)."""
+    return tuple(getattr(config.motion, k) for k in ALPHAS)
+
+
+def with_alphas(config: Config, alphas: tuple[float, float, float]) -> Config:
+    """``config`` with ``[motion]`` alpha_d, alpha_theta_d, alpha_theta set to ``alphas``."""
+    return dataclasses.replace(config, motion=dataclasses.replace(
+        config.motion, **dict(zip(ALPHAS, alphas))))
+
+
 def add_case_arguments(ap: argparse.ArgumentParser) -> None:
     """--runs, --courses, --sim-seeds, --max-frames, --config, --set: the cases of
     ``cases_from_arguments``."""

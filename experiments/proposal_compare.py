@@ -26,7 +26,6 @@ every frame.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import time
@@ -37,14 +36,12 @@ from gslam_jax.config import apply_overrides
 from gslam_jax.machine import environment
 from gslam_jax.run import known_positions
 
-from experiments.common import add_case_arguments, cases_from_arguments, turned_run
+from experiments.common import (add_case_arguments, alphas_of, cases_from_arguments, turned_run,
+                                with_alphas)
 
 
 def _scaled(config, scale: float):
-    m = config.motion
-    return dataclasses.replace(config, motion=dataclasses.replace(
-        m, alpha_d=m.alpha_d * scale, alpha_theta_d=m.alpha_theta_d * scale,
-        alpha_theta=m.alpha_theta * scale))
+    return with_alphas(config, tuple(a * scale for a in alphas_of(config)))
 
 
 def case_row(name, run, config, scale, proposal, seed) -> dict:

@@ -21,7 +21,6 @@ ground truth itself (``fit_run``), and the RMS with them, are printed per case f
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 
@@ -33,22 +32,10 @@ from gslam_jax.machine import environment
 from gslam_jax.run import Run
 from gslam_jax.tuning.motion_fit import ALPHA_THETA_MAX, fit_run
 
-from experiments.common import add_case_arguments, cases_from_arguments
+from experiments.common import add_case_arguments, alphas_of, cases_from_arguments, with_alphas
 
 # a heading-per-turn alpha of exactly 0 would make a turn in place noiseless
 MIN_ALPHA_THETA = 1e-4
-
-
-def with_alphas(config: Config, alphas: tuple[float, float, float]) -> Config:
-    """``config`` with ``[motion]`` alpha_d, alpha_theta_d, alpha_theta set."""
-    a_d, a_td, a_t = alphas
-    return dataclasses.replace(config, motion=dataclasses.replace(
-        config.motion, alpha_d=a_d, alpha_theta_d=a_td, alpha_theta=a_t))
-
-
-def alphas_of(config: Config) -> tuple[float, float, float]:
-    m = config.motion
-    return m.alpha_d, m.alpha_theta_d, m.alpha_theta
 
 
 def self_fit(run: Run, path: np.ndarray) -> tuple[float, float, float]:
@@ -58,11 +45,12 @@ def self_fit(run: Run, path: np.ndarray) -> tuple[float, float, float]:
             float(np.clip(fit.alpha_theta, MIN_ALPHA_THETA, ALPHA_THETA_MAX)))
 
 
-def rms(run: Run, config: Config, reference: str = "smoothed") -> tuple[float, np.ndarray]:
+def rms(run: Run, config: Config, reference: str = "reported") -> tuple[float, np.ndarray]:
     """The filter's RMS against the ground truth (after the rigid fit) of its reported path,
-    and the path to fit the next alphas to: the reported one, or with ``reference = "best"``
-    the final best particle's path through its ancestry (one path of the posterior, with its
-    own noise, where the smoothed path averages the particles' noise out)."""
+    and the path to fit the next alphas to: the reported one (``[filter] estimate``), or with
+    ``reference = "best"`` the final best particle's path through its ancestry (one path of
+    the posterior, with its own noise, where the smoother's paths average the particles' noise
+    out)."""
     res = slam.run_slam(run, config)
     err = metrics.errors_over_known_frames({"slam": res.path}, run.ground_truth)
     return err["slam_rms_m"], res.best_path if reference == "best" else res.path
@@ -74,9 +62,9 @@ def main() -> int:
     ap.add_argument("--noise-scale", type=float, nargs="+", default=[10.0],
                     help="the given noise: the config's alphas times this")
     ap.add_argument("--iterations", type=int, default=2)
-    ap.add_argument("--reference", choices=("smoothed", "best"), default="smoothed",
-                    help="the path the alphas are fitted to: the reported (smoothed) one, or "
-                    "the final best particle's")
+    ap.add_argument("--reference", choices=("reported", "best"), default="reported",
+                    help="the path the alphas are fitted to: the reported one ([filter] "
+                    "estimate), or the final best particle's")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args()
     env = environment()

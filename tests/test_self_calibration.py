@@ -9,6 +9,7 @@ import pytest
 from synthetic import truth_and_controls
 
 from experiments import self_calibration as S
+from experiments.common import alphas_of, with_alphas
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 from gslam_jax.tuning.motion_fit import fit_run
@@ -43,6 +44,6 @@ def test_the_vos_own_path_explains_its_increments(run):
 
 def test_with_alphas_sets_the_three_and_nothing_else():
     config = Config()
-    got = S.with_alphas(config, (0.1, 0.2, 0.3))
-    assert S.alphas_of(got) == (0.1, 0.2, 0.3)
+    got = with_alphas(config, (0.1, 0.2, 0.3))
+    assert alphas_of(got) == (0.1, 0.2, 0.3)
     assert got.motion.alpha_cross == config.motion.alpha_cross and got.filter == config.filter

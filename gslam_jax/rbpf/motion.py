@@ -22,8 +22,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-__all__ = ["MotionParams", "motion_stds", "world_step", "apply_motion", "sample_motion",
-           "log_density"]
+__all__ = ["MotionParams", "motion_stds", "world_step", "control_between", "apply_motion",
+           "sample_motion", "log_density"]
 
 
 class MotionParams(NamedTuple):
@@ -49,6 +49,17 @@ def world_step(pose: Array, u: Array) -> tuple[Array, Array]:
     heading: (x, y) components."""
     c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
     return c * u[..., 0] - s * u[..., 1], s * u[..., 0] + c * u[..., 1]
+
+
+def control_between(pose: Array, nxt: Array) -> Array:
+    """The control u [..., 3] that takes ``pose`` to ``nxt`` (both [..., 3]) under eq. 1
+    without noise, the inverse of ``world_step``: the translation turned into the frame of
+    ``pose``, and the turn wrapped into (-pi, pi]."""
+    c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
+    dx, dy = nxt[..., 0] - pose[..., 0], nxt[..., 1] - pose[..., 1]
+    dth = nxt[..., 2] - pose[..., 2]
+    return jnp.stack([c * dx + s * dy, -s * dx + c * dy, jnp.arctan2(jnp.sin(dth), jnp.cos(dth))],
+                     -1)
 
 
 def apply_motion(pose: Array, u: Array, eps: Array, params: MotionParams) -> Array:

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from gslam_jax.rbpf.motion import world_step
+from gslam_jax.rbpf.motion import control_between, world_step
 
 __all__ = ["weighted_mean_pose", "backtrack_path", "smoothed_mean_path", "smoothed_step_path",
            "ancestry_path"]
@@ -53,15 +53,6 @@ def smoothed_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     return path
 
 
-def _step(parent: Array, pose: Array) -> Array:
-    """The step [J, 3] from poses ``parent`` to ``pose`` [J, 3], in the parent's frame."""
-    c, s = jnp.cos(parent[:, 2]), jnp.sin(parent[:, 2])
-    dx, dy = pose[:, 0] - parent[:, 0], pose[:, 1] - parent[:, 1]
-    dth = pose[:, 2] - parent[:, 2]
-    return jnp.stack([c * dx + s * dy, -s * dx + c * dy, jnp.arctan2(jnp.sin(dth), jnp.cos(dth))],
-                     -1)
-
-
 @jax.jit
 def smoothed_step_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     """The path of the particle smoother's mean steps: at each frame the final weights' mean
@@ -80,7 +71,8 @@ def smoothed_step_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
 
     def back(w, xs):
         pose_t, anc_t, prev = xs
-        return jax.ops.segment_sum(w, anc_t, num_segments=J), w @ _step(prev[anc_t], pose_t)
+        shares = jax.ops.segment_sum(w, anc_t, num_segments=J)
+        return shares, w @ control_between(prev[anc_t], pose_t)
 
     w_final = jnp.exp(log_w - jax.nn.logsumexp(log_w))
     w_first, steps = lax.scan(back, w_final, (poses[1:], ancestors[1:], poses[:-1]),
@@ -103,5 +95,9 @@ def ancestry_path(estimate: str, poses: Array, ancestors: Array, log_w: Array,
     ``[filter] estimate``, is each frame's weighted mean, kept as the filter runs.)"""
     if estimate == "best":
         return backtrack_path(poses, ancestors, best)
-    return {"smoothed": smoothed_mean_path, "steps": smoothed_step_path}[estimate](
-        poses, ancestors, log_w)
+    if estimate == "smoothed":
+        return smoothed_mean_path(poses, ancestors, log_w)
+    if estimate == "steps":
+        return smoothed_step_path(poses, ancestors, log_w)
+    raise ValueError(f"no ancestry path for the estimate {estimate!r}: one of best, smoothed, "
+                     "steps")
