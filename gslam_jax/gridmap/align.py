@@ -10,15 +10,9 @@ statistics of eq. 14 summed per block, so a coarse cell holds the pooled within-
 its fine cells). The coarsest level scores every heading (steps that move B's farthest cell by
 half a coarse cell) and every whole-cell shift, with B binned once per heading; its best
 distinct peaks are refined level by level on local grids, and at A's own lattice a quadratic
-fitted to the score around the best pose (the Laplace approximation, as the observation-informed
-proposal fits its Gaussian: ``rbpf.proposal``) gives the pose and its covariance. The
-covariance is that of the tempered score: large where the score is flat (a straight road's
-along-track direction); to it is added the delete-one-block jackknife's (the fit repeated with
-each of 8 contiguous stretches of B's map left out), which counts what the curvature cannot:
-neighbouring cells err together, and a map bent by its own run's drift places differently
-stretch by stretch; and, with the mutual check, half the outer product of the forward and the
-reverse search's disagreement (``mutual_covariance``), which counts a score rugged at the scale
-of a cell, whose sharp local peak neither of the others widens.
+fitted to the score around the best pose gives the pose and its covariance, to which the
+delete-one-block jackknife and, with the mutual check, the forward and the reverse search's
+disagreement are added (``gridmap.pose_fit``).
 
 Decisions use a standardised score: z = score / sqrt(sum of the terms' variances under chance).
 An alignment is refused (``AlignmentRefused``, carrying the best and the runner-up) when B
@@ -42,14 +36,12 @@ from gslam_jax.gridmap.grid import GridMap, compose, invert_pose
 from gslam_jax.gridmap.score import (Level, MovingMap, bucket, cell_terms, log_variance_range,
                                      moving_map, prepare, reach, reference_level,
                                      score_pose_batch)
-from gslam_jax.rbpf.proposal import candidate_grid, quadratic_design, quadratic_hessian
+from gslam_jax.gridmap.pose_fit import (FLAT_VARIANCE, PosePrior, block_jackknife, laplace_fit,
+                                        log_prior, map_blocks, mutual_covariance)
+from gslam_jax.rbpf.proposal import candidate_grid
 
 __all__ = ["AlignParams", "PosePrior", "Alignment", "AlignmentRefused", "align_maps",
            "check_alignment", "map_blocks", "mutual_covariance", "FLAT_VARIANCE"]
-
-
-# variance, in squared grid steps, of a direction along which the score does not curve down
-FLAT_VARIANCE = 1e12
 
 
 class AlignParams(NamedTuple):
@@ -92,15 +84,6 @@ class AlignParams(NamedTuple):
     max_cycle_m: float = 0.5
     max_cycle_rad: float = math.radians(2.0)
     jackknife: bool = True
-
-
-class PosePrior(NamedTuple):
-    """A Gaussian prior on B's pose in A's frame (e.g. from both runs' GPS alignments): mean
-    [3], covariance [3, 3]. It restricts the global search to 4 standard deviations and adds
-    its log density to the score."""
-
-    mean: np.ndarray
-    cov: np.ndarray
 
 
 class Alignment(NamedTuple):
@@ -217,14 +200,8 @@ def _coarse_search(a: GridMap, b: GridMap, factor: int, params: AlignParams,
                                          ys[None, None, :]), -1)[..., [1, 2, 0]].reshape(-1, 3)
     flat = scores.reshape(-1)
     if prior is not None:
-        flat = flat + _log_prior(poses, prior)
+        flat = flat + log_prior(poses, prior)
     return _distinct_peaks(poses, flat, params)
-
-
-def _log_prior(poses: np.ndarray, prior: PosePrior) -> np.ndarray:
-    d = poses - prior.mean
-    d[:, 2] = np.remainder(d[:, 2] + math.pi, 2 * math.pi) - math.pi
-    return -0.5 * np.einsum("na,ab,nb->n", d, np.linalg.inv(prior.cov), d)
 
 
 def _distinct(p: np.ndarray, q: np.ndarray, params: AlignParams) -> bool:
@@ -256,101 +233,12 @@ def _refine(moving: MovingMap, lvl: Level, pose: np.ndarray, step: np.ndarray,
         s = np.asarray(score_pose_batch(moving, jnp.asarray(poses, jnp.float32), lvl)[0],
                        np.float64)
         if prior is not None:
-            s = s + _log_prior(poses, prior)
+            s = s + log_prior(poses, prior)
         n = int(np.argmax(s))
         pose, best_score = poses[n], float(s[n])
         if np.all(np.abs(t[n]) < 2):
             break
     return pose, best_score
-
-
-def _laplace(moving: MovingMap, lvl: Level, pose: np.ndarray, step: np.ndarray,
-             prior: PosePrior | None, centre: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """Mode and covariance of the quadratic fitted to the score on a 5 x 5 x 5 grid of
-    ``step`` around ``pose``, in the coordinates (``centre``, by default the centroid of B's
-    cells, placed in A's frame; heading): turning about B's frame origin far from its cells
-    would couple heading and shift into a narrow diagonal ridge that a quadratic on a grid fits
-    badly. The mode stays within the grid; a direction where the fitted score does not curve
-    down gets the variance ``FLAT_VARIANCE`` (in grid steps^2). The covariance is carried back
-    to the pose."""
-    c_b = _centroid(moving) if centre is None else centre
-
-    def to_pose(u: np.ndarray) -> np.ndarray:
-        c, s = np.cos(u[..., 2]), np.sin(u[..., 2])
-        return np.stack([u[..., 0] - (c * c_b[0] - s * c_b[1]),
-                         u[..., 1] - (s * c_b[0] + c * c_b[1]), u[..., 2]], -1)
-
-    c0, s0 = math.cos(pose[2]), math.sin(pose[2])
-    u0 = np.array([pose[0] + c0 * c_b[0] - s0 * c_b[1], pose[1] + s0 * c_b[0] + c0 * c_b[1],
-                   pose[2]])
-    t, _ = candidate_grid(5, 2.0)
-    t = np.asarray(t, np.float64)
-    poses = to_pose(u0 + t * step)
-    s = np.asarray(score_pose_batch(moving, jnp.asarray(poses, jnp.float32), lvl)[0], np.float64)
-    if prior is not None:
-        s = s + _log_prior(poses, prior)
-    coef = np.asarray(quadratic_design(jnp.asarray(t, jnp.float32)), np.float64) @ (s - s.max())
-    b, H = quadratic_hessian(coef[None])
-    b, H = np.asarray(b[0], np.float64), np.asarray(H[0], np.float64)
-    vals, vecs = np.linalg.eigh(-H)
-    curved = vals > 1e-9
-    inv_vals = np.where(curved, 1.0 / np.where(curved, vals, 1.0), FLAT_VARIANCE)
-    mode = np.clip(vecs @ (np.where(curved, inv_vals, 0.0) * (vecs.T @ b)), -2.0, 2.0)
-    cov_u = ((vecs * inv_vals) @ vecs.T) * np.outer(step, step)
-    u = u0 + mode * step
-    c, s_ = math.cos(u[2]), math.sin(u[2])
-    J = np.array([[1.0, 0.0, s_ * c_b[0] + c * c_b[1]],
-                  [0.0, 1.0, -c * c_b[0] + s_ * c_b[1]],
-                  [0.0, 0.0, 1.0]])
-    return to_pose(u), J @ cov_u @ J.T
-
-
-def _centroid(moving: MovingMap) -> np.ndarray:
-    known = np.asarray(moving.k) > 0
-    return np.asarray(moving.centres, np.float64)[known].mean(axis=0)
-
-
-def map_blocks(centres: np.ndarray, along: int = 4, across: int = 2) -> np.ndarray:
-    """Block index [N] of each of ``centres`` [N, 2]: ``along`` slabs of equal count along the
-    cells' principal axis, each cut into ``across`` parts of equal count across it, so every
-    block is one contiguous stretch of the map (of a path's map: a stretch of the drive)."""
-    d = centres - centres.mean(axis=0)
-    _, vecs = np.linalg.eigh(d.T @ d)
-    u, v = d @ vecs[:, 1], d @ vecs[:, 0]  # principal axis first
-    slab = np.minimum((np.argsort(np.argsort(u, kind="stable"), kind="stable") * along)
-                      // len(u), along - 1)
-    block = np.empty(len(u), np.int64)
-    for a in range(along):
-        sel = np.flatnonzero(slab == a)
-        rank = np.argsort(np.argsort(v[sel], kind="stable"), kind="stable")
-        block[sel] = a * across + np.minimum(rank * across // max(len(sel), 1), across - 1)
-    return block
-
-
-def _jackknife(moving: MovingMap, lvl: Level, pose: np.ndarray, step: np.ndarray,
-               prior: PosePrior | None) -> np.ndarray:
-    """Delete-one-block jackknife covariance [3, 3] of the fitted pose over ``map_blocks`` of
-    B's cells: (n - 1) / n sum_i (T_i - T)(T_i - T)^T over the n fits without block i. It
-    measures what the curvature of a score summed over cells as if independent cannot: cells
-    that err together (neighbouring cells of one patch of terrain, a stretch of B's map bent by
-    its own run's drift) move the pose together."""
-    k = np.asarray(moving.k)
-    known = np.flatnonzero(k > 0)
-    block = np.full(len(k), -1)
-    block[known] = map_blocks(np.asarray(moving.centres, np.float64)[known])
-    centre = _centroid(moving)
-    fits = []
-    for i in np.unique(block[known]):
-        keep = jnp.asarray(block != i)
-        held = moving._replace(k=jnp.where(keep, moving.k, 0.0), S=jnp.where(keep, moving.S, 0.0))
-        fits.append(_laplace(held, lvl, pose, step, prior, centre)[0])
-    fits = np.asarray(fits)
-    d = fits - fits.mean(axis=0)
-    d[:, 2] = np.remainder(fits[:, 2] - fits[0, 2] + math.pi, 2 * math.pi) - math.pi
-    d[:, 2] -= d[:, 2].mean()
-    n = len(fits)
-    return (n - 1) / n * d.T @ d
 
 
 def _choose_coarse(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrior | None) -> int:
@@ -441,9 +329,9 @@ def _align_lattices(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrio
     # the fit spans +-2 cells: the score is piecewise constant within a cell, so a narrower
     # grid would fit its steps rather than its shape
     step = np.array([a.resolution, a.resolution, 2 * _heading_step(radius, a.resolution)])
-    best_pose, cov = _laplace(moving, lvl, refined[0][1], step, prior)
+    best_pose, cov = laplace_fit(moving, lvl, refined[0][1], step, prior)
     if params.jackknife:
-        cov = cov + _jackknife(moving, lvl, best_pose, step, prior)
+        cov = cov + block_jackknife(moving, lvl, best_pose, step, prior)
     others = [p for _, p in refined[1:] if _distinct(p, best_pose, params)]
     test = np.vstack([best_pose[None]] + [p[None] for p in others])
     score, var, overlap = (np.asarray(v, np.float64) for v in
@@ -473,21 +361,6 @@ def _align_lattices(a: GridMap, b: GridMap, params: AlignParams, prior: PosePrio
         if refuse:
             check_alignment(result, params)
     return result
-
-
-def mutual_covariance(forward: np.ndarray, reverse: np.ndarray) -> np.ndarray:
-    """The two searches' disagreement as a covariance [3, 3] of B's pose in A's frame:
-    d d^T / 2, where d is the forward pose minus the inverse of the reverse one (A's frame in
-    B's). Scoring B's cells on A's map and A's on B's are two estimates of one pose that weigh
-    the maps' cells differently; if their errors were independent with covariance C, d would
-    have covariance 2 C, so d d^T / 2 is a one-sample estimate of C. It counts what the
-    curvature and the jackknife miss where the score is rugged at the scale of a cell: a
-    quadratic fitted there reads a sharp peak, and every held-out fit stays on the same ridge
-    (the maze trials of docs/results.md, heading std 0.003 deg against 0.13-0.21 deg off)."""
-    back = invert_pose(np.asarray(reverse, np.float64))
-    d = np.asarray(forward, np.float64) - back
-    d[2] = math.remainder(d[2], 2 * math.pi)
-    return 0.5 * np.outer(d, d)
 
 
 def check_alignment(al: Alignment, params: AlignParams = AlignParams()) -> None:
