@@ -10,7 +10,7 @@ from __future__ import annotations
 
 __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJECTIVES",
            "SEARCH_OBJECTIVES", "SEARCH_DESIGNS", "ESTIMATES", "SCORE_PATHS", "PROPOSALS",
-           "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS", "SENSORS",
+           "PROPOSAL_EXPONENTS", "BAD_FRAME_POLICIES", "STEREO_ALGORITHMS", "SENSORS",
            "AUTO_ESS_TARGET", "RANGE_NOISE", "PROPOSAL_DRAWS",
            "AUTO_PROPOSAL_DRAWS", "LOCALMAP_LATTICES", "AUTO_LOCALMAP_LATTICE", "MAP_AXES"]
 
@@ -20,6 +20,11 @@ MAP_STORES = ("dense", "shared", "auto")  # ``[map] store``; "auto" resolves to 
 # ``[filter] proposal``: the motion model alone (eq. 24) or informed by the local map
 # (``rbpf.proposal``)
 PROPOSALS = ("motion", "informed")
+# ``[filter] proposal_exponent``: how the informed proposal's adaptive tempering exponent is
+# chosen: from the spread of the score over the motion prior (what the motion proposal's
+# particles would leave in the weights) or from the spread of each particle's normaliser over
+# its prior (what the informed proposal leaves; ``rbpf.tempering.normaliser_exponent``)
+PROPOSAL_EXPONENTS = ("prior", "normaliser")
 # ``[filter] proposal_draws``: the proposals' standard normals drawn independently per particle,
 # or in antithetic pairs (particle j + ceil(J/2) gets the negated draw of particle j), so that
 # the particles' unweighted mean draw is zero (``rbpf.kernel.standard_normals``);

@@ -77,6 +77,10 @@ class FilterSection:
     # "informed": the fit scores every n-th observed cell (as GMapping's lskip skips beams in
     # its scan matching); the weights always use every cell
     proposal_cell_stride: int = 1
+    # "informed" with adaptive tempering: the exponent keeps the conditional ESS of the scores
+    # spread over the motion prior ("prior") or of each particle's normaliser ("normaliser":
+    # only the spread the proposal leaves in the weights; rbpf/tempering.py)
+    proposal_exponent: str = "prior"
     # the proposals' standard normals: "independent" per particle (the paper), or "antithetic"
     # pairs (particle j + ceil(J/2) moves by the negated draw of particle j), so that where the
     # weights are flat the particles' mean heading is the VO's; "auto": by the run's sensor,
@@ -249,6 +253,9 @@ class Config:
             (f.proposal_span > 0, "filter", "proposal_span", "must be positive"),
             (f.proposal_stages >= 1, "filter", "proposal_stages", "must be at least 1"),
             (f.proposal_cell_stride >= 1, "filter", "proposal_cell_stride", "must be at least 1"),
+            (f.proposal_exponent in choices.PROPOSAL_EXPONENTS, "filter", "proposal_exponent",
+             f"must be one of {', '.join(choices.PROPOSAL_EXPONENTS)} (the score's spread over "
+             "the prior, or each particle's normaliser's)"),
             (f.proposal_draws in choices.PROPOSAL_DRAWS, "filter", "proposal_draws",
              f"must be one of {', '.join(choices.PROPOSAL_DRAWS)}"),
             (f.range_noise in choices.RANGE_NOISE, "filter", "range_noise",

@@ -164,6 +164,7 @@ def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
         store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles,
         proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
         proposal_stages=f.proposal_stages, proposal_cell_stride=f.proposal_cell_stride,
+        proposal_exponent=f.proposal_exponent,
         proposal_draws=resolve_proposal_draws(f.proposal_draws, sensor))
     available, what = map_memory()
     cfg = maps.choose_store(cfg, available, what).validate()

@@ -237,6 +237,36 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     assert float(info.exponent) == 1.0  # fixed tempering: the paper's beta alone
 
 
+@pytest.mark.parametrize("rule", ["prior", "normaliser"])
+def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
+    """Adaptive tempering with the informed proposal: the update's exponent is the rule's on
+    the first grid's brute-force scores (eq. 26): the candidate cloud's conditional ESS over
+    the prior ("prior") or the per-particle normalisers' ("normaliser"), and the normaliser's
+    exponent is the larger (it does not count the spread the proposal absorbs)."""
+    from gslam_jax.rbpf import kernel, tempering
+
+    cfg, state, local, (k, S) = _small_case(points=3, J=6)
+    cfg = cfg._replace(tempering="adaptive", ess_target=0.9, proposal_exponent=rule)
+    z = jax.random.normal(jax.random.key(5), (cfg.num_particles, 3))
+    params = kernel.FilterParams()
+    _, info = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
+    grid, _ = proposal.candidate_grid(3, 2.0)
+    chol = np.asarray(proposal._factor(state.prior_cov))
+    poses = np.asarray(state.pose)[:, None, :] + np.einsum("jab,kb->jka", chol, np.asarray(grid))
+    lam = np.array([[_brute_log_lambda(p.astype(np.float64), np.asarray(local), k, S, cfg,
+                                       float(params.beta_prev)) for p in row] for row in poses])
+    log_prior = np.broadcast_to(-0.5 * np.sum(np.asarray(grid) ** 2, axis=1), lam.shape)
+    lam32, prior32 = jnp.asarray(lam, jnp.float32), jnp.asarray(log_prior, jnp.float32)
+    by_normaliser = float(tempering.normaliser_exponent(state.log_w, lam32, prior32, 0.9))
+    cloud = np.asarray(state.log_w)[:, None] + log_prior
+    cloud = cloud - np.logaddexp.reduce(cloud.ravel())
+    by_prior = float(tempering.adaptive_exponent(jnp.asarray(cloud.ravel(), jnp.float32),
+                                                 lam32.ravel(), 0.9))
+    assert 0.0 < by_prior < by_normaliser
+    want = by_normaliser if rule == "normaliser" else by_prior
+    assert float(info.exponent) == pytest.approx(want, rel=2e-3)
+
+
 @pytest.mark.parametrize("store,prior_std,window_bytes", [
     ("shared", 0.1, None),  # every candidate inside its particle's window
     ("dense", 1.5, None),   # a prior wider than the window: read from the maps instead

@@ -120,3 +120,64 @@ def test_bad_tempering_settings_are_named():
         apply_overrides(Config(), ["filter.ess_target=1.5"])
     with pytest.raises(ValueError, match="tempering"):
         gf.FilterConfig(4, (64, 64), (0.0, 0.0), 0.16, 16, tempering="auto").validate()
+    with pytest.raises(ConfigError, match=r"\[filter\] proposal_exponent"):
+        apply_overrides(Config(), ["filter.proposal_exponent=cloud"])
+    with pytest.raises(ValueError, match="proposal_exponent 'cloud'"):
+        gf.FilterConfig(4, (64, 64), (0.0, 0.0), 0.16, 16, proposal_exponent="cloud").validate()
+
+
+def _normaliser_cess64(log_w, log_lam, log_prior, phi):
+    """Conditional ESS fraction of the grid normalisers log Z_j(phi) in float64 (SciPy)."""
+    from scipy.special import logsumexp
+
+    out = []
+    for p in phi:
+        inc = logsumexp(p * log_lam + log_prior, axis=1) - logsumexp(log_prior, axis=1)
+        w = np.exp(log_w - logsumexp(log_w))
+        x = inc - inc.max()
+        out.append(np.sum(w * np.exp(x)) ** 2 / np.sum(w * np.exp(2 * x)))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("spread,target", [(30.0, 0.5), (5.0, 0.99), (0.01, 0.5)],
+                         ids=["peaked", "stereo target", "benign: phi = 1"])
+def test_normaliser_exponent_matches_a_grid_search(spread, target):
+    """The informed proposal's exponent: the largest phi whose per-particle normalisers keep
+    the conditional ESS at the target, against a float64 grid search with SciPy."""
+    rng = np.random.default_rng(5)
+    J, K = 64, 27
+    g = rng.normal(size=(K, 3))
+    log_prior = np.broadcast_to(-0.5 * np.sum(g * g, axis=1), (J, K))
+    # each particle's score: a common shape around its own offset, plus its own level
+    log_lam = (spread * rng.normal(size=(J, 1)) - spread * np.sum((g[None] - rng.normal(
+        0, 0.5, (J, 1, 3))) ** 2, axis=2))
+    log_w = rng.normal(0, 0.5, J)
+    log_w = log_w - np.logaddexp.reduce(log_w)
+    grid = np.linspace(0.0, 1.0, 20_001)
+    cess = _normaliser_cess64(log_w, log_lam, log_prior, grid)
+    assert np.all(np.diff(cess) <= 1e-9)  # non-increasing here: bisection is valid
+    brute = grid[np.flatnonzero(cess >= target)].max()
+    phi = float(jax.jit(tempering.normaliser_exponent, static_argnums=(3,))(
+        jnp.asarray(log_w, jnp.float32), jnp.asarray(log_lam, jnp.float32),
+        jnp.asarray(log_prior, jnp.float32), target))
+    if brute == 1.0:
+        assert phi == 1.0
+    else:
+        assert brute - 2e-4 <= phi <= brute + grid[1] + 2e-4, (phi, brute)
+    # the spread the proposal leaves is smaller than the score's over the prior: a larger phi
+    cloud = (log_w[:, None] + log_prior - np.logaddexp.reduce(log_prior, axis=1)[:, None])
+    prior_phi = float(tempering.adaptive_exponent(jnp.asarray(cloud.ravel(), jnp.float32),
+                                                  jnp.asarray(log_lam.ravel(), jnp.float32),
+                                                  target))
+    assert phi >= prior_phi
+
+
+def test_normaliser_exponent_ignores_dead_particles():
+    log_lam = np.array([[0.0, -1.0], [-2.0, -3.0], [1e4, -1e4]], np.float32)
+    log_prior = np.zeros((3, 2), np.float32)
+    live = np.array([np.log(0.5), np.log(0.5), -np.inf], np.float32)
+    phi = tempering.normaliser_exponent(jnp.asarray(live), jnp.asarray(log_lam),
+                                        jnp.asarray(log_prior), 0.9)
+    alone = tempering.normaliser_exponent(jnp.asarray(live[:2] + 0.0), jnp.asarray(log_lam[:2]),
+                                          jnp.asarray(log_prior[:2]), 0.9)
+    assert float(phi) == float(alone) and 0.0 < float(phi) < 1.0

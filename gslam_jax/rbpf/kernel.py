@@ -207,6 +207,9 @@ def _informed_draw(state: FilterState, obs: Observation, unknown_u: Array, z: Ar
     its prior covariance spent."""
 
     def exponent(log_lam: Array, log_prior: Array) -> Array:
+        if cfg.tempering == "adaptive" and cfg.proposal_exponent == "normaliser":
+            return tempering.normaliser_exponent(state.log_w, log_lam, log_prior,
+                                                 cfg.ess_target)
         # the candidates of every particle as one weighted cloud: w_j N(g_k; 0, I), normalised
         cloud = state.log_w[:, None] + log_prior
         cloud = cloud - jax.nn.logsumexp(cloud)

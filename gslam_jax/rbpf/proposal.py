@@ -24,11 +24,13 @@ whatever q_j is: the fit only decides how efficient the draw is, never what the 
 With a single candidate (``proposal_points = 1``) q_j is the prior itself and the increment is
 the motion proposal's, phi log lambda_j(x).
 
-The tempering exponent phi is chosen once per update from the first grid's scores (the
-adaptive rule of ``tempering`` applied to the cloud of every particle's candidates weighted by
-their prior density: the spread the motion proposal's particles would have, which the
-particles themselves, all at their prior means, do not show; or 1) and used by both the fit
-and the weights. The candidates
+The tempering exponent phi is chosen once per update from the first grid's scores and used by
+both the fit and the weights: 1 with fixed tempering; with adaptive tempering the rule of
+``tempering`` applied either to the cloud of every particle's candidates weighted by their
+prior density (``proposal_exponent = "prior"``: the spread the motion proposal's particles
+would have, which the particles themselves, all at their prior means, do not show) or to each
+particle's normaliser over its grid (``"normaliser"``: the spread the proposal leaves in the
+weights, ``tempering.normaliser_exponent``). The candidates
 are scored for all particles at once, one candidate after another (``lax.map``), by the update's
 eq. 26 kernel on footprints gathered from one read of each particle's map around its prior mean
 (``candidate_scorer``, once per update for every stage); with ``proposal_cell_stride`` s > 1 on

@@ -58,6 +58,7 @@ class FilterConfig(NamedTuple):
     proposal_span: float = FilterSection.proposal_span
     proposal_stages: int = FilterSection.proposal_stages
     proposal_cell_stride: int = FilterSection.proposal_cell_stride
+    proposal_exponent: str = FilterSection.proposal_exponent  # "prior" or "normaliser"
     # ``kernel.standard_normals`` ("auto" is resolved before, ``sizing.resolve_proposal_draws``;
     # this default is a sensorless run's)
     proposal_draws: str = choices.AUTO_PROPOSAL_DRAWS["points"]
@@ -140,6 +141,9 @@ class FilterConfig(NamedTuple):
             raise ValueError("proposal_span must be positive and proposal_stages at least 1")
         if self.proposal_cell_stride < 1:
             raise ValueError(f"proposal_cell_stride {self.proposal_cell_stride} must be >= 1")
+        if self.proposal_exponent not in choices.PROPOSAL_EXPONENTS:
+            raise ValueError(f"proposal_exponent '{self.proposal_exponent}' unknown; choose one "
+                             f"of {list(choices.PROPOSAL_EXPONENTS)}")
         if self.tile < unknown.BLOCK or self.tile % unknown.BLOCK:
             raise ValueError(f"tile {self.tile} must be a positive multiple of {unknown.BLOCK}")
         if self.pool_tiles < 0:
