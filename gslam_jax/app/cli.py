@@ -255,6 +255,25 @@ def _fit_text(fit: MotionFit, frames: int) -> str:
     return text
 
 
+def _evidence_fit(run, config, args: argparse.Namespace):
+    """``fit-motion --evidence``: the config with its alphas scaled by the evidence ladder's
+    best factor (``tuning.evidence_fit``), and the ladder as text."""
+    from gslam_jax.tuning.evidence_fit import DEFAULT_FACTORS, fit_noise_scale
+
+    factors = args.factors or DEFAULT_FACTORS
+    print(f"log evidence of {len(factors)} noise factors x {len(args.evidence_seeds)} seed(s), "
+          "fixed tempering ...", file=sys.stderr, flush=True)
+    fit = fit_noise_scale(run, config, factors, args.evidence_seeds)
+    rows = "\n".join(f"  x{f:<9g} {e:12.2f}{'  <- best' if f == fit.factor else ''}"
+                     for f, e in zip(fit.factors, fit.log_evidence))
+    text = (f"log evidence (fixed tempering, mean over filter seeds "
+            f"{', '.join(map(str, args.evidence_seeds))}) of the config's alphas times:\n{rows}")
+    if fit.on_edge:
+        text += ("\nnote: the best factor is the ladder's edge: the noise may lie beyond it "
+                 "(extend --factors)")
+    return fit.config(config), text
+
+
 def cmd_fit_motion(args: argparse.Namespace) -> int:
     from gslam_jax.app.outfile import check_output_file, write_text_atomic
     from gslam_jax.config import MotionSection, config_to_toml, section_to_toml
@@ -264,13 +283,21 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
         check_output_file(args.out, "--out")
         if args.out.exists() and not args.overwrite:
             raise ConfigError(f"--out {args.out}: exists (--overwrite replaces it)")
+    if not args.evidence and (args.factors or args.evidence_seeds != [0]):
+        raise ConfigError("--factors and --evidence-seeds go with --evidence")
+    if args.evidence and args.window is not None:
+        raise ConfigError("--window is the fit to the ground truth's; --evidence has none")
     config, run = _config_and_run(args)
-    fit = fit_run(run, args.window)
-    fitted = dataclasses.replace(config, motion=MotionSection(
-        alpha_d=fit.alpha_d, alpha_theta_d=fit.alpha_theta_d, alpha_theta=fit.alpha_theta,
-        alpha_cross=fit.alpha_cross))
+    if args.evidence:
+        fitted, text = _evidence_fit(run, config, args)
+    else:
+        fit = fit_run(run, args.window)
+        fitted = dataclasses.replace(config, motion=MotionSection(
+            alpha_d=fit.alpha_d, alpha_theta_d=fit.alpha_theta_d, alpha_theta=fit.alpha_theta,
+            alpha_cross=fit.alpha_cross))
+        text = _fit_text(fit, run.num_frames)
     print(section_to_toml(fitted, "motion"))
-    print(_fit_text(fit, run.num_frames))
+    print(text)
     if args.out is not None:
         write_text_atomic(args.out, config_to_toml(fitted), "--out")
         print(f"config: {args.out} (the config with the fitted [motion], for --config)")
@@ -382,11 +409,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_tune)
 
     p = sub.add_parser("fit-motion", help="fit the [motion] alphas to the VO errors of a log "
-                       "with ground truth (maximum likelihood of eqs. 2-3)")
+                       "with ground truth (maximum likelihood of eqs. 2-3), or without it to "
+                       "the filter's evidence (--evidence)")
     _add_source_arguments(p)
     p.add_argument("--window", type=_positive_int, help="fit the errors summed over this many "
                    "consecutive frames (default: the frames between two local maps, so that "
                    "correlated VO errors are fitted at the spread the filter's updates see)")
+    p.add_argument("--evidence", action="store_true", help="no ground truth: scale the "
+                   "config's alphas together by the factor with the highest log evidence of "
+                   "the filter (fixed tempering; gslam_jax/tuning/evidence_fit.py)")
+    p.add_argument("--factors", type=_positive_float, nargs="+", help="--evidence: the factors "
+                   "tried (default: 1/64, 1/32, ..., 16)")
+    p.add_argument("--evidence-seeds", type=int, nargs="+", default=[0], metavar="SEED",
+                   help="--evidence: filter seeds the log evidence is averaged over")
     p.add_argument("--out", type=Path, help="write the config with the fitted [motion] here "
                    "(TOML, for --config)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")

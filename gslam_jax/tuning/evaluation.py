@@ -12,7 +12,9 @@ Objectives, computed inside JAX:
   truth (Kabsch in 2-D).
 * ``"loglik"``: the log marginal likelihood estimate, sum over updates of log sum_j w_j lambda_j
   (the log mean weight increment, ``StepInfo.log_lik``). Note: with tempering (beta != 1) this is
-  not a normalised likelihood in the betas; compare it across alphas only.
+  not a normalised likelihood in the betas; compare it across alphas only, and with adaptive
+  tempering not even that (the exponent changes with the alphas; ``evidence_fit`` fixes it).
+  NaN when a particle observed cells beyond the map's edge.
 
 Every set uses the same PRNG key (common random numbers), so differences in the objective
 reflect the parameters, not the draws.
@@ -68,9 +70,13 @@ def rigid_rms(estimate: Array, reference: Array, mask: Array) -> Array:
 def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask: Array,
                     path: str = "mean") -> Array:
     """Scalar objective of one filter run (see the module docstring); NaN when the shared map
-    store ran out of tiles (its maps, and so the run, are then not the filter's)."""
+    store ran out of tiles (its maps, and so the run, are then not the filter's), and for
+    "loglik" when a particle observed cells beyond the map's edge (they are neither weighed
+    nor mapped, so the evidence is not the whole log's: a noise wide enough to carry the
+    particles off the map would otherwise score by what it skips)."""
     if objective == "loglik":
         value = jnp.sum(out.infos.log_lik)
+        value = jnp.where(jnp.sum(out.infos.extent_violations) > 0, jnp.nan, value)
     else:
         est = {"mean": lambda: out.mean_pose, "best": lambda: out.best_path}.get(
             path, lambda: rbpf.ancestry_path(path, out.infos.pose, out.infos.ancestors,

@@ -1,0 +1,89 @@
+"""The motion noise fitted without ground truth: the [motion] alphas (eqs. 2-3) scaled
+together by the factor that maximises the filter's log evidence (type-II maximum likelihood).
+
+The filter's log evidence is the sum over updates of log sum_j w_j lambda_j (``StepInfo.
+log_lik``, the log mean weight increment). With the paper's fixed beta (eqs. 29-31) that is a
+Monte Carlo estimate of the log marginal likelihood of the log under the beta-tempered model,
+and so comparable across motion noise: a prior too narrow puts no particle where the maps
+agree, one too wide spreads the particles thin over poses that do not. With adaptive
+tempering it is not (the exponent changes the target with the noise: a wider prior is
+tempered flatter and scores lower whatever the data say), so the evidence is always taken with
+``tempering = "fixed"`` and the fitted alphas are then used with the config's own tempering.
+
+One factor scales every alpha, so their ratios stay the config's: the fit answers "how wide",
+which the log can tell apart, and leaves "in which direction" to the config (the evidence over
+each alpha on its own is flat on short logs; docs/real-data.md). The factors form a ladder
+(``DEFAULT_FACTORS``: powers of 2 from 1/64 to 16), each run with the same PRNG keys (common
+random numbers), averaged over ``seeds``; every run of a ladder is one compiled batch
+(``tuning.evaluation.evaluate``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable, NamedTuple, Sequence
+
+import jax
+import numpy as np
+
+from gslam_jax import sizing, slam
+from gslam_jax.config import Config
+from gslam_jax.run import Run
+from gslam_jax.tuning.evaluation import evaluate
+from gslam_jax.tuning.space import MOTION_PARAM_NAMES, SearchError
+
+__all__ = ["DEFAULT_FACTORS", "EvidenceFit", "fit_noise_scale"]
+
+DEFAULT_FACTORS = tuple(2.0 ** k for k in range(-6, 5))
+
+
+class EvidenceFit(NamedTuple):
+    """The evidence ladder and its best rung."""
+
+    factors: np.ndarray       # [F] the factors tried, ascending
+    log_evidence: np.ndarray  # [F] the mean log evidence over the seeds (NaN: a failed run)
+    factor: float             # the factor with the highest evidence
+    alphas: dict[str, float]  # the config's [motion] alphas times ``factor``
+    on_edge: bool             # the best factor is the ladder's smallest or largest
+
+    def config(self, config: Config) -> Config:
+        """``config`` with its [motion] alphas replaced by the fitted ones."""
+        return dataclasses.replace(config, motion=dataclasses.replace(config.motion,
+                                                                      **self.alphas))
+
+
+def fit_noise_scale(run: Run, config: Config, factors: Sequence[float] = DEFAULT_FACTORS,
+                    seeds: Sequence[int] = (0,),
+                    progress: Callable[[int, int], None] | None = None) -> EvidenceFit:
+    """The factor of ``factors`` whose alphas (``config``'s times the factor) give ``run`` the
+    highest log evidence under fixed tempering, averaged over the filter ``seeds``.
+
+    A SearchError for a factor that is not positive and finite, no factors or no seeds, all
+    alphas zero (nothing to scale), or a ladder whose every run failed (NaN evidence)."""
+    factors = np.sort(np.asarray(list(factors), np.float64))
+    if factors.size == 0 or not np.all(np.isfinite(factors) & (factors > 0)):
+        raise SearchError(f"factors must be positive and finite, got {factors.tolist()}")
+    if len(seeds) == 0:
+        raise SearchError("seeds: at least one filter seed is needed")
+    base = np.array([getattr(config.motion, n) for n in MOTION_PARAM_NAMES], np.float64)
+    if not np.any(base > 0):
+        raise SearchError("[motion] every alpha is 0: there is no noise to scale")
+    fixed = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
+                                                                   tempering="fixed"))
+    inputs, cfg = slam.run_arrays(run, fixed)
+    params = sizing.filter_params(fixed, run)
+    values = factors[:, None] * base[None, :]
+    total = np.zeros(factors.size)
+    for i, seed in enumerate(seeds):
+        total += evaluate(values, jax.random.key(seed), inputs, params, MOTION_PARAM_NAMES,
+                          cfg, "loglik", batch=factors.size)
+        if progress is not None:
+            progress(i + 1, len(seeds))
+    log_ev = total / len(seeds)
+    if not np.any(np.isfinite(log_ev)):
+        raise SearchError(f"the log evidence was NaN for every factor {factors.tolist()} "
+                          "(with [map] store = \"shared\", raise [map] pool_tiles)")
+    best = int(np.nanargmax(np.where(np.isfinite(log_ev), log_ev, -np.inf)))
+    alphas = {n: float(v) for n, v in zip(MOTION_PARAM_NAMES, values[best])}
+    return EvidenceFit(factors, log_ev, float(factors[best]), alphas,
+                       best in (0, factors.size - 1))
