@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax.machine import environment
-from gslam_jax.tuning.evidence_fit import DEFAULT_FACTORS, fit_noise_scale
+from gslam_jax.tuning.evidence_fit import DEFAULT_FACTORS, DEFAULT_SEEDS, fit_noise_scale
 
 from experiments.common import add_case_arguments, cases_from_arguments
 from experiments.proposal_compare import _scaled, case_row
@@ -35,7 +35,7 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="filter seeds")
     ap.add_argument("--factors", type=float, nargs="+", default=list(DEFAULT_FACTORS),
                     help="the ladder, multiples of the given alphas")
-    ap.add_argument("--evidence-seeds", type=int, nargs="+", default=[0],
+    ap.add_argument("--evidence-seeds", type=int, nargs="+", default=list(DEFAULT_SEEDS),
                     help="filter seeds the evidence is averaged over")
     ap.add_argument("--proposal", default="motion")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
@@ -45,8 +45,14 @@ def main() -> int:
           f"{' '.join(args.set) or '(none)'}", flush=True)
     out = args.json.open("w") if args.json else None
     for name, run, config in cases_from_arguments(args):
-        calibrated = {s: case_row(name, run, config, 1.0, args.proposal, s)["slam_rms_m"]
-                      for s in args.seeds}
+        rows: dict[tuple[float, int], dict] = {}
+
+        def row(scale: float, seed: int) -> dict:
+            if (scale, seed) not in rows:  # each run once (a fit may land on a given scale)
+                rows[scale, seed] = case_row(name, run, config, scale, args.proposal, seed)
+            return rows[scale, seed]
+
+        calibrated = {s: row(1.0, s)["slam_rms_m"] for s in args.seeds}
         for scale in args.noise_scale:
             given = _scaled(config, scale)
             fit = fit_noise_scale(run, given, args.factors, args.evidence_seeds)
@@ -56,8 +62,7 @@ def main() -> int:
                   f"x{total:.3g} of calibrated{' (ladder edge)' if fit.on_edge else ''}",
                   flush=True)
             for s in args.seeds:
-                before = case_row(name, run, config, scale, args.proposal, s)
-                after = case_row(name, run, config, total, args.proposal, s)
+                before, after = row(scale, s), row(total, s)
                 ratio = after["slam_rms_m"] / calibrated[s]
                 print(f"   seed {s}: VO {before['vo_rms_m']:.3f} given {before['slam_rms_m']:.3f}"
                       f" fitted {after['slam_rms_m']:.3f} calibrated {calibrated[s]:.3f} "

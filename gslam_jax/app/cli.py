@@ -258,16 +258,24 @@ def _fit_text(fit: MotionFit, frames: int) -> str:
 def _evidence_fit(run, config, args: argparse.Namespace):
     """``fit-motion --evidence``: the config with its alphas scaled by the evidence ladder's
     best factor (``tuning.evidence_fit``), and the ladder as text."""
-    from gslam_jax.tuning.evidence_fit import DEFAULT_FACTORS, fit_noise_scale
+    from gslam_jax.tuning.evidence_fit import DEFAULT_FACTORS, DEFAULT_SEEDS, fit_noise_scale
 
     factors = args.factors or DEFAULT_FACTORS
-    print(f"log evidence of {len(factors)} noise factors x {len(args.evidence_seeds)} seed(s), "
-          "fixed tempering ...", file=sys.stderr, flush=True)
-    fit = fit_noise_scale(run, config, factors, args.evidence_seeds)
+    seeds = args.evidence_seeds or DEFAULT_SEEDS
+
+    def progress(done: int, total: int) -> None:
+        print(f"  seed {done} of {total} done", file=sys.stderr, flush=True)
+
+    print(f"log evidence of {len(factors)} noise factors x {len(seeds)} filter seed(s), fixed "
+          "tempering ...", file=sys.stderr, flush=True)
+    fit = fit_noise_scale(run, config, factors, seeds, progress)
     rows = "\n".join(f"  x{f:<9g} {e:12.2f}{'  <- best' if f == fit.factor else ''}"
                      for f, e in zip(fit.factors, fit.log_evidence))
     text = (f"log evidence (fixed tempering, mean over filter seeds "
-            f"{', '.join(map(str, args.evidence_seeds))}) of the config's alphas times:\n{rows}")
+            f"{', '.join(map(str, seeds))}) of the config's alphas times:\n{rows}")
+    if not all(math.isfinite(e) for e in fit.log_evidence):
+        text += ("\nnan: with that noise some particle observed cells beyond the map's edge "
+                 "(its evidence would not be the whole log's; [map] margin widens the map)")
     if fit.on_edge:
         text += ("\nnote: the best factor is the ladder's edge: the noise may lie beyond it "
                  "(extend --factors)")
@@ -283,7 +291,7 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
         check_output_file(args.out, "--out")
         if args.out.exists() and not args.overwrite:
             raise ConfigError(f"--out {args.out}: exists (--overwrite replaces it)")
-    if not args.evidence and (args.factors or args.evidence_seeds != [0]):
+    if not args.evidence and (args.factors or args.evidence_seeds):
         raise ConfigError("--factors and --evidence-seeds go with --evidence")
     if args.evidence and args.window is not None:
         raise ConfigError("--window is the fit to the ground truth's; --evidence has none")
@@ -420,8 +428,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "the filter (fixed tempering; gslam_jax/tuning/evidence_fit.py)")
     p.add_argument("--factors", type=_positive_float, nargs="+", help="--evidence: the factors "
                    "tried (default: 1/64, 1/32, ..., 16)")
-    p.add_argument("--evidence-seeds", type=int, nargs="+", default=[0], metavar="SEED",
-                   help="--evidence: filter seeds the log evidence is averaged over")
+    p.add_argument("--evidence-seeds", type=int, nargs="+", metavar="SEED",
+                   help="--evidence: filter seeds the log evidence is averaged over "
+                   "(default 0 1 2)")
     p.add_argument("--out", type=Path, help="write the config with the fitted [motion] here "
                    "(TOML, for --config)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")

@@ -34,7 +34,8 @@ EXAMPLES = {
   gslam tune --params alpha_d,alpha_theta --optimizer sgd --lr 0.01 --steps 20""",
     "fit-motion": """\
   gslam fit-motion --source kitti --path DIR --sequence 00 --out fitted.toml
-  gslam fit-motion log.npz --window 10     # errors summed over windows of 10 frames""",
+  gslam fit-motion log.npz --window 10     # errors summed over windows of 10 frames
+  gslam fit-motion log.npz --evidence --out fitted.toml   # no ground truth needed""",
     "bench": """\
   gslam bench                              # J = 50, 200, 1000 on a 640-cell map
   gslam bench --particles 200 --store dense shared --course mars-yard-a""",
