@@ -168,7 +168,8 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
 
 
 POOL_NOTE = ('with [map] store = "shared", a run whose tile pool ran out scores NaN too: raise '
-             '[map] pool_tiles')
+             '[map] pool_tiles; for loglik, so does a run whose particles observed beyond the '
+             'map\'s edge: widen [map] margin')
 
 
 def finish(space: SearchSpace, values: np.ndarray, f: np.ndarray, objective: str,
