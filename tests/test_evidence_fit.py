@@ -111,3 +111,16 @@ def test_cli_writes_the_fitted_config_without_ground_truth(tmp_path, drifting_ru
     assert main(["fit-motion", str(path), "--factors", "2"]) == 2  # needs --evidence
     assert "--evidence" in capsys.readouterr().err
     assert main(["fit-motion", str(path), "--evidence", "--window", "3"]) == 2
+
+
+def test_cli_notes_that_the_fit_is_not_for_stereo(tmp_path, drifting_run, capsys):
+    from gslam_jax.app.cli import main
+    from gslam_jax.run import save_run
+
+    path = tmp_path / "r.npz"
+    for sensor, noted in (("stereo", True), ("points", False)):
+        save_run(path, drifting_run._replace(sensor=sensor))
+        assert main(["fit-motion", str(path), "--evidence", "--factors", "1", "2",
+                     "--evidence-seeds", "0", "--set", "filter.particles=16",
+                     "--set", "map.margin=3.0"]) == 0
+        assert ("is for the point sensor" in capsys.readouterr().out) == noted
