@@ -205,18 +205,8 @@ def _informed_draw(state: FilterState, obs: Observation, unknown_u: Array, z: Ar
                    params: FilterParams, cfg: FilterConfig) -> tuple[FilterState, proposal.Draw]:
     """The "informed" proposal's draw of every particle's pose at this update (``proposal``),
     its prior covariance spent."""
-
-    def exponent(log_lam: Array, log_prior: Array) -> Array:
-        if cfg.tempering == "adaptive" and cfg.proposal_exponent == "normaliser":
-            return tempering.normaliser_exponent(state.log_w, log_lam, log_prior,
-                                                 cfg.ess_target)
-        # the candidates of every particle as one weighted cloud: w_j N(g_k; 0, I), normalised
-        cloud = state.log_w[:, None] + log_prior
-        cloud = cloud - jax.nn.logsumexp(cloud)
-        return _exponent(cloud.reshape(-1), log_lam.reshape(-1), cfg)
-
-    d = proposal.draw(state.maps, state.pose, state.prior_cov, z, exponent, unknown_u, obs,
-                      params, cfg)
+    d = proposal.draw(state.maps, state.pose, state.prior_cov, z,
+                      proposal.update_exponent(state.log_w, cfg), unknown_u, obs, params, cfg)
     return state._replace(pose=d.pose, prior_cov=jnp.zeros_like(state.prior_cov)), d
 
 

@@ -48,16 +48,16 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from gslam_jax.rbpf import cells, maps
+from gslam_jax.rbpf import cells, maps, tempering
 from gslam_jax.rbpf.footprint import footprint_at, read_borrowed
 from gslam_jax.rbpf.importance import cell_noise, log_lambda
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds, world_step
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
 
-__all__ = ["Draw", "Score", "propagate_mean", "motion_covariance_step", "candidate_grid",
-           "candidate_window", "WINDOW_BYTES", "thin_observation", "score_candidates",
-           "candidate_scorer", "fit_proposal", "draw", "quadratic_design", "quadratic_hessian",
-           "JITTER"]
+__all__ = ["Draw", "Score", "Exponent", "propagate_mean", "motion_covariance_step",
+           "candidate_grid", "candidate_window", "WINDOW_BYTES", "thin_observation",
+           "score_candidates", "candidate_scorer", "update_exponent", "fit_proposal", "draw",
+           "quadratic_design", "quadratic_hessian", "JITTER"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
 # moves the position along-track only (with alpha_cross = 0), so the covariance is singular
@@ -204,6 +204,26 @@ Score = Callable[[Array], Array]
 Exponent = Callable[[Array, Array], Array]
 """(log lambda [J, K], log prior density [J, K]) of the first grid's candidates -> the
 tempering exponent phi []."""
+
+
+def update_exponent(log_w: Array, cfg: FilterConfig) -> Exponent:
+    """The update's rule for the tempering exponent from the first grid's scores, given the
+    normalised log weights ``log_w`` [J] before it: 1 with fixed tempering (the paper's beta);
+    with adaptive tempering ``tempering.adaptive_exponent`` on every particle's candidates as
+    one cloud weighted w_j N(g_k; 0, I) (``proposal_exponent = "prior"``), or
+    ``tempering.normaliser_exponent`` on each particle's normaliser (``"normaliser"``)."""
+
+    def exponent(log_lam: Array, log_prior: Array) -> Array:
+        if cfg.tempering != "adaptive":
+            return jnp.ones((), log_lam.dtype)
+        if cfg.proposal_exponent == "normaliser":
+            return tempering.normaliser_exponent(log_w, log_lam, log_prior, cfg.ess_target)
+        cloud = log_w[:, None] + log_prior
+        cloud = cloud - jax.nn.logsumexp(cloud)
+        return tempering.adaptive_exponent(cloud.reshape(-1), log_lam.reshape(-1),
+                                           cfg.ess_target)
+
+    return exponent
 
 
 def quadratic_design(t: Array) -> Array:
