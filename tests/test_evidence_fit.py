@@ -124,3 +124,29 @@ def test_cli_notes_that_the_fit_is_not_for_stereo(tmp_path, drifting_run, capsys
                      "--evidence-seeds", "0", "--set", "filter.particles=16",
                      "--set", "map.margin=3.0"]) == 0
         assert ("is for the point sensor" in capsys.readouterr().out) == noted
+
+
+def test_the_experiment_runs_the_fitted_noise_it_reports(tmp_path, drifting_run, monkeypatch):
+    """experiments/evidence_noise.py: the fitted scale is the given scale times the ladder's
+    factor, and the fitted run is a plain run at those alphas (the same RMS)."""
+    import json
+    import sys
+
+    from experiments import evidence_noise
+    from experiments.proposal_compare import case_row
+    from gslam_jax.config import apply_overrides
+    from gslam_jax.run import save_run
+
+    path, out = tmp_path / "r.npz", tmp_path / "rows.json"
+    save_run(path, drifting_run)
+    monkeypatch.setattr(sys, "argv", [
+        "evidence_noise", "--runs", str(path), "--noise-scale", "4", "--seeds", "1",
+        "--factors", "0.25", "1", "--evidence-seeds", "0", "--set", "filter.particles=16",
+        "--set", "map.margin=3.0", "--json", str(out)])
+    assert evidence_noise.main() == 0
+    (row,) = [json.loads(line) for line in out.read_text().splitlines()]
+    assert row["fitted_scale"] == pytest.approx(4 * row["factor"])
+    assert row["factor"] in (0.25, 1.0)
+    config = apply_overrides(Config(), ["filter.particles=16", "map.margin=3.0"])
+    want = case_row(str(path), drifting_run, config, row["fitted_scale"], "motion", 1)
+    assert row["fitted_rms_m"] == pytest.approx(want["slam_rms_m"], rel=1e-6)
