@@ -18,6 +18,7 @@ from gslam_jax import choices, sizing, slam
 from gslam_jax.config import Config, layered_config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.gridmap.grid import turn_poses
+from gslam_jax.machine import environment
 from gslam_jax.run import Run, load_run
 from gslam_jax.sim.vonoise import VO_PROFILES
 from gslam_jax.tuning.evaluation import evaluate
@@ -101,6 +102,14 @@ def add_case_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--config", type=Path, help="TOML config (a Table I config's course tables "
                     "apply to its courses)")
     ap.add_argument("--set", action="append", default=[])
+
+
+def print_header(overrides: list[str]) -> None:
+    """The first line of an experiment's output: date, CPUs, JAX version and the --set
+    overrides, so that a figure can be traced to the machine and settings it came from."""
+    env = environment()
+    print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | --set "
+          f"{' '.join(overrides) or '(none)'}", flush=True)
 
 
 def cases_from_arguments(args: argparse.Namespace) -> list[tuple[str, Run, Config]]:

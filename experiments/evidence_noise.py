@@ -20,10 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gslam_jax.machine import environment
 from gslam_jax.tuning.evidence_fit import DEFAULT_FACTORS, DEFAULT_SEEDS, fit_noise_scale
 
-from experiments.common import add_case_arguments, cases_from_arguments
+from experiments.common import add_case_arguments, cases_from_arguments, print_header
 from experiments.proposal_compare import _scaled, case_row
 
 
@@ -40,9 +39,7 @@ def main() -> int:
     ap.add_argument("--proposal", default="motion")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args()
-    env = environment()
-    print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | --set "
-          f"{' '.join(args.set) or '(none)'}", flush=True)
+    print_header(args.set)
     out = args.json.open("w") if args.json else None
     for name, run, config in cases_from_arguments(args):
         rows: dict[tuple[float, int], dict] = {}

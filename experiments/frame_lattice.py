@@ -32,10 +32,10 @@ import numpy as np
 
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.kitti import KittiParams, kitti_frontend
-from gslam_jax.machine import environment
 from gslam_jax.run import load_run, save_run
 from gslam_jax.vo.localmap import localmap_params
 
+from experiments.common import print_header
 from experiments.proposal_compare import case_row
 
 
@@ -69,9 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, help="folder for the Runs built (reused)")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args(argv)
-    env = environment()
-    print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | --set "
-          f"{' '.join(args.set) or '(none)'}", flush=True)
+    print_header(args.set)
     config = layered_config(args.config, None, args.set)
     out = args.json.open("w") if args.json else None
     for lattice in args.lattices:

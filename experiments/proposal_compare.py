@@ -33,11 +33,10 @@ from pathlib import Path
 
 from gslam_jax import metrics, slam
 from gslam_jax.config import apply_overrides
-from gslam_jax.machine import environment
 from gslam_jax.run import known_positions
 
-from experiments.common import (add_case_arguments, alphas_of, cases_from_arguments, turned_run,
-                                with_alphas)
+from experiments.common import (add_case_arguments, alphas_of, cases_from_arguments,
+                                print_header, turned_run, with_alphas)
 
 
 def _scaled(config, scale: float):
@@ -82,9 +81,7 @@ def main() -> int:
                     help="run each case with its map frame turned by each of these angles")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args()
-    env = environment()
-    print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | --set "
-          f"{' '.join(args.set) or '(none)'}", flush=True)
+    print_header(args.set)
     cases = [(name if turn == 0 else f"{name}@{turn:g}deg", turned_run(run, turn), config)
              for name, run, config in cases_from_arguments(args) for turn in args.frame_turns]
     out = args.json.open("w") if args.json else None

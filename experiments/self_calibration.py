@@ -28,11 +28,11 @@ import numpy as np
 
 from gslam_jax import metrics, slam
 from gslam_jax.config import Config
-from gslam_jax.machine import environment
 from gslam_jax.run import Run
 from gslam_jax.tuning.motion_fit import ALPHA_THETA_MAX, fit_run
 
-from experiments.common import add_case_arguments, alphas_of, cases_from_arguments, with_alphas
+from experiments.common import (add_case_arguments, alphas_of, cases_from_arguments,
+                                print_header, with_alphas)
 
 # a heading-per-turn alpha of exactly 0 would make a turn in place noiseless
 MIN_ALPHA_THETA = 1e-4
@@ -67,9 +67,7 @@ def main() -> int:
                     "estimate), or the final best particle's")
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args()
-    env = environment()
-    print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']} | --set "
-          f"{' '.join(args.set) or '(none)'}", flush=True)
+    print_header(args.set)
     out = args.json.open("w") if args.json else None
     for name, run, config in cases_from_arguments(args):
         calibrated, _ = rms(run, config)
