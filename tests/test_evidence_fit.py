@@ -103,7 +103,7 @@ def test_cli_writes_the_fitted_config_without_ground_truth(tmp_path, drifting_ru
             "--set", "filter.particles=16", "--set", "map.margin=3.0"]
     assert main([*argv, "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "<- best" in text and "log evidence" in text
+    assert "<- chosen" in text and "log evidence" in text
     fitted = load_config(out)
     factor = fitted.motion.alpha_d / MotionSection().alpha_d
     assert factor == pytest.approx(min((0.5, 4.0, 32.0), key=lambda f: abs(f - factor)))
@@ -150,3 +150,13 @@ def test_the_experiment_runs_the_fitted_noise_it_reports(tmp_path, drifting_run,
     config = apply_overrides(Config(), ["filter.particles=16", "map.margin=3.0"])
     want = case_row(str(path), drifting_run, config, row["fitted_scale"], "motion", 1)
     assert row["fitted_rms_m"] == pytest.approx(want["slam_rms_m"], rel=1e-6)
+
+
+def test_a_log_without_local_maps_keeps_the_given_noise(drifting_run):
+    """No local map, no evidence about the noise: every rung scores 0, and the given alphas
+    (factor 1) are kept rather than the ladder's first rung."""
+    blind = drifting_run._replace(obs_index=np.full(drifting_run.num_frames, -1))
+    fit = fit_noise_scale(blind, CONFIG, (0.25, 0.5, 1.0, 2.0), seeds=(0,))
+    np.testing.assert_array_equal(fit.log_evidence, 0.0)
+    assert fit.factor == 1.0 and not fit.on_edge
+    assert fit.config(CONFIG).motion == CONFIG.motion

@@ -258,7 +258,8 @@ def _fit_text(fit: MotionFit, frames: int) -> str:
 def _evidence_fit(run, config, args: argparse.Namespace):
     """``fit-motion --evidence``: the config with its alphas scaled by the evidence ladder's
     best factor (``tuning.evidence_fit``), and the ladder as text."""
-    from gslam_jax.tuning.evidence_fit import DEFAULT_FACTORS, DEFAULT_SEEDS, fit_noise_scale
+    from gslam_jax.tuning.evidence_fit import (DEFAULT_FACTORS, DEFAULT_SEEDS, MIN_GAIN,
+                                               fit_noise_scale)
 
     factors = args.factors or DEFAULT_FACTORS
     seeds = args.evidence_seeds or DEFAULT_SEEDS
@@ -269,10 +270,14 @@ def _evidence_fit(run, config, args: argparse.Namespace):
     print(f"log evidence of {len(factors)} noise factors x {len(seeds)} filter seed(s), fixed "
           "tempering ...", file=sys.stderr, flush=True)
     fit = fit_noise_scale(run, config, factors, seeds, progress)
-    rows = "\n".join(f"  x{f:<9g} {e:12.2f}{'  <- best' if f == fit.factor else ''}"
+    rows = "\n".join(f"  x{f:<9g} {e:12.2f}{'  <- chosen' if f == fit.factor else ''}"
                      for f, e in zip(fit.factors, fit.log_evidence))
     text = (f"log evidence (fixed tempering, mean over filter seeds "
             f"{', '.join(map(str, seeds))}) of the config's alphas times:\n{rows}")
+    if fit.factor == 1.0 and np.nanmax(fit.log_evidence) > fit.log_evidence[
+            list(fit.factors).index(1.0)]:
+        text += (f"\nkept the given alphas: no factor's evidence is more than {MIN_GAIN:g} "
+                 "above theirs")
     if not all(math.isfinite(e) for e in fit.log_evidence):
         text += ("\nnan: with that noise some particle observed cells beyond the map's edge "
                  "(its evidence would not be the whole log's; [map] margin widens the map)")
