@@ -92,6 +92,12 @@ def with_alphas(config: Config, alphas: tuple[float, float, float]) -> Config:
         config.motion, **dict(zip(ALPHAS, alphas))))
 
 
+def scaled_alphas(config: Config, scale: float) -> Config:
+    """``config`` with its three ``ALPHAS`` times ``scale`` (the noise given too wide or too
+    narrow by that factor)."""
+    return with_alphas(config, tuple(a * scale for a in alphas_of(config)))
+
+
 def add_case_arguments(ap: argparse.ArgumentParser) -> None:
     """--runs, --courses, --sim-seeds, --max-frames, --config, --set: the cases of
     ``cases_from_arguments``."""

@@ -22,8 +22,9 @@ import numpy as np
 
 from gslam_jax.tuning.evidence_fit import DEFAULT_FACTORS, DEFAULT_SEEDS, fit_noise_scale
 
-from experiments.common import add_case_arguments, cases_from_arguments, print_header
-from experiments.proposal_compare import _scaled, case_row
+from experiments.common import (add_case_arguments, cases_from_arguments, print_header,
+                                scaled_alphas)
+from experiments.proposal_compare import case_row
 
 
 def main() -> int:
@@ -51,7 +52,7 @@ def main() -> int:
 
         calibrated = {s: row(1.0, s)["slam_rms_m"] for s in args.seeds}
         for scale in args.noise_scale:
-            given = _scaled(config, scale)
+            given = scaled_alphas(config, scale)
             fit = fit_noise_scale(run, given, args.factors, args.evidence_seeds)
             total = scale * fit.factor
             ladder = " ".join(f"{f:g}:{e:.0f}" for f, e in zip(fit.factors, fit.log_evidence))

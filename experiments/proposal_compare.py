@@ -35,18 +35,14 @@ from gslam_jax import metrics, slam
 from gslam_jax.config import apply_overrides
 from gslam_jax.run import known_positions
 
-from experiments.common import (add_case_arguments, alphas_of, cases_from_arguments,
-                                print_header, turned_run, with_alphas)
-
-
-def _scaled(config, scale: float):
-    return with_alphas(config, tuple(a * scale for a in alphas_of(config)))
+from experiments.common import (add_case_arguments, cases_from_arguments, print_header,
+                                scaled_alphas, turned_run)
 
 
 def case_row(name, run, config, scale, proposal, seed) -> dict:
     """One filter run of ``run`` (its motion noise scaled by ``scale``, ``proposal``, filter
     ``seed``) against VO-only: RMS, final drift and the rigid fit's turn of both, and time."""
-    cfg = apply_overrides(_scaled(config, scale), [f"filter.proposal={proposal}",
+    cfg = apply_overrides(scaled_alphas(config, scale), [f"filter.proposal={proposal}",
                                                    f"filter.seed={seed}"])
     t0 = time.perf_counter()
     res = slam.run_slam(run, cfg)

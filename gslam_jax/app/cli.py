@@ -274,15 +274,14 @@ def _evidence_fit(run, config, args: argparse.Namespace):
                      for f, e in zip(fit.factors, fit.log_evidence))
     text = (f"log evidence (fixed tempering, mean over filter seeds "
             f"{', '.join(map(str, seeds))}) of the config's alphas times:\n{rows}")
-    if fit.factor == 1.0 and np.nanmax(fit.log_evidence) > fit.log_evidence[
-            list(fit.factors).index(1.0)]:
+    if fit.kept:
         text += (f"\nkept the given alphas: no factor's evidence is more than {MIN_GAIN:g} "
                  "above theirs")
     if not all(math.isfinite(e) for e in fit.log_evidence):
         text += ("\nnan: with that noise some particle observed cells beyond the map's edge "
                  "(its evidence would not be the whole log's; [map] margin widens the map)")
     if fit.on_edge:
-        text += ("\nnote: the best factor is the ladder's edge: the noise may lie beyond it "
+        text += ("\nnote: the chosen factor is the ladder's edge: the noise may lie beyond it "
                  "(extend --factors)")
     if run.sensor == "stereo":
         text += ("\nnote: stereo local maps: their cells share disparity errors, the fixed-beta "

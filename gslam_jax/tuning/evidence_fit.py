@@ -37,7 +37,7 @@ import numpy as np
 from gslam_jax import sizing, slam
 from gslam_jax.config import Config
 from gslam_jax.run import Run
-from gslam_jax.tuning.evaluation import evaluate
+from gslam_jax.tuning.evaluation import auto_batch, default_inner, evaluate
 from gslam_jax.tuning.space import MOTION_PARAM_NAMES, SearchError
 
 __all__ = ["DEFAULT_FACTORS", "DEFAULT_SEEDS", "MIN_GAIN", "EvidenceFit", "fit_noise_scale"]
@@ -61,7 +61,8 @@ class EvidenceFit(NamedTuple):
     log_evidence: np.ndarray  # [F] the mean log evidence over the seeds (NaN: a failed run)
     factor: float             # the chosen factor (``fit_noise_scale``)
     alphas: dict[str, float]  # the config's [motion] alphas times ``factor``
-    on_edge: bool             # the best factor is the ladder's smallest or largest
+    on_edge: bool             # the chosen factor is the ladder's smallest or largest
+    kept: bool                # factor 1 kept over the argmax (no more than MIN_GAIN above it)
 
     def config(self, config: Config) -> Config:
         """``config`` with its [motion] alphas replaced by the fitted ones."""
@@ -91,21 +92,27 @@ def fit_noise_scale(run: Run, config: Config, factors: Sequence[float] = DEFAULT
     inputs, cfg = slam.run_arrays(run, fixed)
     params = sizing.filter_params(fixed, run)
     values = factors[:, None] * base[None, :]
+    devices = jax.devices()
+    batch = auto_batch(cfg, run.num_frames, num_devices=len(devices),
+                       inner=default_inner(devices))  # the search's memory bound
     total = np.zeros(factors.size)
     for i, seed in enumerate(seeds):
         total += evaluate(values, jax.random.key(seed), inputs, params, MOTION_PARAM_NAMES,
-                          cfg, "loglik", batch=factors.size)
+                          cfg, "loglik", batch=min(batch, factors.size))
         if progress is not None:
             progress(i + 1, len(seeds))
     log_ev = total / len(seeds)
     if not np.any(np.isfinite(log_ev)):
-        raise SearchError(f"the log evidence was NaN for every factor {factors.tolist()} "
-                          "(with [map] store = \"shared\", raise [map] pool_tiles)")
+        raise SearchError(f"the log evidence was NaN for every factor {factors.tolist()}: "
+                          "particles observed beyond the map's edge (widen [map] margin) or, "
+                          "with [map] store = \"shared\", the tile pool ran out (raise [map] "
+                          "pool_tiles)")
     finite = np.where(np.isfinite(log_ev), log_ev, -np.inf)
     best = int(np.argmax(finite))
     given = np.flatnonzero(factors == 1.0)
-    if given.size and finite[best] - finite[given[0]] <= MIN_GAIN:
+    kept = bool(given.size) and best != given[0] and finite[best] - finite[given[0]] <= MIN_GAIN
+    if kept:
         best = int(given[0])  # no factor is clearly better than the given noise
     alphas = {n: float(v) for n, v in zip(MOTION_PARAM_NAMES, values[best])}
     return EvidenceFit(factors, log_ev, float(factors[best]), alphas,
-                       best in (0, factors.size - 1))
+                       best in (0, factors.size - 1), kept)
