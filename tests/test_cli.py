@@ -140,7 +140,7 @@ def test_building_the_parser_does_not_import_jax():
 def test_run_config_applies_the_course_section_of_a_table1_config(tmp_path):
     import argparse
 
-    from gslam_jax.app.cli import _load_config
+    from gslam_jax.app.arguments import load_config
 
     path = tmp_path / "t.toml"
     path.write_text("[motion]\nalpha_d = 0.04\n[course.maze.filter]\nbeta_prev = 0.2\n")
@@ -150,12 +150,12 @@ def test_run_config_applies_the_course_section_of_a_table1_config(tmp_path):
                     course="mars-yard-a", run_file=None)
         return argparse.Namespace(**{**base, **kw})
 
-    maze = _load_config(ns(course="maze"))
+    maze = load_config(ns(course="maze"))
     assert (maze.filter.beta_prev, maze.motion.alpha_d, maze.motion.alpha_theta) == \
         (0.2, 0.04, 0.07)
-    other = _load_config(ns())
+    other = load_config(ns())
     assert (other.filter.beta_prev, other.motion.alpha_d) == (0.05, 0.04)
-    from_file = _load_config(ns(course="maze", run_file=tmp_path / "log.npz"))
+    from_file = load_config(ns(course="maze", run_file=tmp_path / "log.npz"))
     assert from_file.filter.beta_prev == 0.05  # a Run file is not a simulated course
 
 
