@@ -7,7 +7,7 @@ names the file, field or frame at fault. Light on purpose: no JAX, no OpenCV.
 
 from __future__ import annotations
 
-__all__ = ["InputError", "DatasetError"]
+__all__ = ["InputError", "DatasetError", "RunError"]
 
 
 class InputError(ValueError):
@@ -17,3 +17,7 @@ class InputError(ValueError):
 class DatasetError(InputError):
     """A dataset's file (frame list, times, poses, IMU or ground-truth log) is unusable; the
     message names the file and, where known, the line or frame."""
+
+
+class RunError(InputError):
+    """A Run (or a Run file) is malformed; the message names the file, field and frame."""

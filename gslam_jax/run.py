@@ -7,24 +7,17 @@ the filter is compiled. The native file format is exactly the fields below (docs
 
 from __future__ import annotations
 
-import math
 import zipfile
 from pathlib import Path
 from typing import BinaryIO, NamedTuple
 
 import numpy as np
 
-from gslam_jax import choices
-from gslam_jax.errors import InputError
+from gslam_jax.errors import RunError
+from gslam_jax.run_checks import normalise_stored, check_types, validate_run
 
-__all__ = ["COORDINATE_FRACTION", "HEADING_LIMIT", "HEADING_STEP", "MAX_SPEED", "MAX_TURN", "Run",
-           "RunError", "check_start_pose", "coordinate_limit", "describe_cells", "float32_limit",
-           "float32_spacing", "integrate_controls", "known_positions", "load_run", "save_run",
+__all__ = ["Run", "RunError", "integrate_controls", "known_positions", "load_run", "save_run",
            "validate_run"]
-
-
-class RunError(InputError):
-    """A Run (or a Run file) is malformed; the message names the file, field and frame."""
 
 
 class Run(NamedTuple):
@@ -119,273 +112,6 @@ def integrate_controls(controls: np.ndarray, start: np.ndarray | None = None) ->
     return out
 
 
-_REAL = "iuf"  # dtype kinds of real numbers (bool, complex, strings and objects are not)
-_REAL_FIELDS = ("controls", "local_maps", "resolution", "timestamps", "ground_truth",
-                "initial_pose", "lattice_headings")
-# Local-map statistics may hold n sum z^2 - (sum z)^2 below 0 from rounding by up to
-# max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * eps) relative to n |sum z^2| + (sum z)^2,
-# eps that of the dtype the statistics were stored in (float32 sums of n heights round by up to
-# about n eps relative each); more is a negative variance, i.e. corrupt statistics.
-VARIANCE_TOLERANCE = 1e-6
-VARIANCE_ROUNDING = 8.0
-
-
-# The filter holds poses and the map origin in float32. A coordinate is resolved when float32's
-# spacing there is at most COORDINATE_FRACTION of a map cell: poses then round by at most 1/512
-# of a cell per frame, and a slow vehicle's millimetre steps at 0.1 m cells still register.
-# At 0.16 m cells that holds within 8192 m of the origin; at 1e15 m the spacing is 125 km and
-# every step of a path rounds away (the whole trajectory one position).
-COORDINATE_FRACTION = 1.0 / 256.0
-# Headings likewise: float32 spacing at most HEADING_STEP rad (1 mm at 10 m, a local map's edge),
-# which holds below HEADING_LIMIT = 1024 rad (163 turns).
-HEADING_STEP = 1e-4
-# A control's heading change of more than pi in one frame cannot be told from the opposite turn
-# (the heading is only known modulo 2 pi between frames; VO reports its rotation in (-pi, pi]), so
-# no frame of real data holds one: it is a corrupt, mis-scaled (degrees) or unwrapped value.
-MAX_TURN = float(np.pi)
-# A control faster than this between its frame's timestamps (three times the land speed record
-# of 341 m/s) is no vehicle's motion but a mis-scaled or corrupt step; metres per second.
-MAX_SPEED = 1000.0
-
-
-def float32_limit(step: float) -> float:
-    """The largest magnitude below which float32 numbers are spaced at most ``step`` apart: a
-    power of two, 2^(k + 24) with 2^k the largest power of two <= ``step`` (float32 numbers in
-    [2^e, 2^(e+1)) are 2^(e-23) apart)."""
-    return math.ldexp(1.0, math.floor(math.log2(step)) + 24)
-
-
-def float32_spacing(x: float) -> float:
-    """The distance between float32 numbers at magnitude ``x`` (inf beyond float32's range)."""
-    x = abs(float(x))
-    if x >= float(np.finfo(np.float32).max):
-        return math.inf
-    tiny = float(np.finfo(np.float32).smallest_subnormal)
-    return max(math.ldexp(1.0, math.frexp(x)[1] - 24), tiny) if x else tiny
-
-
-def coordinate_limit(resolution: float) -> float:
-    """Metres from the origin within which float32 resolves COORDINATE_FRACTION of a map cell
-    of ``resolution`` metres (the limit on the start pose and the map extent)."""
-    return float32_limit(COORDINATE_FRACTION * resolution)
-
-
-HEADING_LIMIT = float32_limit(HEADING_STEP)
-
-
-def check_start_pose(pose: np.ndarray, resolution: float, fail) -> None:
-    """``fail("initial_pose", msg)`` when a start pose's position lies beyond
-    ``coordinate_limit(resolution)`` or its heading beyond HEADING_LIMIT: float32, in which the
-    filter holds poses, would not resolve the map's cells (or the heading) there."""
-    limit = coordinate_limit(resolution)
-    far = float(np.max(np.abs(pose[:2])))
-    if far >= limit:
-        fail("initial_pose", f"position ({pose[0]:.6g}, {pose[1]:.6g}) m is {far:.4g} m from "
-             f"the origin; the filter's float32 poses there are "
-             f"{float32_spacing(far):.3g} m apart, coarser than 1/"
-             f"{1 / COORDINATE_FRACTION:.0f} of the {resolution:g} m cells (at most {limit:g} m "
-             "from the origin at this resolution); give the start pose in a local frame (e.g. "
-             "subtract the first position from every position)")
-    if abs(float(pose[2])) >= HEADING_LIMIT:
-        fail("initial_pose", f"heading {float(pose[2]):.6g} rad is beyond {HEADING_LIMIT:g} rad, "
-             f"where float32 headings are more than {HEADING_STEP:g} rad apart; give it modulo "
-             "2 pi")
-
-
-def check_controls(controls: np.ndarray, timestamps: np.ndarray, fail) -> None:
-    """``fail("controls", msg)`` naming the first frame whose control turns by more than
-    MAX_TURN or moves faster than MAX_SPEED between its timestamps (frame 0, which moves from the
-    initial pose, against the median frame interval): neither is a vehicle's motion."""
-    turn = np.abs(controls[:, 2])
-    if (turn > MAX_TURN).any():
-        t = int(np.argmax(turn > MAX_TURN))
-        fail("controls", f"frame {t} turns {controls[t, 2]:.6g} rad in one frame (more than pi: "
-             f"no heading change a frame can express; {int(np.sum(turn > MAX_TURN))} frames in "
-             "all); store the heading increment in radians within [-pi, pi]")
-    if controls.shape[0] < 2:
-        return
-    dt = np.diff(timestamps)
-    dt = np.concatenate([[np.median(dt)], dt])
-    step = np.hypot(controls[:, 0], controls[:, 1])
-    fast = step > MAX_SPEED * dt
-    if fast.any():
-        t = int(np.argmax(fast))
-        fail("controls", f"frame {t} moves {step[t]:.6g} m in {dt[t]:.4g} s ({step[t] / dt[t]:.4g} "
-             f"m/s, more than {MAX_SPEED:g} m/s; {int(np.sum(fast))} frames in all): a "
-             "mis-scaled or corrupt control (controls are metres, timestamps seconds)")
-
-
-def variance_tolerance(maps: np.ndarray, stored: np.dtype) -> np.ndarray:
-    """[M, L, L] relative tolerance of n sum z^2 - (sum z)^2 < 0 for the statistics ``maps``
-    [M, L, L, 3] stored as ``stored``: max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING n eps).
-
-    eps is the stored dtype's; integers (no rounding of their own) count as float64, and wider
-    floats whose every value is a float32 count as float32 (statistics accumulated in float32
-    and widened, e.g. a float32 Run file loaded and saved again)."""
-    stored = np.dtype(stored)
-    if stored.kind != "f":
-        stored = np.dtype(np.float64)
-    elif stored.itemsize > 4:
-        with np.errstate(over="ignore", invalid="ignore"):
-            if np.array_equal(maps.astype(np.float32), maps):
-                stored = np.dtype(np.float32)
-    n = np.asarray(maps[..., 0], np.float64)
-    return np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * np.finfo(stored).eps)
-
-
-def describe_cells(bad_cells: np.ndarray, obs_index: np.ndarray) -> str:
-    """'local map m (frame t), cell (i, j) (c cells in all)' of the first true cell of
-    ``bad_cells`` [M, L, L]; frame t is the first frame that uses local map m."""
-    m, i, j = (int(v) for v in np.argwhere(bad_cells)[0])
-    frames = np.flatnonzero(np.asarray(obs_index) == m)
-    at = f"frame {int(frames[0])}" if frames.size else "used by no frame"
-    return f"local map {m} ({at}), cell ({i}, {j}) ({int(np.sum(bad_cells))} cells in all)"
-
-
-def _normalise_stored(fields: dict, fail) -> dict:
-    """Older Run files' encodings, converted: ``vo_failed`` as integers 0/1 (to bool) and
-    ``resolution`` as a size-1 array (to a scalar). Other integers in ``vo_failed`` fail naming
-    the first bad frame; everything else is left to ``_check_types``."""
-    fields = dict(fields)
-    flags = fields.get("vo_failed")
-    if flags is not None and flags.dtype.kind in "iu" and flags.ndim == 1:
-        bad = (flags != 0) & (flags != 1)
-        if bad.any():
-            t = int(np.argmax(bad))
-            fail("vo_failed", f"expected bool or integers 0/1, got {flags[t]} at frame {t} "
-                 f"({int(bad.sum())} frames in all)")
-        fields["vo_failed"] = flags.astype(bool)
-    res = fields["resolution"]
-    if res.shape != () and res.size == 1:
-        fields["resolution"] = res.reshape(())
-    return fields
-
-
-def _check_types(fields: dict, fail) -> None:
-    """Field types before any conversion: real numbers, integer indices, bool flags, a scalar
-    resolution (``fail(field, msg)`` raises)."""
-    for name in _REAL_FIELDS:
-        value = fields.get(name)
-        if value is not None and np.asarray(value).dtype.kind not in _REAL:
-            fail(name, f"expected real numbers, got dtype {np.asarray(value).dtype}")
-    if np.asarray(fields["resolution"]).shape != ():
-        fail("resolution", f"expected a scalar, got shape {np.asarray(fields['resolution']).shape}")
-    if fields.get("vo_failed") is not None and np.asarray(fields["vo_failed"]).dtype != bool:
-        fail("vo_failed", f"expected bool, got dtype {np.asarray(fields['vo_failed']).dtype}")
-    kind = np.asarray(fields["controls"]).dtype
-    if kind.kind in "iu":  # whole metres and radians only: surely truncated on the way
-        fail("controls", f"stored as integers ({kind}), so only whole metres and radians; "
-             "store the increments as floating point")
-    sensor = fields.get("sensor")
-    if sensor is not None and (np.asarray(sensor).shape != () or
-                               str(np.asarray(sensor)) not in choices.SENSORS):
-        fail("sensor", f"expected one of {', '.join(choices.SENSORS)}, "
-             f"got {np.asarray(sensor)!s:.40}")
-    origin = fields.get("time_origin_ns")
-    if origin is not None and (np.asarray(origin).shape != () or
-                               np.asarray(origin).dtype.kind not in "iu"):
-        fail("time_origin_ns", f"expected one integer (nanoseconds), got "
-             f"{np.asarray(origin).dtype} of shape {np.asarray(origin).shape}")
-
-
-def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None = None) -> Run:
-    """Check shapes, types and values; raise RunError naming the field and frame.
-
-    Required: finite controls; finite, strictly increasing timestamps; integer point counts
-    n >= 0 with n sum z^2 >= (sum z)^2 (a variance >= 0, up to the rounding of the dtype the
-    statistics were accumulated in: ``stats_dtype``, default ``local_maps``' own); a finite
-    initial pose. ``ground_truth`` may hold NaN rows: frames without ground truth (the metrics
-    skip them). The start pose within reach of float32 (``check_start_pose``); no control
-    turning more than pi or moving faster than MAX_SPEED in one frame (``check_controls``).
-    """
-
-    def fail(field: str, msg: str) -> None:
-        raise RunError(f"{source}: field '{field}': {msg}")
-
-    _check_types(run._asdict(), fail)
-    controls = np.asarray(run.controls)
-    if controls.ndim != 2 or controls.shape[1] != 3:
-        fail("controls", f"expected shape [T, 3], got {controls.shape}")
-    T = controls.shape[0]
-    if T == 0:
-        fail("controls", "the run has no frames")
-    bad = ~np.isfinite(controls).all(axis=1)
-    if bad.any():
-        fail("controls", f"non-finite value (NaN or inf) at frame {int(np.argmax(bad))}"
-             f" ({int(bad.sum())} frames in all)")
-    obs_index = np.asarray(run.obs_index)
-    if obs_index.shape != (T,):
-        fail("obs_index", f"expected shape [{T}], got {obs_index.shape}")
-    if not np.issubdtype(obs_index.dtype, np.integer):
-        fail("obs_index", f"expected integers, got {obs_index.dtype}")
-    maps = np.asarray(run.local_maps)
-    if maps.ndim != 4 or maps.shape[3] != 3 or maps.shape[1] != maps.shape[2]:
-        fail("local_maps", f"expected shape [M, L, L, 3], got {maps.shape}")
-    M = maps.shape[0]
-    used = obs_index[obs_index >= 0]
-    if (obs_index < -1).any():
-        fail("obs_index", f"value below -1 at frame {int(np.argmax(obs_index < -1))}")
-    if used.size and used.max() >= M:
-        frame = int(np.argmax(obs_index >= M))
-        fail("obs_index",
-             f"frame {frame} refers to local map {obs_index[frame]} but only {M} exist")
-
-    def first_map(bad_cells: np.ndarray) -> str:
-        return describe_cells(bad_cells, obs_index)
-
-    finite = np.isfinite(maps).all(axis=-1)
-    if not finite.all():
-        fail("local_maps", f"non-finite statistics in {first_map(~finite)}")
-    n, sz, szz = (maps[..., c].astype(np.float64) for c in range(3))
-    if (n < 0).any():
-        fail("local_maps", f"negative point count n in {first_map(n < 0)}")
-    if (n != np.round(n)).any():
-        fail("local_maps", f"non-integer point count n in {first_map(n != np.round(n))}")
-    spread = n * szz - sz * sz  # n^2 times the variance of the heights
-    tol = variance_tolerance(maps, maps.dtype if stats_dtype is None else stats_dtype)
-    negative = spread < -tol * (n * np.abs(szz) + sz * sz)
-    if negative.any():
-        fail("local_maps", f"negative variance (n sum z^2 < (sum z)^2) in {first_map(negative)}")
-    resolution = float(run.resolution)
-    if not (np.isfinite(resolution) and resolution > 0):
-        fail("resolution", f"must be a positive number of metres, got {run.resolution}")
-    ts = np.asarray(run.timestamps)
-    if ts.shape != (T,):
-        fail("timestamps", f"expected shape [{T}], got {ts.shape}")
-    if not np.isfinite(ts).all():
-        fail("timestamps", f"non-finite value (NaN or inf) at frame "
-             f"{int(np.argmax(~np.isfinite(ts)))}")
-    if (np.diff(ts) <= 0).any():
-        t = int(np.argmax(np.diff(ts) <= 0)) + 1
-        fail("timestamps", f"not increasing at frame {t} ({float(ts[t - 1])!r} s, "
-             f"then {float(ts[t])!r} s)")
-    if run.ground_truth is not None and np.asarray(run.ground_truth).shape != (T, 3):
-        fail("ground_truth", f"expected shape [{T}, 3], got {np.asarray(run.ground_truth).shape}")
-    if run.vo_failed is not None and np.asarray(run.vo_failed).shape != (T,):
-        fail("vo_failed", f"expected shape [{T}], got {np.asarray(run.vo_failed).shape}")
-    if run.initial_pose is not None:
-        pose = np.asarray(run.initial_pose)
-        if pose.shape != (3,):
-            fail("initial_pose", f"expected shape [3], got {pose.shape}")
-        if not np.isfinite(pose).all():
-            fail("initial_pose", f"non-finite value (NaN or inf): {pose.tolist()}")
-        check_start_pose(pose.astype(np.float64), resolution, fail)
-    if run.lattice_headings is not None:
-        h = np.asarray(run.lattice_headings)
-        M = int(np.asarray(run.local_maps).shape[0])
-        if h.shape != (M,):
-            fail("lattice_headings", f"expected shape [{M}] (one per local map), got {h.shape}")
-        if not np.isfinite(h).all():
-            fail("lattice_headings", f"non-finite value (NaN or inf) at local map "
-                 f"{int(np.argmax(~np.isfinite(h)))}")
-        if (np.abs(h) > HEADING_LIMIT).any():
-            m = int(np.argmax(np.abs(h) > HEADING_LIMIT))
-            fail("lattice_headings", f"local map {m}: {float(h[m]):.6g} rad is beyond "
-                 f"{HEADING_LIMIT:g} rad (radians expected)")
-    check_controls(controls.astype(np.float64), ts.astype(np.float64), fail)
-    return run
-
-
 _REQUIRED = ("controls", "obs_index", "local_maps", "resolution", "timestamps")
 _OPTIONAL = ("ground_truth", "vo_failed", "initial_pose", "time_origin_ns", "sensor",
              "lattice_headings")
@@ -438,8 +164,8 @@ def load_run(path: str | Path) -> Run:
     def fail(field: str, msg: str) -> None:
         raise RunError(f"{path}: field '{field}': {msg}")
 
-    fields = _normalise_stored(fields, fail)
-    _check_types(fields, fail)  # before the conversions below, which would raise or hide it
+    fields = normalise_stored(fields, fail)
+    check_types(fields, fail)  # before the conversions below, which would raise or hide it
     stats_dtype = fields["local_maps"].dtype  # the rounding of the statistics is that dtype's
     run = Run(
         controls=fields["controls"].astype(np.float64),
