@@ -1,21 +1,12 @@
-"""Configuration: TOML files with the paper's settings as defaults.
-
-Every field has a default; an unknown section or key, a value of the wrong type or out of range
-(floats must also be finite), is an error that names the file, the section and the key.
-``--set section.key=value`` overrides use the same checks. Layers, lowest first: the defaults,
-the file's shared sections, its ``[course.<name>.<section>]`` tables for a simulated course
-(``load_table_config``), the ``--set`` overrides (``layered_config``). Enumerated settings take
-their allowed values from ``choices``.
-"""
+"""The settings: one frozen dataclass per TOML section, with the paper's values as defaults,
+and ``Config.validate``, whose errors name the source, section and key. Enumerated settings
+take their allowed values from ``choices``."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -23,9 +14,7 @@ from gslam_jax import choices
 from gslam_jax.errors import InputError
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
-           "StereoSection", "RigSection", "Config", "read_toml", "load_config", "parse_config",
-           "apply_overrides", "section_to_toml", "config_to_toml", "load_table_config",
-           "layered_config"]
+           "StereoSection", "RigSection", "Config", "SECTION_TYPES"]
 
 
 class ConfigError(InputError):
@@ -221,7 +210,7 @@ class Config:
 
         Every float must be finite (TOML accepts ``inf`` and ``nan``), then meet its range.
         """
-        for name in _SECTION_TYPES:
+        for name in SECTION_TYPES:
             section = getattr(self, name)
             for key, value in dataclasses.asdict(section).items():
                 if isinstance(value, float) and not math.isfinite(value):
@@ -302,156 +291,5 @@ class Config:
         return self
 
 
-_SECTION_TYPES = {"filter": FilterSection, "motion": MotionSection, "map": MapSection,
+SECTION_TYPES = {"filter": FilterSection, "motion": MotionSection, "map": MapSection,
                   "localmap": LocalMapSection, "stereo": StereoSection, "rig": RigSection}
-
-
-def _coerce(value: Any, expected: type, where: str) -> Any:
-    if expected is float and isinstance(value, int) and not isinstance(value, bool):
-        try:
-            return float(value)
-        except OverflowError:
-            raise ConfigError(f"{where}: {value} is too large for a float") from None
-    if expected is tuple:  # a matrix: 16 numbers, or 4 rows of 4 (flattened, row-major)
-        rows = value if isinstance(value, list) else None
-        if rows and all(isinstance(r, list) for r in rows):
-            if len(rows) != 4 or any(len(r) != 4 for r in rows):
-                raise ConfigError(f"{where}: expected 4 rows of 4 numbers")
-            rows = [v for r in rows for v in r]
-        if rows is None or len(rows) not in (0, 16):
-            raise ConfigError(f"{where}: expected 16 numbers or 4 rows of 4, got {value!r}")
-        return tuple(_coerce(v, float, where) for v in rows)
-    if expected is int and isinstance(value, bool):
-        raise ConfigError(f"{where}: expected int, got bool")
-    if not isinstance(value, expected):
-        raise ConfigError(f"{where}: expected {expected.__name__}, got {type(value).__name__} "
-                          f"({value!r})")
-    return value
-
-
-def parse_config(data: dict[str, Any], source: str = "<config>",
-                 base: Config | None = None) -> Config:
-    """Build a Config from a parsed TOML table, checking every section, key and type."""
-    base = base or Config()
-    sections = {}
-    for name, table in data.items():
-        if name not in _SECTION_TYPES:
-            raise ConfigError(f"{source}: unknown section [{name}]; known sections: "
-                              f"{', '.join(_SECTION_TYPES)}")
-        if not isinstance(table, dict):
-            raise ConfigError(f"{source}: [{name}] must be a table")
-        cls = _SECTION_TYPES[name]
-        types = {f.name: f.type for f in dataclasses.fields(cls)}
-        values = {}
-        for key, value in table.items():
-            if key not in types:
-                raise ConfigError(f"{source}: unknown key '{key}' in [{name}]; known keys: "
-                                  f"{', '.join(types)}")
-            expected = {"int": int, "float": float, "str": str, "bool": bool,
-                        "tuple[float, ...]": tuple}[types[key]]
-            values[key] = _coerce(value, expected, f"{source}: [{name}] {key}")
-        sections[name] = dataclasses.replace(getattr(base, name), **values)
-    return dataclasses.replace(base, **sections).validate(source)
-
-
-def read_toml(path: str | Path) -> dict[str, Any]:
-    """A config file's TOML table; a missing or empty file or bad TOML is a ConfigError naming
-    it."""
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"{path}: no such config file")
-    try:
-        text = path.read_text(encoding="utf-8")
-        if not text.strip():  # e.g. left by a write that failed: not "all defaults" silently
-            raise ConfigError(f"{path}: the config file is empty; give the settings it should "
-                              "hold, or leave out --config for the defaults")
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path}: malformed TOML: {err}") from err
-    except UnicodeDecodeError as err:
-        line = path.read_bytes()[:err.start].count(b"\n") + 1
-        raise ConfigError(f"{path}:{line}: not UTF-8 text (byte 0x{err.object[err.start]:02x}; "
-                          "TOML files must be UTF-8)") from err
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read the config file ({err.strerror or err})") from err
-
-
-def load_config(path: str | Path | None) -> Config:
-    """Defaults, or a TOML file over the defaults."""
-    if path is None:
-        return Config()
-    return parse_config(read_toml(path), str(path))
-
-
-def apply_overrides(config: Config, overrides: list[str]) -> Config:
-    """Apply ``section.key=value`` strings (value parsed as TOML, bare words as strings)."""
-    data: dict[str, dict[str, Any]] = {}
-    for item in overrides:
-        if "=" not in item or "." not in item.split("=", 1)[0]:
-            raise ConfigError(f"--set {item!r}: expected section.key=value")
-        lhs, rhs = item.split("=", 1)
-        section, key = lhs.strip().split(".", 1)
-        try:
-            value = tomllib.loads(f"v = {rhs.strip()}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = rhs.strip()
-        data.setdefault(section, {})[key] = value
-    return parse_config(data, "--set", base=config)
-
-
-def section_to_toml(config: Config, name: str) -> str:
-    """One section of the config (``name``: filter, motion, ...) as a TOML table."""
-    lines = [f"[{name}]"]
-    for key, value in dataclasses.asdict(getattr(config, name)).items():
-        if isinstance(value, str):
-            lines.append(f'{key} = "{value}"')
-        elif isinstance(value, bool):
-            lines.append(f"{key} = {'true' if value else 'false'}")
-        elif isinstance(value, tuple):  # a matrix: 4 rows of 4, or []
-            rows = [value[i:i + 4] for i in range(0, len(value), 4)]
-            lines.append(f"{key} = [{', '.join(str(list(r)) for r in rows)}]")
-        else:
-            lines.append(f"{key} = {value!r}")
-    return "\n".join(lines) + "\n"
-
-
-def config_to_toml(config: Config) -> str:
-    """The full config as TOML text (written beside every run's results)."""
-    return "\n".join(section_to_toml(config, name) for name in _SECTION_TYPES)
-
-
-def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config]]:
-    """The shared config and per-course configs of a Table I TOML file.
-
-    Besides the usual sections, the file may hold ``[course.<name>.<section>]`` tables whose
-    keys override the shared settings for that course only, as the paper tuned its noise
-    parameters per environment (7.3). Unknown course names are errors that name the file.
-    """
-    from gslam_jax.sim.courses import COURSES  # here: config stays below every other layer
-
-    if path is None:
-        return Config(), {}
-    data = read_toml(path)
-    per_course = data.pop("course", {})
-    base = parse_config(data, str(path))
-    if not isinstance(per_course, dict):
-        raise ConfigError(f"{path}: [course] must be a table of [course.<name>.<section>] tables")
-    courses = {}
-    for name, table in per_course.items():
-        if name not in COURSES:
-            raise ConfigError(f"{path}: unknown course [course.{name}]; known courses: "
-                              f"{', '.join(COURSES)}")
-        if not isinstance(table, dict):
-            raise ConfigError(f"{path}: [course.{name}] must be a table of sections")
-        courses[name] = parse_config(table, f"{path} [course.{name}]", base=base)
-    return base, courses
-
-
-def layered_config(path: str | Path | None, course: str | None = None,
-                   overrides: list[str] | None = None) -> Config:
-    """The config a command runs with: defaults, the file at ``path`` (its shared sections and,
-    for the simulated ``course``, that course's ``[course.<name>.*]`` tables; None: no course
-    tables), then the ``section.key=value`` ``overrides``."""
-    shared, per_course = load_table_config(path)
-    config = per_course.get(course, shared) if course is not None else shared
-    return apply_overrides(config, overrides or [])
