@@ -65,7 +65,8 @@ def _equivalence() -> dict:
     from synthetic import make_run
 
     from gslam_jax import rbpf
-    from gslam_jax.app.compare import DenseOutput, check_agreement
+    from gslam_jax.app.compare import check_agreement
+    from gslam_jax.app.dense_timing import DenseOutput
     from gslam_jax.observations import local_observations
     from gslam_jax.sizing import map_extent, observed_cells
     from gslam_jax.tiled.reference import run_tiled
