@@ -135,7 +135,7 @@ def test_corridor_world_memory_grows_with_length_not_area() -> None:
     per_m = long.nbytes / 300.0
     assert per_m < 2 * (24.0 + 2 * 6.4) * 400 * 13  # corridor and tile rims, 13 bytes a pixel
     # linear: a 2 km path would need about 2000 per_m bytes (tiles only, no content drawn)
-    from gslam_jax.sim.corridor import corridor_tiles
+    from gslam_jax.sim.tiled_world import corridor_tiles
     d = np.linspace(0.0, 2000.0, 50)[:, None] * np.array([[np.sqrt(0.5), np.sqrt(0.5)]])
     tiles = corridor_tiles(d, 12.0, 6.4)
     assert abs(len(tiles) * 128 * 128 * 13 / 2000.0 / per_m - 1.0) < 0.15
