@@ -14,7 +14,9 @@ from typing import BinaryIO, NamedTuple
 import numpy as np
 
 from gslam_jax.errors import RunError
-from gslam_jax.run_checks import normalise_stored, check_types, validate_run
+from gslam_jax.run_checks import (HEADING_LIMIT, check_controls, check_start_pose,
+                                  check_types, describe_cells, normalise_stored,
+                                  variance_tolerance)
 
 __all__ = ["Run", "RunError", "integrate_controls", "known_positions", "load_run", "save_run",
            "validate_run"]
@@ -110,6 +112,104 @@ def integrate_controls(controls: np.ndarray, start: np.ndarray | None = None) ->
         pose = np.array([pose[0] + c * dx - s * dy, pose[1] + s * dx + c * dy, pose[2] + dth])
         out[t] = pose
     return out
+
+
+def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None = None) -> Run:
+    """Check shapes, types and values; raise RunError naming the field and frame.
+
+    Required: finite controls; finite, strictly increasing timestamps; integer point counts
+    n >= 0 with n sum z^2 >= (sum z)^2 (a variance >= 0, up to the rounding of the dtype the
+    statistics were accumulated in: ``stats_dtype``, default ``local_maps``' own); a finite
+    initial pose. ``ground_truth`` may hold NaN rows: frames without ground truth (the metrics
+    skip them). The start pose within reach of float32 (``check_start_pose``); no control
+    turning more than pi or moving faster than MAX_SPEED in one frame (``check_controls``).
+    """
+
+    def fail(field: str, msg: str) -> None:
+        raise RunError(f"{source}: field '{field}': {msg}")
+
+    check_types(run._asdict(), fail)
+    controls = np.asarray(run.controls)
+    if controls.ndim != 2 or controls.shape[1] != 3:
+        fail("controls", f"expected shape [T, 3], got {controls.shape}")
+    T = controls.shape[0]
+    if T == 0:
+        fail("controls", "the run has no frames")
+    bad = ~np.isfinite(controls).all(axis=1)
+    if bad.any():
+        fail("controls", f"non-finite value (NaN or inf) at frame {int(np.argmax(bad))}"
+             f" ({int(bad.sum())} frames in all)")
+    obs_index = np.asarray(run.obs_index)
+    if obs_index.shape != (T,):
+        fail("obs_index", f"expected shape [{T}], got {obs_index.shape}")
+    if not np.issubdtype(obs_index.dtype, np.integer):
+        fail("obs_index", f"expected integers, got {obs_index.dtype}")
+    maps = np.asarray(run.local_maps)
+    if maps.ndim != 4 or maps.shape[3] != 3 or maps.shape[1] != maps.shape[2]:
+        fail("local_maps", f"expected shape [M, L, L, 3], got {maps.shape}")
+    M = maps.shape[0]
+    used = obs_index[obs_index >= 0]
+    if (obs_index < -1).any():
+        fail("obs_index", f"value below -1 at frame {int(np.argmax(obs_index < -1))}")
+    if used.size and used.max() >= M:
+        frame = int(np.argmax(obs_index >= M))
+        fail("obs_index",
+             f"frame {frame} refers to local map {obs_index[frame]} but only {M} exist")
+
+    def first_map(bad_cells: np.ndarray) -> str:
+        return describe_cells(bad_cells, obs_index)
+
+    finite = np.isfinite(maps).all(axis=-1)
+    if not finite.all():
+        fail("local_maps", f"non-finite statistics in {first_map(~finite)}")
+    n, sz, szz = (maps[..., c].astype(np.float64) for c in range(3))
+    if (n < 0).any():
+        fail("local_maps", f"negative point count n in {first_map(n < 0)}")
+    if (n != np.round(n)).any():
+        fail("local_maps", f"non-integer point count n in {first_map(n != np.round(n))}")
+    spread = n * szz - sz * sz  # n^2 times the variance of the heights
+    tol = variance_tolerance(maps, maps.dtype if stats_dtype is None else stats_dtype)
+    negative = spread < -tol * (n * np.abs(szz) + sz * sz)
+    if negative.any():
+        fail("local_maps", f"negative variance (n sum z^2 < (sum z)^2) in {first_map(negative)}")
+    resolution = float(run.resolution)
+    if not (np.isfinite(resolution) and resolution > 0):
+        fail("resolution", f"must be a positive number of metres, got {run.resolution}")
+    ts = np.asarray(run.timestamps)
+    if ts.shape != (T,):
+        fail("timestamps", f"expected shape [{T}], got {ts.shape}")
+    if not np.isfinite(ts).all():
+        fail("timestamps", f"non-finite value (NaN or inf) at frame "
+             f"{int(np.argmax(~np.isfinite(ts)))}")
+    if (np.diff(ts) <= 0).any():
+        t = int(np.argmax(np.diff(ts) <= 0)) + 1
+        fail("timestamps", f"not increasing at frame {t} ({float(ts[t - 1])!r} s, "
+             f"then {float(ts[t])!r} s)")
+    if run.ground_truth is not None and np.asarray(run.ground_truth).shape != (T, 3):
+        fail("ground_truth", f"expected shape [{T}, 3], got {np.asarray(run.ground_truth).shape}")
+    if run.vo_failed is not None and np.asarray(run.vo_failed).shape != (T,):
+        fail("vo_failed", f"expected shape [{T}], got {np.asarray(run.vo_failed).shape}")
+    if run.initial_pose is not None:
+        pose = np.asarray(run.initial_pose)
+        if pose.shape != (3,):
+            fail("initial_pose", f"expected shape [3], got {pose.shape}")
+        if not np.isfinite(pose).all():
+            fail("initial_pose", f"non-finite value (NaN or inf): {pose.tolist()}")
+        check_start_pose(pose.astype(np.float64), resolution, fail)
+    if run.lattice_headings is not None:
+        h = np.asarray(run.lattice_headings)
+        M = int(np.asarray(run.local_maps).shape[0])
+        if h.shape != (M,):
+            fail("lattice_headings", f"expected shape [{M}] (one per local map), got {h.shape}")
+        if not np.isfinite(h).all():
+            fail("lattice_headings", f"non-finite value (NaN or inf) at local map "
+                 f"{int(np.argmax(~np.isfinite(h)))}")
+        if (np.abs(h) > HEADING_LIMIT).any():
+            m = int(np.argmax(np.abs(h) > HEADING_LIMIT))
+            fail("lattice_headings", f"local map {m}: {float(h[m]):.6g} rad is beyond "
+                 f"{HEADING_LIMIT:g} rad (radians expected)")
+    check_controls(controls.astype(np.float64), ts.astype(np.float64), fail)
+    return run
 
 
 _REQUIRED = ("controls", "obs_index", "local_maps", "resolution", "timestamps")

@@ -1,26 +1,20 @@
-"""A Run's checks: the limits float32 poses set on coordinates and headings, and the
-validation of every field (shapes, types, values) with errors that name the field and frame.
-
-``gslam_jax.run`` validates each Run it saves or loads with ``validate_run``; sources call it on
-the Runs they build."""
+"""The checks behind a Run's validation (``run.validate_run``): the limits float32 poses set on
+coordinates and headings, and the checks of single fields (types, the start pose, the
+controls, the local maps' variances), each reporting through a ``fail(field, message)``
+callback so that the caller's error names its file, field and frame."""
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gslam_jax import choices
-from gslam_jax.errors import RunError
-
-if TYPE_CHECKING:
-    from gslam_jax.run import Run
 
 __all__ = ["COORDINATE_FRACTION", "HEADING_LIMIT", "HEADING_STEP", "MAX_SPEED", "MAX_TURN",
            "check_controls", "check_start_pose", "check_types", "coordinate_limit",
            "describe_cells", "float32_limit", "float32_spacing", "normalise_stored",
-           "validate_run"]
+           "variance_tolerance"]
 
 
 _REAL = "iuf"  # dtype kinds of real numbers (bool, complex, strings and objects are not)
@@ -190,101 +184,3 @@ def check_types(fields: dict, fail) -> None:
                                np.asarray(origin).dtype.kind not in "iu"):
         fail("time_origin_ns", f"expected one integer (nanoseconds), got "
              f"{np.asarray(origin).dtype} of shape {np.asarray(origin).shape}")
-
-
-def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None = None) -> Run:
-    """Check shapes, types and values; raise RunError naming the field and frame.
-
-    Required: finite controls; finite, strictly increasing timestamps; integer point counts
-    n >= 0 with n sum z^2 >= (sum z)^2 (a variance >= 0, up to the rounding of the dtype the
-    statistics were accumulated in: ``stats_dtype``, default ``local_maps``' own); a finite
-    initial pose. ``ground_truth`` may hold NaN rows: frames without ground truth (the metrics
-    skip them). The start pose within reach of float32 (``check_start_pose``); no control
-    turning more than pi or moving faster than MAX_SPEED in one frame (``check_controls``).
-    """
-
-    def fail(field: str, msg: str) -> None:
-        raise RunError(f"{source}: field '{field}': {msg}")
-
-    check_types(run._asdict(), fail)
-    controls = np.asarray(run.controls)
-    if controls.ndim != 2 or controls.shape[1] != 3:
-        fail("controls", f"expected shape [T, 3], got {controls.shape}")
-    T = controls.shape[0]
-    if T == 0:
-        fail("controls", "the run has no frames")
-    bad = ~np.isfinite(controls).all(axis=1)
-    if bad.any():
-        fail("controls", f"non-finite value (NaN or inf) at frame {int(np.argmax(bad))}"
-             f" ({int(bad.sum())} frames in all)")
-    obs_index = np.asarray(run.obs_index)
-    if obs_index.shape != (T,):
-        fail("obs_index", f"expected shape [{T}], got {obs_index.shape}")
-    if not np.issubdtype(obs_index.dtype, np.integer):
-        fail("obs_index", f"expected integers, got {obs_index.dtype}")
-    maps = np.asarray(run.local_maps)
-    if maps.ndim != 4 or maps.shape[3] != 3 or maps.shape[1] != maps.shape[2]:
-        fail("local_maps", f"expected shape [M, L, L, 3], got {maps.shape}")
-    M = maps.shape[0]
-    used = obs_index[obs_index >= 0]
-    if (obs_index < -1).any():
-        fail("obs_index", f"value below -1 at frame {int(np.argmax(obs_index < -1))}")
-    if used.size and used.max() >= M:
-        frame = int(np.argmax(obs_index >= M))
-        fail("obs_index",
-             f"frame {frame} refers to local map {obs_index[frame]} but only {M} exist")
-
-    def first_map(bad_cells: np.ndarray) -> str:
-        return describe_cells(bad_cells, obs_index)
-
-    finite = np.isfinite(maps).all(axis=-1)
-    if not finite.all():
-        fail("local_maps", f"non-finite statistics in {first_map(~finite)}")
-    n, sz, szz = (maps[..., c].astype(np.float64) for c in range(3))
-    if (n < 0).any():
-        fail("local_maps", f"negative point count n in {first_map(n < 0)}")
-    if (n != np.round(n)).any():
-        fail("local_maps", f"non-integer point count n in {first_map(n != np.round(n))}")
-    spread = n * szz - sz * sz  # n^2 times the variance of the heights
-    tol = variance_tolerance(maps, maps.dtype if stats_dtype is None else stats_dtype)
-    negative = spread < -tol * (n * np.abs(szz) + sz * sz)
-    if negative.any():
-        fail("local_maps", f"negative variance (n sum z^2 < (sum z)^2) in {first_map(negative)}")
-    resolution = float(run.resolution)
-    if not (np.isfinite(resolution) and resolution > 0):
-        fail("resolution", f"must be a positive number of metres, got {run.resolution}")
-    ts = np.asarray(run.timestamps)
-    if ts.shape != (T,):
-        fail("timestamps", f"expected shape [{T}], got {ts.shape}")
-    if not np.isfinite(ts).all():
-        fail("timestamps", f"non-finite value (NaN or inf) at frame "
-             f"{int(np.argmax(~np.isfinite(ts)))}")
-    if (np.diff(ts) <= 0).any():
-        t = int(np.argmax(np.diff(ts) <= 0)) + 1
-        fail("timestamps", f"not increasing at frame {t} ({float(ts[t - 1])!r} s, "
-             f"then {float(ts[t])!r} s)")
-    if run.ground_truth is not None and np.asarray(run.ground_truth).shape != (T, 3):
-        fail("ground_truth", f"expected shape [{T}, 3], got {np.asarray(run.ground_truth).shape}")
-    if run.vo_failed is not None and np.asarray(run.vo_failed).shape != (T,):
-        fail("vo_failed", f"expected shape [{T}], got {np.asarray(run.vo_failed).shape}")
-    if run.initial_pose is not None:
-        pose = np.asarray(run.initial_pose)
-        if pose.shape != (3,):
-            fail("initial_pose", f"expected shape [3], got {pose.shape}")
-        if not np.isfinite(pose).all():
-            fail("initial_pose", f"non-finite value (NaN or inf): {pose.tolist()}")
-        check_start_pose(pose.astype(np.float64), resolution, fail)
-    if run.lattice_headings is not None:
-        h = np.asarray(run.lattice_headings)
-        M = int(np.asarray(run.local_maps).shape[0])
-        if h.shape != (M,):
-            fail("lattice_headings", f"expected shape [{M}] (one per local map), got {h.shape}")
-        if not np.isfinite(h).all():
-            fail("lattice_headings", f"non-finite value (NaN or inf) at local map "
-                 f"{int(np.argmax(~np.isfinite(h)))}")
-        if (np.abs(h) > HEADING_LIMIT).any():
-            m = int(np.argmax(np.abs(h) > HEADING_LIMIT))
-            fail("lattice_headings", f"local map {m}: {float(h[m]):.6g} rad is beyond "
-                 f"{HEADING_LIMIT:g} rad (radians expected)")
-    check_controls(controls.astype(np.float64), ts.astype(np.float64), fail)
-    return run
