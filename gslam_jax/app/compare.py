@@ -1,4 +1,5 @@
-"""Dense JAX filter vs tiled copy-on-write reference: agreement, time and memory (``gslam compare``).
+"""Dense JAX filter vs tiled copy-on-write reference: agreement, time and memory
+(``gslam compare``).
 
 Both filters run the same Run with the same per-frame random numbers. Agreement is checked per
 frame (log weights, poses), on resampling decisions, and on the final maps (k, S). Exact
@@ -308,7 +309,8 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
                   "total_seconds": tiled_s, "draw_seconds": draw_s,
                   "peak_MB": tiled.peak_bytes / MB, "final_MB": float(tiled.memory_bytes[-1]) / MB,
                   "final_known_cache_MB": tiled.final.ledger.cache_bytes / MB,
-                  "max_tiles": int(tiled.tiles.max()), "max_shared_per_particle": float(tiled.shared_mean.max())},
+                  "max_tiles": int(tiled.tiles.max()),
+                  "max_shared_per_particle": float(tiled.shared_mean.max())},
         "tiled_resamplings": int(np.sum(tiled.resampled)),
         # mean time per local-map update as each run executes it, resampling included
         "speed_ratio_tiled_over_dense": upd_t / dense_t,
