@@ -9,10 +9,11 @@ the truth every few metres of travel, for several settings on the same Run.
 
 Every setting runs on the same Run (``--runs`` files or ``--courses`` x ``--sim-seeds``, as
 ``experiments.proposal_compare``), its ``--set`` overrides first, then the variant's own. The
-errors are those of the reported path (``[filter] estimate``) and of the VO-only path, each in
-the run's frame with no fit (both start at the true start pose), so an error made at a corner
-stays visible where it was made. Per setting it also prints the whole path's RMS after the
-rigid fit (Table I's figure), the first distance at which the heading error exceeds
+errors are those of the reported path (``[filter] estimate``; ``--path mean`` or ``best`` for
+the filter's estimate at each frame, which later frames have not corrected) and of the VO-only
+path, each in the run's frame with no fit (both start at the true start pose), so an error made
+at a corner stays visible where it was made. Per setting it also prints the whole path's RMS
+after the rigid fit (Table I's figure), the first distance at which the heading error exceeds
 ``--heading-limit`` degrees, and that at which the position error first exceeds the VO's by
 ``--margin`` metres.
 
@@ -33,7 +34,7 @@ from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides
 from gslam_jax.run import Run
 
-__all__ = ["pose_errors", "first_exceeding", "timeline", "main"]
+__all__ = ["PATHS", "pose_errors", "first_exceeding", "timeline", "main"]
 
 
 def pose_errors(path: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -51,17 +52,24 @@ def first_exceeding(values: np.ndarray, limit: float, dist: np.ndarray) -> float
     return float(dist[over[0]]) if over.size else None
 
 
+PATHS = {"reported": "path", "mean": "mean_pose", "best": "best_pose"}
+
+
 def timeline(run: Run, results: dict[str, slam.SlamResult], every: float, heading_limit: float,
-             margin: float) -> dict:
+             margin: float, path: str = "reported") -> dict:
     """Rows every ``every`` metres of travel (the VO's and each setting's errors) and each
-    setting's summary; ``results`` maps a setting's name to its run of ``run``."""
+    setting's summary; ``results`` maps a setting's name to its run of ``run``. ``path``: the
+    reported path (``[filter] estimate``, which knows the frames after each one), or the
+    filter's own estimate at each frame, the weighted mean pose or the best particle's
+    (``PATHS``), which does not."""
     truth = np.asarray(run.ground_truth, np.float64)
     known = np.isfinite(truth).all(axis=1)
     if not known.all():
         raise ValueError("the timeline needs ground truth at every frame")
     dist = loops.arc_length(truth)
     vo_pos, vo_head = pose_errors(next(iter(results.values())).vo_path, truth)
-    errors = {name: pose_errors(res.path, truth) for name, res in results.items()}
+    paths = {name: getattr(res, PATHS[path]) for name, res in results.items()}
+    errors = {name: pose_errors(p, truth) for name, p in paths.items()}
     marks = np.arange(0.0, dist[-1] + 1e-9, every)
     frames = np.unique(np.minimum(np.searchsorted(dist, marks), len(dist) - 1))
     rows = []
@@ -71,7 +79,7 @@ def timeline(run: Run, results: dict[str, slam.SlamResult], every: float, headin
         row.update({name: [float(p[t]), float(h[t])] for name, (p, h) in errors.items()})
         rows.append(row)
     summary = {name: {
-        "rms_after_fit_m": metrics.rms_after_fit(res.path, truth),
+        "rms_after_fit_m": metrics.rms_after_fit(paths[name], truth),
         "heading_beyond_limit_at_m": first_exceeding(np.abs(errors[name][1]), heading_limit,
                                                      dist),
         "position_beyond_vo_at_m": first_exceeding(errors[name][0] - vo_pos, margin, dist),
@@ -113,6 +121,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--heading-limit", type=float, default=3.0, help="degrees")
     ap.add_argument("--margin", type=float, default=0.5,
                     help="metres beyond the VO's position error")
+    ap.add_argument("--path", choices=list(PATHS), default="reported",
+                    help="the reported path ([filter] estimate, smoothed by later frames), or "
+                    "the filter's estimate at each frame: its weighted mean or best particle")
     ap.add_argument("--out", help="write the figures as JSON here")
     args = ap.parse_args(argv)
     if not (args.every > 0 and math.isfinite(args.every)):
@@ -128,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         results = {v[0]: slam.run_slam(run, apply_overrides(config, v[1:]))
                    for v in args.variant}
         try:
-            figures[case] = timeline(run, results, args.every, args.heading_limit, args.margin)
+            figures[case] = timeline(run, results, args.every, args.heading_limit, args.margin,
+                                     args.path)
         except ValueError as err:
             ap.error(f"{case}: {err}")
         _print(case, figures[case], names)

@@ -58,11 +58,25 @@ def test_timeline_places_an_error_where_it_was_made():
     assert kept["rms_after_fit_m"] < 1e-9 < lost["rms_after_fit_m"]
 
 
+def test_the_path_option_picks_the_filters_own_estimate():
+    truth = _straight(21)
+    off = truth.copy()
+    off[:, 1] += 1.0  # the per-frame estimate 1 m to the side; the reported path on the truth
+    res = {"a": SimpleNamespace(path=truth, mean_pose=off, best_pose=truth, vo_path=truth,
+                                seconds=0.0, compile_seconds=0.0)}
+    run = SimpleNamespace(ground_truth=truth)
+    reported = timeline(run, res, every=5.0, heading_limit=3.0, margin=0.5)
+    mean = timeline(run, res, every=5.0, heading_limit=3.0, margin=0.5, path="mean")
+    assert all(r["a"][0] == 0.0 for r in reported["rows"])
+    assert all(abs(r["a"][0] - 1.0) < 1e-12 for r in mean["rows"])
+    assert mean["summary"]["a"]["position_beyond_vo_at_m"] == 0.0
+
+
 def test_main_runs_each_variant_on_the_same_run(tmp_path, capsys):
     out = tmp_path / "t.json"
     assert error_timeline.main([
         "--courses", "mars-yard-a", "--max-frames", "60", "--every", "2",
-        "--set", "filter.particles=4",
+        "--set", "filter.particles=4", "--path", "best",
         "--variant", "one", "--variant", "motion-noise-x2", "motion.alpha_d=0.1",
         "--out", str(out)]) == 0
     figures = json.loads(out.read_text())["mars-yard-a/sim0"]
