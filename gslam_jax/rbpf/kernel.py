@@ -210,14 +210,6 @@ def _informed_draw(state: FilterState, obs: Observation, unknown_u: Array, z: Ar
     return state._replace(pose=d.pose, prior_cov=jnp.zeros_like(state.prior_cov)), d
 
 
-def _exponent(log_w: Array, log_lam: Array, cfg: FilterConfig) -> Array:
-    """The tempering exponent of an update's log importance factors: ``tempering.
-    adaptive_exponent`` or 1 (the paper's fixed beta)."""
-    if cfg.tempering == "adaptive":
-        return tempering.adaptive_exponent(log_w, log_lam, cfg.ess_target)
-    return jnp.ones((), log_lam.dtype)
-
-
 def update(state: FilterState, local_obs: Array, unknown_u: Array, params: FilterParams,
            cfg: FilterConfig, proposal_z: Array | None = None,
            lattice_heading: Array | float = 0.0) -> tuple[FilterState, UpdateInfo]:
@@ -244,7 +236,8 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
         correction = d.log_correction
         fitted_phi = d.phi if cfg.proposal_points > 1 else None
     w = _weigh_and_write(state, obs, unknown_u, params, cfg)
-    phi = _exponent(state.log_w, w.log_lam, cfg) if fitted_phi is None else fitted_phi
+    phi = (tempering.exponent(state.log_w, w.log_lam, cfg.tempering, cfg.ess_target)
+           if fitted_phi is None else fitted_phi)
     unnorm = state.log_w + phi * w.log_lam + correction
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik

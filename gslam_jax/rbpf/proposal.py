@@ -214,14 +214,12 @@ def update_exponent(log_w: Array, cfg: FilterConfig) -> Exponent:
     ``tempering.normaliser_exponent`` on each particle's normaliser (``"normaliser"``)."""
 
     def exponent(log_lam: Array, log_prior: Array) -> Array:
-        if cfg.tempering != "adaptive":
-            return jnp.ones((), log_lam.dtype)
-        if cfg.proposal_exponent == "normaliser":
+        if cfg.tempering == "adaptive" and cfg.proposal_exponent == "normaliser":
             return tempering.normaliser_exponent(log_w, log_lam, log_prior, cfg.ess_target)
         cloud = log_w[:, None] + log_prior
         cloud = cloud - jax.nn.logsumexp(cloud)
-        return tempering.adaptive_exponent(cloud.reshape(-1), log_lam.reshape(-1),
-                                           cfg.ess_target)
+        return tempering.exponent(cloud.reshape(-1), log_lam.reshape(-1), cfg.tempering,
+                                  cfg.ess_target)
 
     return exponent
 

@@ -36,7 +36,7 @@ from jax import Array, lax
 from gslam_jax import choices
 
 __all__ = ["TEMPERING", "BISECTION_STEPS", "conditional_ess", "largest_exponent",
-           "adaptive_exponent", "grid_log_normaliser", "normaliser_exponent"]
+           "adaptive_exponent", "exponent", "grid_log_normaliser", "normaliser_exponent"]
 
 TEMPERING = choices.TEMPERING
 BISECTION_STEPS = 30  # interval 2^-30 on [0, 1]: below float32 resolution near 1
@@ -83,6 +83,15 @@ def adaptive_exponent(log_w: Array, log_lam: Array, target: float,
         lambda phi: conditional_ess(log_w, log_lam, phi) >= target, steps)
     return phi.astype(log_lam.dtype)
 
+
+
+def exponent(log_w: Array, log_lam: Array, rule: str, target: float) -> Array:
+    """An update's exponent of its log factors ``log_lam`` under the normalised log weights
+    ``log_w``, by ``[filter] tempering`` ``rule``: 1 with "fixed" (the paper's beta as it is),
+    ``adaptive_exponent`` with "adaptive"."""
+    if rule == "adaptive":
+        return adaptive_exponent(log_w, log_lam, target)
+    return jnp.ones((), log_lam.dtype)
 
 def grid_log_normaliser(log_lam: Array, log_prior: Array, phi: Array | float) -> Array:
     """log Z_j(phi) [J] = log of the prior-weighted mean of e^{phi log lambda_jk} over each
