@@ -67,7 +67,8 @@ def timeline(run: Run, results: dict[str, slam.SlamResult], every: float, headin
     if not known.all():
         raise ValueError("the timeline needs ground truth at every frame")
     dist = loops.arc_length(truth)
-    vo_pos, vo_head = pose_errors(next(iter(results.values())).vo_path, truth)
+    vo_path = next(iter(results.values())).vo_path  # the same Run's: any setting's
+    vo_pos, vo_head = pose_errors(vo_path, truth)
     paths = {name: getattr(res, PATHS[path]) for name, res in results.items()}
     errors = {name: pose_errors(p, truth) for name, p in paths.items()}
     marks = np.arange(0.0, dist[-1] + 1e-9, every)
@@ -86,8 +87,7 @@ def timeline(run: Run, results: dict[str, slam.SlamResult], every: float, headin
         "final_position_error_m": float(errors[name][0][-1]),
         "seconds": res.seconds + res.compile_seconds,
     } for name, res in results.items()}
-    summary["vo"] = {"rms_after_fit_m": metrics.rms_after_fit(
-        next(iter(results.values())).vo_path, truth),
+    summary["vo"] = {"rms_after_fit_m": metrics.rms_after_fit(vo_path, truth),
         "heading_beyond_limit_at_m": first_exceeding(np.abs(vo_head), heading_limit, dist),
         "final_position_error_m": float(vo_pos[-1])}
     return {"rows": rows, "summary": summary}
