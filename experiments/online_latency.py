@@ -68,7 +68,8 @@ def main(argv: list[str] | None = None) -> dict:
     for t in range(run.num_frames):
         m = run.obs_index[t]
         live.push(run.controls[t], run.local_maps[m] if m >= 0 else None, run.timestamps[t],
-                  float(run.lattice_heading_array()[max(m, 0)]))
+                  float(run.lattice_heading_array()[max(m, 0)]),
+                  run.vo_failed is not None and bool(run.vo_failed[t]))
     s = live.stats()
     prediction = s.frame_latency[~np.asarray([m >= 0 for m in run.obs_index[1:]])]
     report = {

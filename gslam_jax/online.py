@@ -81,18 +81,19 @@ class OnlineStats(NamedTuple):
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
 def online_step(state: rbpf.FilterState, key: jax.Array, t: jax.Array, control: jax.Array,
                 raw_obs: jax.Array, has_obs: jax.Array, lattice_heading: jax.Array,
-                settings: observations.ObsSettings, params: rbpf.FilterParams,
-                cfg: rbpf.FilterConfig
+                noise_scale: jax.Array, settings: observations.ObsSettings,
+                params: rbpf.FilterParams, cfg: rbpf.FilterConfig
                 ) -> tuple[rbpf.FilterState, tuple[rbpf.StepInfo, jax.Array, jax.Array]]:
     """One frame t of the batch run's scan: its key ``fold_in(key, t)``, its raw observation
     [L, L, 2] refined (``observations.refine_observations``) and, where ``has_obs``, the update
-    (the local map on a lattice turned by ``lattice_heading``, ``Run.lattice_headings``).
+    (the local map on a lattice turned by ``lattice_heading``, ``Run.lattice_headings``); the
+    motion noise times ``noise_scale`` (``sizing.frame_noise_scale``).
     ``state`` is donated. Returns the state and the frame's (StepInfo, best pose, mean pose)."""
     keys = jax.random.fold_in(key, t)[None]
     obs = observations.refine_observations(raw_obs[None], settings)
     index = jnp.where(has_obs, 0, -1).astype(jnp.int32)[None]
     state, out = rbpf.scan_frames(state, keys, control[None], index, obs, params, cfg,
-                                  lattice_heading[None])
+                                  lattice_heading[None], noise_scale[None])
     return state, jax.tree.map(lambda x: x[0], out)
 
 
@@ -216,12 +217,15 @@ class Online:
         return jnp.asarray(raw)
 
     def push(self, control: np.ndarray, local_map: np.ndarray | None = None,
-             time_s: float | None = None, lattice_heading: float = 0.0) -> OnlineFrame:
+             time_s: float | None = None, lattice_heading: float = 0.0,
+             vo_failed: bool = False) -> OnlineFrame:
         """One frame: ``control`` [3] the VO increment (dx, dy, dtheta) in the robot frame of
         the previous frame (``Run.controls``), ``local_map`` [L, L, 3] the statistics
         (n, sum z, sum z^2) of the local map completed at this frame or None, on a lattice
         turned by ``lattice_heading`` radians against the robot (``Run.lattice_headings``),
-        ``time_s`` its time in seconds (for ``stats``; None: the frame index). InputError for a
+        ``time_s`` its time in seconds (for ``stats``; None: the frame index), ``vo_failed``
+        whether the control came from the fallback odometry (``Run.vo_failed``: its motion
+        noise is ``[motion] fallback_scale`` times the VO's). InputError for a
         malformed frame, ``slam.WeightError`` for non-finite weights, MapEdgeError past the
         map's edge."""
         t = self.frames
@@ -242,8 +246,9 @@ class Online:
             self.params = self.params._replace(range_noise=jnp.asarray(self._range_noise.profile))
         self.state, (info, best, mean) = online_step(
             self.state, self.key, jnp.int32(t), jnp.asarray(u, jnp.float32), raw,
-            jnp.bool_(local_map is not None), jnp.float32(lattice_heading), self.settings,
-            self.params, self.cfg)
+            jnp.bool_(local_map is not None), jnp.float32(lattice_heading),
+            jnp.float32(self.config.motion.fallback_scale if vo_failed else 1.0),
+            self.settings, self.params, self.cfg)
         info, best, mean = jax.device_get((info, best, mean))
         best, mean = turn_poses(best, self.heading), turn_poses(mean, self.heading)
         seconds = time.perf_counter() - t0
@@ -277,7 +282,7 @@ class Online:
                            resampled=bool(info.resampled), seconds=seconds)
 
     def push_points(self, control: np.ndarray, points: np.ndarray,
-                    time_s: float | None = None) -> OnlineFrame:
+                    time_s: float | None = None, vo_failed: bool = False) -> OnlineFrame:
         """One frame of robot-frame points [N, 3] (x forward, y left, z up): fused into local
         maps at the VO poses every [localmap] travel metres (``LocalMapBuilder``, the first at
         the first frame, as ``build_local_maps`` does), then ``push``."""
@@ -286,7 +291,7 @@ class Online:
         if self.frames == 0 and stats is None:
             stats = self._builder.flush()
         heading = self._builder.lattice_headings[-1] if stats is not None else 0.0
-        return self.push(control, stats, time_s, heading)
+        return self.push(control, stats, time_s, heading, vo_failed)
 
     def particles(self) -> Particles:
         """The particles now: poses [J, 3] and normalised weights [J]."""

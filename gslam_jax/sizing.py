@@ -1,6 +1,7 @@
 """The filter's static settings for a Run: the map extent sized from the VO path (and a prior
 map), the automatic choices (map store, particle block, ESS target), the memory and float32
-checks that come before any allocation, and the motion and weighting parameters."""
+checks that come before any allocation, the motion and weighting parameters, and each frame's
+motion-noise scale."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from gslam_jax.run_checks import coordinate_limit, float32_spacing
 
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "map_memory",
            "filter_config", "extent_filter_config", "resolve_ess_target",
-           "resolve_proposal_draws", "filter_params"]
+           "resolve_proposal_draws", "filter_params", "frame_noise_scale"]
 
 
 class MapExtent(NamedTuple):
@@ -242,3 +243,14 @@ def filter_params(config: Config, run: Run | None = None,
                             jnp.float32(m.alpha_theta), jnp.float32(m.alpha_cross)),
         beta_prev=jnp.float32(config.filter.beta_prev),
         beta_new=jnp.float32(config.filter.beta_new), range_noise=noise)
+
+
+def frame_noise_scale(run: Run, config: Config) -> np.ndarray | None:
+    """[T] float32 each frame's motion-noise scale (``rbpf.step``): ``[motion]
+    fallback_scale`` on the frames whose control came from the fallback odometry
+    (``Run.vo_failed``), 1 elsewhere; None when every frame's is 1 (the filter then runs
+    unscaled, as before the setting)."""
+    scale = config.motion.fallback_scale
+    if run.vo_failed is None or scale == 1.0 or not np.any(run.vo_failed):
+        return None
+    return np.where(np.asarray(run.vo_failed, bool), scale, 1.0).astype(np.float32)

@@ -25,7 +25,7 @@ from gslam_jax.map_reuse import PriorMap, prior_state, rebase
 from gslam_jax.observations import ObsSettings, map_observations, obs_settings, raw_observations
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.run import Run, known_positions
-from gslam_jax.sizing import filter_config, filter_params, map_memory
+from gslam_jax.sizing import filter_config, filter_params, frame_noise_scale, map_memory
 from gslam_jax.vo.localmap import map_axes_heading
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
@@ -54,6 +54,7 @@ class RunArrays(NamedTuple):
     mask: jax.Array        # [T] frames with a ground-truth position (``ground_truth_mask``)
     start: jax.Array       # [3]
     obs: ObsSettings       # the config's settings for ``refine_observations``
+    noise_scale: jax.Array | None = None  # [T] (``sizing.frame_noise_scale``; None: all 1)
 
 
 def ground_truth_mask(run: Run) -> np.ndarray:
@@ -138,6 +139,7 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
     run = filtered_run(run, config)[2]
     T = run.num_frames
     gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
+    scale = frame_noise_scale(run, config)
     arrays = RunArrays(
         controls=jnp.asarray(run.controls, jnp.float32),
         obs_index=jnp.asarray(run.obs_index, jnp.int32),
@@ -146,7 +148,8 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
         reference=jnp.asarray(np.nan_to_num(gt), jnp.float32),
         mask=jnp.asarray(ground_truth_mask(run)),
         start=jnp.asarray(run.start_pose(), jnp.float32),
-        obs=obs_settings(config))
+        obs=obs_settings(config),
+        noise_scale=None if scale is None else jnp.asarray(scale))
     return arrays, filter_config(config, run)
 
 
@@ -192,18 +195,24 @@ def _scan_chunk(state: rbpf.FilterState, start: int, frames: tuple, obs: jax.Arr
                 headings: jax.Array, params: rbpf.FilterParams, cfg: rbpf.FilterConfig,
                 growth: maps.PoolGrowth | None) -> tuple[rbpf.FilterState, tuple,
                                                           rbpf.FilterConfig]:
-    """``rbpf.scan_frames`` over one chunk of ``frames`` (keys, controls, obs_index) from frame
-    ``start`` (local maps ``obs`` on lattices turned by ``headings``), its outputs on the
-    host. With an automatic pool (``growth``) the chunk is run
+    """``rbpf.scan_frames`` over one chunk of ``frames`` (keys, controls, obs_index, noise
+    scale or None) from frame ``start`` (local maps ``obs`` on lattices turned by
+    ``headings``), its outputs on the host. With an automatic pool (``growth``) the chunk is run
     again from its start, in a grown pool, when it ran out of tiles (as long as the memory
     allows; otherwise its outputs carry the status that ``_check_map_status`` names)."""
+    keys, controls, obs_index, scale = frames
+
+    def scan(s: rbpf.FilterState, cfg: rbpf.FilterConfig) -> tuple[rbpf.FilterState, tuple]:
+        return rbpf.scan_frames(s, keys, controls, obs_index, obs, params, cfg, headings,
+                                scale)
+
     if growth is None:
-        state, out = rbpf.scan_frames(state, *frames, obs, params, cfg, headings)
+        state, out = scan(state, cfg)
         return state, jax.device_get(out), cfg
     growth.before(state.maps)
     kept = jax.tree.map(jnp.copy, state)  # scan_frames donates the state it is given
     while True:
-        state, out = rbpf.scan_frames(state, *frames, obs, params, cfg, headings)
+        state, out = scan(state, cfg)
         out = jax.device_get(out)
         ran_out = _ran_out(out[0])
         regrown = ran_out and growth.regrow(kept.maps, cfg, start, start + ran_out - 1)
@@ -328,6 +337,9 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     pad = (-T) % chunk
     controls = np.concatenate([controls, np.zeros((pad, 3), np.float32)])
     obs_index = np.concatenate([obs_index, -np.ones(pad, np.int32)])
+    scale = frame_noise_scale(run, config)
+    if scale is not None:
+        scale = np.concatenate([scale, np.ones(pad, np.float32)])
     keys = jnp.concatenate([keys, jax.random.split(jax.random.key(0), pad)]) if pad else keys
 
     if prior is None:
@@ -344,9 +356,10 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     for start in range(0, T + pad, chunk):
         sl = slice(start, start + chunk)
         c0 = time.perf_counter()
-        state, out, cfg = _scan_chunk(state, start, (keys[sl], jnp.asarray(controls[sl]),
-                                                     jnp.asarray(obs_index[sl])),
-                                      obs, headings, params, cfg, growth)
+        frames = (keys[sl], jnp.asarray(controls[sl]), jnp.asarray(obs_index[sl]),
+                  None if scale is None else jnp.asarray(scale[sl]))
+        state, out, cfg = _scan_chunk(state, start, frames, obs, headings, params, cfg,
+                                      growth)
         if start == 0:
             compile_s = time.perf_counter() - c0  # first chunk includes compilation
         _check_weights(out[0], start, min(chunk, T - start), obs_index)

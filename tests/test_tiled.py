@@ -80,7 +80,8 @@ def _equivalence() -> dict:
     out = {}
     # "ignore" in one pass over the particles; "sample" in blocks of 5 (3 blocks and a tail of 1).
     # and "ignore" with adaptive tempering (issue 16), which the reference solves on its own.
-    # "sample" also with cross-track motion noise (MotionParams.alpha_cross).
+    # "sample" also with cross-track motion noise (MotionParams.alpha_cross) and with a frame
+    # in five scaled as the fallback odometry's ([motion] fallback_scale).
     for mode, block, temper, lattice in (("ignore", 16, "fixed", "robot"),
                                          ("sample", 5, "fixed", "robot"),
                                          ("ignore", 16, "adaptive", "robot"),
@@ -100,15 +101,19 @@ def _equivalence() -> dict:
         if mode == "sample":
             params = params._replace(motion=params.motion._replace(alpha_cross=0.03))
         headings = run.lattice_heading_array()
+        scale = None  # "sample" on the robot's lattice: every fifth frame the fallback's
+        if mode == "sample" and lattice == "robot":
+            scale = np.where(np.arange(run.num_frames) % 5 == 2, 3.0, 1.0).astype(np.float32)
         d = rbpf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
                             jnp.asarray(run.obs_index), jnp.asarray(obs), cfg,
-                            lattice_headings=jnp.asarray(headings))
+                            lattice_headings=jnp.asarray(headings),
+                            noise_scale=None if scale is None else jnp.asarray(scale))
         i = jax.device_get(d.infos)
         dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.maps.k),
                             np.asarray(d.final_state.maps.S), 0, 0.0, 0.0,
                             ancestors=np.asarray(i.ancestors))
         tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile_size=16 * 0.16,
-                          lattice_headings=headings)
+                          lattice_headings=headings, noise_scale=scale)
         name = f"{mode}-{temper}" + ("" if lattice == "robot" else f"-{lattice}")
         out[name] = check_agreement(dense, tiled, cfg)
         if temper == "adaptive":  # following the dense decisions: real differences still show

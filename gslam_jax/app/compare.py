@@ -234,7 +234,7 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     """``compare`` without the output folder: the result dict, both runs and the config."""
     from gslam_jax.machine import environment
     from gslam_jax.observations import local_observations
-    from gslam_jax.sizing import filter_config, filter_params
+    from gslam_jax.sizing import filter_config, filter_params, frame_noise_scale
     from gslam_jax.slam import map_heading, on_map_axes
 
     config = config or Config()
@@ -267,7 +267,8 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     say(f"  run: {run.num_frames} frames, {run.num_local_maps} local maps "
         f"({obs.shape[1]}x{obs.shape[1]} cells), map {cfg.map_shape} cells at {cfg.resolution} m, "
         f"J={cfg.num_particles}, unknown_cells={cfg.unknown_cells}, tile {tile:g} m")
-    dense = run_dense(key, params, run, obs, cfg)
+    scale = frame_noise_scale(run, config)  # the fallback odometry's frames
+    dense = run_dense(key, params, run, obs, cfg, noise_scale=scale)
     t0 = time.perf_counter()
     draws = draw_noise(key, run.obs_index, cfg)  # compiles and dispatches the draws: not timed
     draw_s = time.perf_counter() - t0
@@ -275,7 +276,7 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile, run.start_pose(),
                       draws=draws, follow=Decisions(np.asarray(dense.resampled),
                                                     np.asarray(dense.ancestors)),
-                      lattice_headings=run.lattice_heading_array())
+                      lattice_headings=run.lattice_heading_array(), noise_scale=scale)
     tiled_s = time.perf_counter() - t0
     agree = check_agreement(dense, tiled, cfg)
     tiled_upd_rs = np.asarray(tiled.resampled)[np.asarray(run.obs_index) >= 0]  # [M]

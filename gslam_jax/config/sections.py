@@ -95,6 +95,10 @@ class MotionSection:
     alpha_theta: float = 0.05
     # cross-track std per metre travelled (rbpf.motion); 0: the paper's eq. 1, which has none
     alpha_cross: float = 0.0
+    # every std above times this on frames whose control came from the fallback odometry
+    # (Run.vo_failed: wheels and IMU where VO failed, "less accurate than those from VO",
+    # paper 4); 1: weighed as VO
+    fallback_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -253,6 +257,8 @@ class Config:
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             *((getattr(self.motion, k) >= 0, "motion", k, "must be non-negative")
               for k in ("alpha_d", "alpha_theta_d", "alpha_theta", "alpha_cross")),
+            (self.motion.fallback_scale > 0, "motion", "fallback_scale",
+             "must be positive (1: the fallback's frames weighed as VO's)"),
             (m.resolution > 0, "map", "resolution", "must be positive"),
             (m.margin >= 0, "map", "margin", "must be non-negative"),
             # S = 0 with k > 0 would make log S = -inf and every log weight NaN

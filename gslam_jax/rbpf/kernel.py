@@ -30,7 +30,7 @@ import jax.numpy as jnp
 from jax import Array, lax
 
 from gslam_jax.rbpf import cells, maps, proposal, resampling, tempering
-from gslam_jax.rbpf.motion import apply_motion
+from gslam_jax.rbpf.motion import apply_motion, scaled
 from gslam_jax.rbpf.paths import backtrack_path, weighted_mean_pose
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import cell_noise, log_lambda
@@ -320,7 +320,8 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
 def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
          params: FilterParams, cfg: FilterConfig, has_obs: Array | bool = True, *,
          propose: Proposal | None = None, resampler: Resampler = resample,
-         lattice_heading: Array | float = 0.0) -> tuple[FilterState, StepInfo]:
+         lattice_heading: Array | float = 0.0,
+         noise_scale: Array | float = 1.0) -> tuple[FilterState, StepInfo]:
     """One frame, the filter's only one: ``propose`` (predict, eq. 24), then, if the frame has
     a local map, ``observe`` (update, then ``resampler``).
 
@@ -328,12 +329,16 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
     frame has one: True (Python) updates, a traced bool chooses under ``lax.cond``. The key is
     split once into the motion draws and the update's draws (``update_noise``). ``propose``
     None: ``propagate`` (the motion proposal) or, with ``cfg.proposal == "informed"``,
-    ``propagate_mean``. ``lattice_heading``: the local map's (``update``).
+    ``propagate_mean``. ``lattice_heading``: the local map's (``update``). ``noise_scale``:
+    the motion noise's stds of this frame as a multiple of ``params.motion``'s (``scaled``;
+    e.g. ``[motion] fallback_scale`` where the control came from the fallback odometry).
     """
     if propose is None:
         propose = propagate_mean if cfg.proposal == "informed" else propagate
     k_motion, k_update = jax.random.split(key)
-    state = propose(state, u, motion_noise(k_motion, cfg), params)
+    unscaled = isinstance(noise_scale, float) and noise_scale == 1.0
+    moved = params if unscaled else params._replace(motion=scaled(params.motion, noise_scale))
+    state = propose(state, u, motion_noise(k_motion, cfg), moved)
     if local_obs is None or has_obs is False:
         return state, _no_update_info(state, cfg)
 
@@ -353,28 +358,31 @@ def _summaries(info: StepInfo) -> tuple[Array, Array]:
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
 def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Array,
                 local_obs: Array, params: FilterParams, cfg: FilterConfig,
-                lattice_headings: Array | None = None
+                lattice_headings: Array | None = None, noise_scale: Array | None = None
                 ) -> tuple[FilterState, tuple[StepInfo, Array, Array]]:
     """``lax.scan`` of ``step`` over frames (update where obs_index >= 0).
 
     keys [T], controls [T, 3], obs_index [T] (index into local_obs or -1), local_obs
     [M, L, L, 2] observations (k, S) from ``cells.obs_from_stats`` with M >= 1,
-    lattice_headings [M] (``Run.lattice_heading_array``; None: all 0, the robot's axes).
+    lattice_headings [M] (``Run.lattice_heading_array``; None: all 0, the robot's axes),
+    noise_scale [T] each frame's motion-noise scale (``step``; None: all 1).
     Returns the final state and per-frame (StepInfo, best pose, weighted-mean pose).
     ``state`` is donated: the maps are updated in its buffers, so do not use it afterwards
     (pass ``jax.tree.map(jnp.copy, state)`` to keep it).
     """
 
     def frame(state, xs):
-        k, u, idx = xs
+        k, u, idx = xs[:3]
         m = jnp.maximum(idx, 0)
         heading = 0.0 if lattice_headings is None else lattice_headings[m]
         state, info = step(k, state, u, local_obs[m], params, cfg, idx >= 0,
-                           lattice_heading=heading)
+                           lattice_heading=heading,
+                           noise_scale=1.0 if noise_scale is None else xs[3])
         best, mean = _summaries(info)
         return state, (info, best, mean)
 
-    return lax.scan(frame, state, (keys, controls, obs_index))
+    scales = () if noise_scale is None else (noise_scale,)
+    return lax.scan(frame, state, (keys, controls, obs_index) + scales)
 
 
 def frame_keys(key: Array, num_frames: int) -> Array:
@@ -385,12 +393,13 @@ def frame_keys(key: Array, num_frames: int) -> Array:
 @partial(jax.jit, static_argnames=("cfg",))
 def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Array,
                local_obs: Array, cfg: FilterConfig, start_pose: Array | None = None,
-               lattice_headings: Array | None = None) -> RunOutput:
+               lattice_headings: Array | None = None,
+               noise_scale: Array | None = None) -> RunOutput:
     """The whole filter in one jitted call (see ``scan_frames``); vmappable and differentiable
     in ``params``."""
     state = init(cfg, start_pose)
     final, (infos, best, mean) = scan_frames(
         state, frame_keys(key, controls.shape[0]), controls, obs_index, local_obs, params, cfg,
-        lattice_headings)
+        lattice_headings, noise_scale)
     path = backtrack_path(infos.pose, infos.ancestors, final.best)
     return RunOutput(final, infos, best, mean, path)

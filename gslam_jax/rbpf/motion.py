@@ -12,6 +12,10 @@ alpha_cross = 0 (the default) is the paper's model exactly.
 
 Noise enters reparameterised (eps ~ N(0, 1) times sigma), so samples are differentiable in the
 alphas.
+
+A frame whose control came from the fallback odometry (wheels and IMU where VO failed; paper 4:
+"less accurate than those from VO") takes every std times a scale (``scaled``,
+``[motion] fallback_scale``).
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-__all__ = ["MotionParams", "motion_stds", "world_step", "control_between", "apply_motion",
+__all__ = ["MotionParams", "scaled", "motion_stds", "world_step", "control_between", "apply_motion",
            "sample_motion", "log_density"]
 
 
@@ -34,6 +38,13 @@ class MotionParams(NamedTuple):
     alpha_theta_d: Array | float
     alpha_theta: Array | float
     alpha_cross: Array | float = 0.0
+
+
+def scaled(params: MotionParams, scale: Array | float) -> MotionParams:
+    """``params`` with every noise std (sigma_d, sigma_theta, sigma_c of eqs. 2-3) times
+    ``scale``: the motion model of a frame whose control is ``scale`` times as uncertain."""
+    return MotionParams(params.alpha_d * scale, params.alpha_theta_d * scale,
+                        params.alpha_theta * scale, params.alpha_cross * scale)
 
 
 def motion_stds(u: Array, params: MotionParams) -> tuple[Array, Array, Array]:

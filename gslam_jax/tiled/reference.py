@@ -125,11 +125,15 @@ def init(cfg: FilterConfig, tile_size: float = DEFAULT_TILE_SIZE,
                       maps=[TileMap(side, ledger) for _ in range(J)], ledger=ledger)
 
 
-def predict(state: TiledState, u: np.ndarray, eps: np.ndarray, params: FilterParams) -> None:
-    """Motion model (eqs. 1-3, 24) for every particle, in place."""
+def predict(state: TiledState, u: np.ndarray, eps: np.ndarray, params: FilterParams,
+            noise_scale: float = 1.0) -> None:
+    """Motion model (eqs. 1-3, 24) for every particle, in place; every noise std times
+    ``noise_scale`` (a frame of the fallback odometry, ``[motion] fallback_scale``)."""
     m = params.motion
-    state.pose = nm.apply_motion(state.pose, u, eps, float(m.alpha_d), float(m.alpha_theta_d),
-                                 float(m.alpha_theta), float(m.alpha_cross))
+    s = float(noise_scale)
+    state.pose = nm.apply_motion(state.pose, u, eps, float(m.alpha_d) * s,
+                                 float(m.alpha_theta_d) * s, float(m.alpha_theta) * s,
+                                 float(m.alpha_cross) * s)
 
 
 def _particle(tmap: TileMap, pose: np.ndarray, cs: tuple, obs: np.ndarray, u: np.ndarray,
@@ -303,10 +307,11 @@ def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_in
               start_pose: np.ndarray | None = None,
               progress: Callable[[int, int], None] | None = None,
               draws: Draws | None = None, follow: Decisions | None = None,
-              lattice_headings: np.ndarray | None = None) -> TiledOutput:
+              lattice_headings: np.ndarray | None = None,
+              noise_scale: np.ndarray | None = None) -> TiledOutput:
     """The whole run, frame by frame, with the dense filter's per-frame random numbers
     (local map m on a lattice turned by ``lattice_headings[m]``, ``Run.lattice_headings``;
-    None: all 0):
+    None: all 0; frame t's motion noise times ``noise_scale[t]``, None: all 1):
     ``draws`` (``draw_noise(key, obs_index, cfg)``, made here first when not given; pass them
     to time the run alone). With ``draws`` given, the loop is NumPy only: ``key`` is unused.
     ``follow``: another filter's resampling decisions, taken where they differ from the
@@ -329,7 +334,8 @@ def run_tiled(key: jax.Array, params: FilterParams, controls: np.ndarray, obs_in
     upd_s, violations, rounding = [], 0, []
     snap = memory_snapshot(state)
     for t in range(T):
-        predict(state, controls[t], draws.motion[t], params)
+        predict(state, controls[t], draws.motion[t], params,
+                1.0 if noise_scale is None else noise_scale[t])
         ess, resampled, anc = nm.ess(state.log_w), False, np.arange(J)
         if obs_index[t] >= 0:
             noise = draws.update[t]

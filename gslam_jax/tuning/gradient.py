@@ -136,17 +136,19 @@ def sw_objectives(key: Array, params: rbpf.FilterParams, inputs: TuneInputs,
     keys = rbpf.frame_keys(key, inputs.controls.shape[0])
 
     def frame(state: rbpf.FilterState, xs):
-        k, u, idx, ref, m = xs
+        k, u, idx, ref, m, scale = xs
         local = jnp.maximum(idx, 0)
         state, info = rbpf.step(k, state, u, inputs.local_obs[local], params, cfg, idx >= 0,
                                 propose=sw_propose, resampler=sw_resample,
-                                lattice_heading=inputs.lattice_headings[local])
+                                lattice_heading=inputs.lattice_headings[local],
+                                noise_scale=1.0 if scale is None else scale)
         w = jax.nn.softmax(state.log_w)  # self-normalised: weights carry the gradient
         d2 = jnp.sum((state.pose[:, :2] - ref[:2]) ** 2, axis=-1)
         return state, (info.log_lik, jnp.where(m, w @ d2, 0.0))
 
     state, (ll, err) = lax.scan(frame, state, (keys, inputs.controls, inputs.obs_index,
-                                               inputs.reference, inputs.mask))
+                                               inputs.reference, inputs.mask,
+                                               inputs.noise_scale))
     n = jnp.maximum(jnp.sum(inputs.mask), 1)
     return Objectives(jnp.sum(ll), jnp.sum(err) / n, maps.status(state.maps))
 

@@ -1,0 +1,131 @@
+"""The fallback odometry's frames (``[motion] fallback_scale``): every std of eqs. 2-3 times the
+scale on the frames a Run flags ``vo_failed``, in the batch run, ``Online`` and the tuner (the
+tiled reference's agreement with it: ``test_tiled``); a scale of 1 is the filter as before."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from synthetic import make_run
+
+from gslam_jax import rbpf, sizing, slam
+from gslam_jax.config import Config, ConfigError, FilterSection, MotionSection
+from gslam_jax.observations import refine_observations
+from gslam_jax.online import Online
+from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds, scaled
+from gslam_jax.tuning import gradient as TU
+
+FAILED = slice(20, 26)  # the frames of a VO failure burst in the runs below
+
+
+@pytest.fixture(scope="module")
+def failing_run():
+    run, _ = make_run(seed=2, steps=50)
+    failed = np.zeros(run.num_frames, bool)
+    failed[FAILED] = True
+    return run._replace(vo_failed=failed)
+
+
+def _config(scale: float, particles: int = 8) -> Config:
+    return Config(filter=FilterSection(particles=particles, seed=1),
+                  motion=MotionSection(fallback_scale=scale))
+
+
+def test_scaled_multiplies_every_std_and_draw():
+    p = MotionParams(0.05, 0.01, 0.04, 0.02)
+    u = jnp.array([[0.3, 0.05, 0.1], [0.0, 0.0, 0.2], [0.4, 0.0, 0.0]])
+    d1, sd1, st1 = motion_stds(u, p)
+    d3, sd3, st3 = motion_stds(u, scaled(p, 3.0))
+    np.testing.assert_allclose(d3, d1)
+    np.testing.assert_allclose(sd3, 3 * sd1, rtol=1e-6)
+    np.testing.assert_allclose(st3, 3 * st1, rtol=1e-6)
+    pose = jnp.array([1.0, -2.0, 0.7])
+    eps = jnp.array([[0.8, -1.3, 0.5]] * 3)
+    still = apply_motion(pose, u, jnp.zeros_like(eps), p)
+    np.testing.assert_allclose(apply_motion(pose, u, eps, scaled(p, 3.0)) - still,
+                               3 * (apply_motion(pose, u, eps, p) - still), atol=1e-6)
+
+
+def test_frame_noise_scale_marks_the_fallback_frames(failing_run):
+    assert sizing.frame_noise_scale(failing_run, _config(1.0)) is None  # as before
+    assert sizing.frame_noise_scale(failing_run._replace(vo_failed=None), _config(3.0)) is None
+    scale = sizing.frame_noise_scale(failing_run, _config(3.0))
+    want = np.ones(failing_run.num_frames, np.float32)
+    want[FAILED] = 3.0
+    np.testing.assert_array_equal(scale, want)
+    with pytest.raises(ConfigError, match=r"\[motion\] fallback_scale must be positive"):
+        _config(0.0).validate()
+
+
+@pytest.mark.parametrize("proposal", ["motion", "informed"])
+def test_the_particles_spread_by_the_scaled_noise(proposal):
+    """No update: after T frames each particle's heading has moved by the sum of its draws
+    times each frame's sigma_theta (eq. 3), so over many particles its variance is the sum of
+    the frames' (s_t sigma_theta)^2; the informed proposal carries that sum in its prior
+    covariance (linearised, and exact for the heading)."""
+    T, J = 12, 4096
+    p = MotionParams(0.05, 0.02, 0.1)
+    u = jnp.tile(jnp.array([0.5, 0.0, 0.1], jnp.float32), (T, 1))
+    s = np.ones(T, np.float32)
+    s[3:6] = 4.0
+    sigma = 0.02 * 0.5 + 0.1 * 0.1
+    want = float(np.sum((s * sigma) ** 2))
+    cfg = rbpf.FilterConfig(J, (16, 16), (-1.3, -1.3), 0.16, 4, proposal=proposal).validate()
+    params = rbpf.FilterParams(motion=p)
+    state, _ = rbpf.scan_frames(rbpf.init(cfg), rbpf.frame_keys(jax.random.key(0), T), u,
+                                -jnp.ones(T, jnp.int32), jnp.zeros((1, 4, 4, 2)), params, cfg,
+                                noise_scale=jnp.asarray(s))
+    if proposal == "informed":
+        np.testing.assert_allclose(np.asarray(state.prior_cov[:, 2, 2]), want, rtol=1e-5)
+    else:
+        heading = np.asarray(state.pose[:, 2], np.float64)
+        assert np.var(heading) == pytest.approx(want, rel=0.08)  # 8 % = 5 standard errors
+        assert abs(np.var(heading) - T * sigma ** 2) > 0.5 * want  # not the unscaled spread
+
+
+def test_a_scale_of_one_is_the_filter_as_before(failing_run):
+    plain = slam.run_slam(failing_run._replace(vo_failed=None), _config(3.0))
+    ones = slam.run_slam(failing_run, _config(1.0))
+    scaled_run = slam.run_slam(failing_run, _config(3.0))
+    np.testing.assert_array_equal(ones.path, plain.path)
+    before = failing_run.obs_index[:FAILED.start] >= 0
+    # the same up to the burst, where the draws are the same; different after it
+    np.testing.assert_array_equal(scaled_run.best_pose[:FAILED.start][before],
+                                  plain.best_pose[:FAILED.start][before])
+    assert np.max(np.abs(scaled_run.path - plain.path)) > 1e-4
+
+
+def test_online_reproduces_the_batch_run_with_fallback_frames(failing_run):
+    config = _config(3.0)
+    res = slam.run_slam(failing_run, config)
+    live = Online(config, filter_config=slam.run_filter_config(failing_run, config))
+    for t in range(failing_run.num_frames):
+        m = failing_run.obs_index[t]
+        out = live.push(failing_run.controls[t], failing_run.local_maps[m] if m >= 0 else None,
+                        failing_run.timestamps[t], vo_failed=bool(failing_run.vo_failed[t]))
+        np.testing.assert_array_equal(out.pose, res.best_pose[t])
+    np.testing.assert_allclose(live.path(), res.path, rtol=0, atol=1e-9)
+
+
+def test_the_tuner_runs_the_filter_with_the_scale(failing_run):
+    """The Scibior-Wood objective's forward value is the filter's evidence with the same
+    scaled frames, and differs from the unscaled one."""
+    config = dataclasses.replace(_config(3.0), filter=FilterSection(particles=8, seed=1,
+                                                                      resample_ratio=0.0))
+    inputs, cfg = TU.make_inputs(failing_run, config)
+    assert inputs.noise_scale is not None
+    inputs = inputs._replace(local_obs=refine_observations(inputs.local_obs, inputs.obs))
+    params = sizing.filter_params(config)
+    key = jax.random.key(5)
+    obj = TU.sw_objectives(key, params, inputs, cfg)
+    out = rbpf.run_filter(key, params, inputs.controls, inputs.obs_index, inputs.local_obs,
+                          cfg, inputs.start, inputs.lattice_headings, inputs.noise_scale)
+    unscaled = rbpf.run_filter(key, params, inputs.controls, inputs.obs_index,
+                               inputs.local_obs, cfg, inputs.start, inputs.lattice_headings)
+    evidence = float(jnp.sum(out.infos.log_lik))
+    np.testing.assert_allclose(float(obj.loglik), evidence, rtol=1e-6)
+    assert abs(evidence - float(jnp.sum(unscaled.infos.log_lik))) > 1e-3
