@@ -27,7 +27,7 @@ PROPOSALS = ("motion", "informed")
 PROPOSAL_EXPONENTS = ("prior", "normaliser")
 # ``[filter] proposal_draws``: the proposals' standard normals drawn independently per particle,
 # or in antithetic pairs (particle j + ceil(J/2) gets the negated draw of particle j), so that
-# the particles' unweighted mean draw is zero (``rbpf.kernel.standard_normals``);
+# the particles' unweighted mean draw is zero (``rbpf.draws.standard_normals``);
 # "auto" resolves by the run's sensor (``AUTO_PROPOSAL_DRAWS``)
 PROPOSAL_DRAWS = ("independent", "antithetic", "auto")
 # ``[filter] range_noise``: none (eq. 26 as in the paper), or a measurement variance per range

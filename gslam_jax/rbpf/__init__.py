@@ -12,6 +12,8 @@ Modules, one idea each:
 * ``importance``: the log importance factor of each particle (eqs. 26, 30 / 31);
 * ``maps``: the map-store seam (allocate, read, write, copy on resampling, sizing) in front
   of the dense store (``densestore``) and the shared-tile store (``tilestore``);
+* ``draws``: the random numbers of each frame (keys, the proposal's normals, an update's
+  uniforms), so that the tiled reference can be driven with the same ones;
 * ``kernel``: ``init``, ``predict``, ``update`` (weigh, write, normalise), ``resample``
   (ESS-gated), ``step`` (one frame), ``scan_frames`` and ``run_filter``;
 * ``paths``: trajectory estimates (the best particle's path, the smoother's mean path).
@@ -19,9 +21,9 @@ Modules, one idea each:
 This package exports what a user of the filter calls; the rest is imported from its module.
 """
 
-from gslam_jax.rbpf.kernel import (Proposal, Resampler, frame_keys, init, motion_noise, observe,
-                                   predict, resample, run_filter, scan_frames, standard_normals,
-                                   step, update, update_noise)
+from gslam_jax.rbpf.draws import frame_keys, motion_noise, standard_normals, update_noise
+from gslam_jax.rbpf.kernel import (Proposal, Resampler, init, observe, predict, resample,
+                                   run_filter, scan_frames, step, update)
 from gslam_jax.rbpf.maps import particle_map
 from gslam_jax.rbpf.paths import (ancestry_path, backtrack_path, smoothed_mean_path,
                                   smoothed_step_path)

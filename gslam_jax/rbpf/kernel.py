@@ -14,8 +14,8 @@ The proposal and the resampler are arguments of ``step``, so the tuner's Scibior
 estimator (``tuning``) runs this very frame with its stop-gradient versions of both. The whole
 Run is a ``lax.scan`` of ``step`` (``scan_frames``, ``run_filter``); poses and resampling
 ancestors are kept per frame so the best particle's full path survives resampling
-(``paths``). Random numbers come from ``motion_noise`` and ``update_noise`` so that
-another implementation can be driven with exactly the same draws. The maps are touched only
+(``paths``). Random numbers come from ``draws`` (``motion_noise``, ``update_noise``) so
+that another implementation can be driven with exactly the same draws. The maps are touched only
 through ``rbpf.maps`` (the map-store seam): nothing here knows which store holds them.
 """
 
@@ -30,6 +30,7 @@ import jax.numpy as jnp
 from jax import Array, lax
 
 from gslam_jax.rbpf import cells, maps, proposal, resampling, tempering
+from gslam_jax.rbpf.draws import frame_keys, motion_noise, update_noise
 from gslam_jax.rbpf.motion import apply_motion, scaled
 from gslam_jax.rbpf.paths import backtrack_path, weighted_mean_pose
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
@@ -37,9 +38,8 @@ from gslam_jax.rbpf.importance import cell_noise, log_lambda
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Observation,
                                   RunOutput, StepInfo, UpdateInfo, UpdateNoise)
 
-__all__ = ["Proposal", "Resampler", "init", "standard_normals", "motion_noise", "update_noise",
-           "predict", "propagate", "propagate_mean", "update", "ancestors", "resample", "observe",
-           "step", "scan_frames", "frame_keys", "run_filter", "best_slot"]
+__all__ = ["Proposal", "Resampler", "init", "predict", "propagate", "propagate_mean", "update",
+           "ancestors", "resample", "observe", "step", "scan_frames", "run_filter", "best_slot"]
 
 Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
 """(state, u [3], standard-normal draws [J, 2], params) -> state with the particles moved."""
@@ -78,51 +78,6 @@ def init(cfg: FilterConfig, start_pose: Array | None = None,
             pose = pose + jax.random.normal(key, (J, 3), jnp.float32) * sigma
     return FilterState(pose=pose, log_w=jnp.full((J,), -math.log(J), jnp.float32),
                        maps=maps.init(cfg, prior_map), best=jnp.int32(0), prior_cov=cov)
-
-
-def standard_normals(key: Array, shape: tuple[int, int], draws: str) -> Array:
-    """Standard normals [J, d] for a proposal, one row per particle.
-
-    "independent": every row its own draw. "antithetic": rows ``j`` and ``j + ceil(J/2)`` are
-    ``z`` and ``-z`` (an odd J leaves row ``J // 2`` unpaired). Every row is still N(0, I), so
-    each particle's proposal and importance weight are unchanged; but the particles' unweighted
-    mean draw is zero, so where the map's weights are flat their mean heading stays on the VO's
-    (eq. 3 is additive; their mean position to first order in the noise) instead of taking a
-    Monte Carlo error of O(sigma / sqrt(J)) that a random walk accumulates (antithetic
-    variates; Owen, Monte Carlo theory, methods and examples, 8.2).
-    """
-    J, d = shape
-    if draws == "independent":
-        return jax.random.normal(key, (J, d), jnp.float32)
-    if draws != "antithetic":
-        raise ValueError(f"proposal draws '{draws}' unknown: 'independent' or 'antithetic' "
-                         "('auto' is resolved by the run's sensor before)")
-    z = jax.random.normal(key, ((J + 1) // 2, d), jnp.float32)
-    return jnp.concatenate([z, -z])[:J]
-
-
-def motion_noise(key: Array, cfg: FilterConfig) -> Array:
-    """Standard-normal motion draws [J, 3] for one frame (along-track, heading, cross-track).
-
-    The cross-track column comes from its own key, so the first two are the same draws whether
-    or not the motion model has cross-track noise (``MotionParams.alpha_cross``)."""
-    J = cfg.num_particles
-    return jnp.concatenate(
-        [standard_normals(key, (J, 2), cfg.proposal_draws),
-         standard_normals(jax.random.fold_in(key, 2), (J, 1), cfg.proposal_draws)], axis=1)
-
-
-def update_noise(key: Array, cfg: FilterConfig) -> UpdateNoise:
-    """Uniforms for one update (unknown-cell sampling, then resampling)."""
-    k_unknown, k_resample = jax.random.split(key)
-    n = cfg.unknown_samples if cfg.unknown_cells == "sample" else 0
-    z = (standard_normals(jax.random.fold_in(key, 1), (cfg.num_particles, 3),
-                          cfg.proposal_draws) if cfg.proposal == "informed" else None)
-    return UpdateNoise(
-        unknown_u=jax.random.uniform(k_unknown, (cfg.num_particles, n), jnp.float32),
-        resample_u=resampling.draw_uniforms(k_resample, cfg.num_particles),
-        proposal_z=z,
-    )
 
 
 def predict(pose: Array, u: Array, eps: Array, params: FilterParams) -> Array:
@@ -383,11 +338,6 @@ def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Arr
 
     scales = () if noise_scale is None else (noise_scale,)
     return lax.scan(frame, state, (keys, controls, obs_index) + scales)
-
-
-def frame_keys(key: Array, num_frames: int) -> Array:
-    """Per-frame keys: frame t always uses the same key, however the run is chunked."""
-    return jax.random.split(key, num_frames)
 
 
 @partial(jax.jit, static_argnames=("cfg",))

@@ -59,7 +59,7 @@ class FilterConfig(NamedTuple):
     proposal_stages: int = FilterSection.proposal_stages
     proposal_cell_stride: int = FilterSection.proposal_cell_stride
     proposal_exponent: str = FilterSection.proposal_exponent  # "prior" or "normaliser"
-    # ``kernel.standard_normals`` ("auto" is resolved before, ``sizing.resolve_proposal_draws``;
+    # ``draws.standard_normals`` ("auto" is resolved before, ``sizing.resolve_proposal_draws``;
     # this default is a sensorless run's)
     proposal_draws: str = choices.AUTO_PROPOSAL_DRAWS["points"]
 
