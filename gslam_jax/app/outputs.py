@@ -115,6 +115,8 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "extent_violations": result.extent_violations,
         "empty_observations": result.empty_observations,
         "vo_failures": int(np.sum(run.vo_failed)) if run.vo_failed is not None else 0,
+        # those frames' motion noise as a multiple of the VO's ([motion] fallback_scale)
+        "fallback_scale": config.motion.fallback_scale,
         "filter_seconds": result.seconds,
         "compile_seconds": result.compile_seconds,
         **_realtime(run, result),
