@@ -292,8 +292,9 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
         propose = propagate_mean if cfg.proposal == "informed" else propagate
     k_motion, k_update = jax.random.split(key)
     unscaled = isinstance(noise_scale, float) and noise_scale == 1.0
-    moved = params if unscaled else params._replace(motion=scaled(params.motion, noise_scale))
-    state = propose(state, u, motion_noise(k_motion, cfg), moved)
+    frame_params = (params if unscaled
+                    else params._replace(motion=scaled(params.motion, noise_scale)))
+    state = propose(state, u, motion_noise(k_motion, cfg), frame_params)
     if local_obs is None or has_obs is False:
         return state, _no_update_info(state, cfg)
 
