@@ -57,8 +57,9 @@ def test_frame_noise_scale_marks_the_fallback_frames(failing_run):
     want = np.ones(failing_run.num_frames, np.float32)
     want[FAILED] = 3.0
     np.testing.assert_array_equal(scale, want)
-    with pytest.raises(ConfigError, match=r"\[motion\] fallback_scale must be positive"):
-        _config(0.0).validate()
+    for bad in (0.0, 1e4):
+        with pytest.raises(ConfigError, match=r"\[motion\] fallback_scale must be in \(0, 1000\]"):
+            _config(bad).validate()
 
 
 @pytest.mark.parametrize("proposal", ["motion", "informed"])

@@ -6,10 +6,10 @@ from synthetic import make_run
 
 from gslam_jax.app.cli import main
 from gslam_jax.config import load_config
+from gslam_jax.run import Run, integrate_controls, load_run, save_run
 from gslam_jax.tuning.motion_fit import (ALPHA_THETA_MAX, MIN_STEP, MIN_TURN, MOVING_FRACTION,
-                                         MotionFitError, _windows, fit_motion, fit_run,
-                                         update_interval)
-from gslam_jax.run import integrate_controls, load_run, save_run
+                                         MotionFitError, _windows, fallback_scale, fit_motion,
+                                         fit_run, update_interval)
 
 KITTI_LIKE = (0.005, 0.0007, 0.01)
 
@@ -260,3 +260,49 @@ def test_a_vehicle_standing_still_is_refused_naming_how_many_frames_moved():
     u = np.diff(ref, axis=0, prepend=ref[:1]) + rng.normal(0.0, 1e-4, (200, 3))
     with pytest.raises(MotionFitError, match=r"0 of 199 frames moved at least 0\.005 m"):
         fit_motion(u, ref)
+
+
+def _run_with_fallback(scale: float, n: int = 6000, every: int = 5) -> Run:
+    """Every ``every``-th frame's control from odometry ``scale`` times as noisy as the VO's:
+    the same draws (same seed) with every alpha times ``scale``, so its errors are exactly
+    ``scale`` times the VO's would have been there."""
+    alphas = (0.05, 0.01, 0.05)
+    u_vo, ref = simulate(alphas, n=n)
+    u_fallback, _ = simulate(tuple(scale * a for a in alphas), n=n)
+    failed = np.arange(n) % every == 2
+    return Run(controls=np.where(failed[:, None], u_fallback, u_vo),
+               obs_index=np.full(n, -1), local_maps=np.zeros((0, 4, 4, 3)), resolution=0.16,
+               timestamps=np.arange(n) * 0.1, ground_truth=ref, vo_failed=failed)
+
+
+@pytest.mark.parametrize("scale", [1.0, 3.0])
+def test_fallback_scale_is_how_much_noisier_the_fallback_frames_are(scale):
+    run = _run_with_fallback(scale)
+    fit = fit_run(run, 1)  # the VO's frames alone: the fallback's do not widen the alphas
+    assert fit.alpha_d == pytest.approx(0.05, rel=0.04)
+    # 1200 fallback frames: the mean of their 2400 squared z has a standard error of 3 %
+    assert fallback_scale(run, fit) == pytest.approx(scale, rel=0.05)
+
+
+def test_fallback_scale_needs_fallback_frames_with_ground_truth():
+    run = _run_with_fallback(3.0)
+    fit = fit_run(run, 1)
+    assert fallback_scale(run._replace(vo_failed=None), fit) is None
+    few = np.zeros(run.num_frames, bool)
+    few[[10, 20, 30]] = True  # under MIN_FRAMES
+    assert fallback_scale(run._replace(vo_failed=few), fit) is None
+    truth = run.ground_truth.copy()
+    truth[run.vo_failed] = np.nan  # no fallback frame has ground truth at both ends
+    assert fallback_scale(run._replace(ground_truth=truth), fit) is None
+
+
+def test_cli_writes_the_fitted_fallback_scale(tmp_path, capsys):
+    run = _run_with_fallback(3.0, n=2000)
+    path = tmp_path / "fallback.npz"
+    save_run(path, run)
+    out = tmp_path / "fitted.toml"
+    assert main(["fit-motion", str(path), "--window", "1", "--out", str(out)]) == 0
+    want = fallback_scale(run, fit_run(run, 1))
+    assert load_config(out).motion.fallback_scale == pytest.approx(want)
+    assert 2.5 < want < 3.5
+    assert f"errors {want:.3g}x the VO's" in capsys.readouterr().out

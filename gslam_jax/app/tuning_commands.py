@@ -203,7 +203,7 @@ def _evidence_fit(run, config, args: argparse.Namespace):
 def cmd_fit_motion(args: argparse.Namespace) -> int:
     from gslam_jax.app.outfile import check_output_file, write_text_atomic
     from gslam_jax.config import MotionSection, config_to_toml, section_to_toml
-    from gslam_jax.tuning.motion_fit import fit_run
+    from gslam_jax.tuning.motion_fit import fallback_scale, fit_run
 
     if args.out is not None:  # a folder, a read-only place: refused before the fit
         check_output_file(args.out, "--out")
@@ -218,10 +218,17 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
         fitted, text = _evidence_fit(run, config, args)
     else:
         fit = fit_run(run, args.window)
+        scale = fallback_scale(run, fit)
         fitted = dataclasses.replace(config, motion=MotionSection(
             alpha_d=fit.alpha_d, alpha_theta_d=fit.alpha_theta_d, alpha_theta=fit.alpha_theta,
-            alpha_cross=fit.alpha_cross))
+            alpha_cross=fit.alpha_cross,
+            fallback_scale=config.motion.fallback_scale if scale is None else scale))
         text = _fit_text(fit, run.num_frames)
+        failed = 0 if run.vo_failed is None else int(np.sum(run.vo_failed))
+        text += (f"\nfallback odometry ({failed} frames): its errors {scale:.3g}x the VO's "
+                 "against the fitted stds (fallback_scale)" if scale is not None else
+                 f"\nfallback odometry: {failed} frames, too few with ground truth to fit "
+                 f"fallback_scale (kept at {config.motion.fallback_scale:g})")
     print(section_to_toml(fitted, "motion"))
     print(text)
     if args.out is not None:

@@ -257,8 +257,8 @@ class Config:
             (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
             *((getattr(self.motion, k) >= 0, "motion", k, "must be non-negative")
               for k in ("alpha_d", "alpha_theta_d", "alpha_theta", "alpha_cross")),
-            (self.motion.fallback_scale > 0, "motion", "fallback_scale",
-             "must be positive (1: the fallback's frames weighed as VO's)"),
+            (0 < self.motion.fallback_scale <= 1000, "motion", "fallback_scale",
+             "must be in (0, 1000] (1: the fallback's frames weighed as VO's)"),
             (m.resolution > 0, "map", "resolution", "must be positive"),
             (m.margin >= 0, "map", "margin", "must be non-negative"),
             # S = 0 with k > 0 would make log S = -inf and every log weight NaN

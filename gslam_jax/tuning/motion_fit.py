@@ -42,8 +42,8 @@ from gslam_jax.run import Run
 from gslam_jax.vo.geometry import increments_2d
 
 __all__ = ["MotionFitError", "MotionFit", "IncrementErrors", "increment_errors", "fit_motion",
-           "fit_run", "update_interval", "noise_ratios", "MIN_FRAMES", "MOVING_FRACTION",
-           "MIN_STEP", "MIN_TURN", "ALPHA_THETA_MAX"]
+           "fit_run", "update_interval", "noise_ratios", "fallback_scale", "MIN_FRAMES",
+           "MOVING_FRACTION", "MIN_STEP", "MIN_TURN", "ALPHA_THETA_MAX"]
 
 MIN_FRAMES = 5
 MOVING_FRACTION = 0.25  # frames fitting alpha_d moved at least this times the median step
@@ -268,3 +268,38 @@ def fit_run(run: Run, window: int | None = None) -> MotionFit:
     usable = None if run.vo_failed is None else ~np.asarray(run.vo_failed, bool)
     return fit_motion(run.controls, run.ground_truth, usable,
                       update_interval(run) if window is None else window)
+
+
+def _normalised_squares(e: IncrementErrors, fit: MotionFit, step: float) -> np.ndarray:
+    """Each frame's errors over the stds ``fit`` gives them (eqs. 2-3), squared: along-track on
+    the frames that moved at least ``step``, heading on those that moved or turned."""
+    moving = e.dist >= step
+    heading = moving | (e.turn >= MIN_TURN)
+    sd_along = fit.alpha_d * e.dist[moving]
+    sd_heading = fit.alpha_theta_d * e.dist[heading] + fit.alpha_theta * e.turn[heading]
+    z = [e.along[moving][sd_along > 0] / sd_along[sd_along > 0],
+         e.heading[heading][sd_heading > 0] / sd_heading[sd_heading > 0]]
+    return np.concatenate(z) ** 2
+
+
+def fallback_scale(run: Run, fit: MotionFit) -> float | None:
+    """``[motion] fallback_scale`` from the ground truth: how much wider the errors of the
+    fallback odometry's frames (``Run.vo_failed``) are than the VO's, against the same fitted
+    stds (eqs. 2-3 with ``fit``'s alphas, frame by frame): sqrt(mean z_fallback^2 / mean
+    z_VO^2), z an along-track or heading error over its std. A ratio of two frame-level
+    figures, so the window ``fit`` summed its errors over cancels. None when the Run has fewer
+    than ``MIN_FRAMES`` fallback frames with ground truth that moved or turned."""
+    if run.vo_failed is None or not np.any(run.vo_failed):
+        return None
+    failed = np.asarray(run.vo_failed, bool)
+    try:
+        e_fallback = increment_errors(run.controls, run.ground_truth, failed)
+    except MotionFitError:
+        return None
+    e_vo = increment_errors(run.controls, run.ground_truth, ~failed)
+    step = max(MOVING_FRACTION * float(np.median(e_vo.dist)), MIN_STEP)
+    z_fallback = _normalised_squares(e_fallback, fit, step)
+    z_vo = _normalised_squares(e_vo, fit, step)
+    if z_fallback.size < MIN_FRAMES or not np.mean(z_vo) > 0:
+        return None
+    return float(np.sqrt(np.mean(z_fallback) / np.mean(z_vo)))
