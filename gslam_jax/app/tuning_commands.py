@@ -61,7 +61,8 @@ def add_parsers(sub) -> None:
     p.set_defaults(func=cmd_tune)
 
     p = sub.add_parser("fit-motion", help="fit the [motion] alphas to the VO errors of a log "
-                       "with ground truth (maximum likelihood of eqs. 2-3), or without it to "
+                       "with ground truth (maximum likelihood of eqs. 2-3; and fallback_scale "
+                       "to the fallback odometry's frames, when it has some), or without it to "
                        "the filter's evidence (--evidence)")
     add_source_arguments(p)
     p.add_argument("--window", type=positive_int, help="fit the errors summed over this many "
