@@ -5,6 +5,7 @@ tiled reference's agreement with it: ``test_tiled``); a scale of 1 is the filter
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -13,10 +14,12 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import rbpf, sizing, slam
+from gslam_jax.app.cli import main
 from gslam_jax.config import Config, ConfigError, FilterSection, MotionSection
 from gslam_jax.observations import refine_observations
 from gslam_jax.online import Online
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds, scaled
+from gslam_jax.run import save_run
 from gslam_jax.tuning import gradient as TU
 
 FAILED = slice(20, 26)  # the frames of a VO failure burst in the runs below
@@ -130,3 +133,14 @@ def test_the_tuner_runs_the_filter_with_the_scale(failing_run):
     evidence = float(jnp.sum(out.infos.log_lik))
     np.testing.assert_allclose(float(obj.loglik), evidence, rtol=1e-6)
     assert abs(evidence - float(jnp.sum(unscaled.infos.log_lik))) > 1e-3
+
+
+def test_gslam_run_reports_the_fallback_frames_and_their_scale(failing_run, tmp_path, capsys):
+    path = tmp_path / "failing.npz"
+    save_run(path, failing_run)
+    assert main(["run", str(path), "--set", "filter.particles=8", "--set",
+                 "motion.fallback_scale=2.5", "--out", str(tmp_path / "out")]) == 0
+    assert ("note: 6 frames came from the fallback odometry (VO failed), their motion noise "
+            "2.5x the VO's") in capsys.readouterr().out
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["vo_failures"] == 6 and summary["fallback_scale"] == 2.5

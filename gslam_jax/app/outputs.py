@@ -307,6 +307,10 @@ def print_summary(summary: dict, run, result) -> None:
     if result.empty_observations:
         print(f"note: {result.empty_observations} local maps had no informative cell "
               "(weights unchanged)")
+    if summary["vo_failures"]:
+        print(f"note: {summary['vo_failures']} frames came from the fallback odometry (VO "
+              f"failed), their motion noise {summary['fallback_scale']:g}x the VO's ([motion] "
+              "fallback_scale)")
 
 
 def prior_summary(prior: PriorMap, result: SlamResult) -> dict:
