@@ -22,7 +22,8 @@ slam = gslam_jax.Online(config, 60.0, start_pose=run.start_pose(), seed=0)
 for t in range(run.num_frames):
     m = run.obs_index[t]
     local_map = run.local_maps[m] if m >= 0 else None  # [L, L, 3] (n, sum z, sum z^2) or None
-    est = slam.push(run.controls[t], local_map, time_s=run.timestamps[t])
+    est = slam.push(run.controls[t], local_map, time_s=run.timestamps[t],
+                    vo_failed=bool(run.vo_failed[t]))  # the wheel fallback's frame
     if t % 50 == 0 or t == run.num_frames - 1:
         err = np.hypot(*(est.pose[:2] - run.ground_truth[t, :2]))
         x, y, th = est.pose
