@@ -88,7 +88,8 @@ class FilterSection:
 
 @dataclass(frozen=True)
 class MotionSection:
-    """VO error constants of eqs. 2-3, and the cross-track one (``rbpf.motion``)."""
+    """VO error constants of eqs. 2-3, the cross-track one, and the fallback odometry's scale
+    on them (``rbpf.motion``)."""
 
     alpha_d: float = 0.05
     alpha_theta_d: float = 0.01

@@ -190,6 +190,19 @@ def _fit_heading(dist: np.ndarray, turn: np.ndarray, err: np.ndarray,
     return float(a), float(min(b, ALPHA_THETA_MAX))
 
 
+def _least_step(e: IncrementErrors) -> float:
+    """The smallest true step (m) of a frame that fits alpha_d: ``MOVING_FRACTION`` of the
+    median step, at least ``MIN_STEP``."""
+    return max(MOVING_FRACTION * float(np.median(e.dist)), MIN_STEP)
+
+
+def _fitting_frames(e: IncrementErrors, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of the frames that fit the along-track noise (moved at least ``step``) and the
+    heading noise (moved, or turned at least ``MIN_TURN``: eq. 3's turn term)."""
+    moving = e.dist >= step
+    return moving, moving | (e.turn >= MIN_TURN)
+
+
 def fit_motion(controls: np.ndarray, reference: np.ndarray | None,
                usable: np.ndarray | None = None, window: int = 1) -> MotionFit:
     """Maximum-likelihood alphas of eqs. 2-3 from VO controls and ground-truth poses.
@@ -208,15 +221,14 @@ def fit_motion(controls: np.ndarray, reference: np.ndarray | None,
     if window < 1:
         raise MotionFitError(f"window must be at least 1 frame, got {window}")
     e = increment_errors(controls, reference, usable)
-    step = max(MOVING_FRACTION * float(np.median(e.dist)), MIN_STEP)
-    moving = e.dist >= step
+    step = _least_step(e)
+    moving, heading = _fitting_frames(e, step)
     if moving.sum() < MIN_FRAMES:
         raise MotionFitError(f"{int(moving.sum())} of {len(e.dist)} frames moved at least "
                              f"{step:.3g} m (the larger of {MOVING_FRACTION} of the median step, "
                              f"{float(np.median(e.dist)):.3g} m, and {MIN_STEP} m): fitting the "
                              f"motion model needs at least {MIN_FRAMES} moving frames (a log "
                              "where the vehicle stands still fits nothing)")
-    heading = moving | (e.turn >= MIN_TURN)  # a turn in place informs eq. 3's turn term
     along_w = _windows(e.frame[moving], window)
     head_w = _windows(e.frame[heading], window)
     if len(along_w) < MIN_FRAMES or len(head_w) < MIN_FRAMES:
@@ -273,8 +285,7 @@ def fit_run(run: Run, window: int | None = None) -> MotionFit:
 def _normalised_squares(e: IncrementErrors, fit: MotionFit, step: float) -> np.ndarray:
     """Each frame's errors over the stds ``fit`` gives them (eqs. 2-3), squared: along-track on
     the frames that moved at least ``step``, heading on those that moved or turned."""
-    moving = e.dist >= step
-    heading = moving | (e.turn >= MIN_TURN)
+    moving, heading = _fitting_frames(e, step)
     sd_along = fit.alpha_d * e.dist[moving]
     sd_heading = fit.alpha_theta_d * e.dist[heading] + fit.alpha_theta * e.turn[heading]
     z = [e.along[moving][sd_along > 0] / sd_along[sd_along > 0],
@@ -297,7 +308,7 @@ def fallback_scale(run: Run, fit: MotionFit) -> float | None:
     except MotionFitError:
         return None
     e_vo = increment_errors(run.controls, run.ground_truth, ~failed)
-    step = max(MOVING_FRACTION * float(np.median(e_vo.dist)), MIN_STEP)
+    step = _least_step(e_vo)
     z_fallback = _normalised_squares(e_fallback, fit, step)
     z_vo = _normalised_squares(e_vo, fit, step)
     if z_fallback.size < MIN_FRAMES or not np.mean(z_vo) > 0:
