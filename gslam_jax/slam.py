@@ -3,12 +3,12 @@ what each chunk returns, and the results.
 
 This is the host-side driver the CLI, the experiments and the benchmarks share. The filter math
 lives in ``rbpf``; the settings for a Run in ``sizing``, its observations in ``observations``,
-map reuse in ``prior``.
+map reuse in ``map_reuse``, the axes of the map's lattice in ``map_axes`` (``map_heading``,
+``on_map_axes``, ``LatticeWarning`` and ``local_lattice_axes`` are exported here too).
 """
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from typing import Callable, NamedTuple
@@ -21,12 +21,13 @@ from gslam_jax import rbpf
 from gslam_jax.config import Config
 from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap, turn_poses
+from gslam_jax.map_axes import (LatticeWarning, check_local_lattices, local_lattice_axes,
+                                map_heading, on_map_axes)
 from gslam_jax.map_reuse import PriorMap, prior_state, rebase
 from gslam_jax.observations import ObsSettings, map_observations, obs_settings, raw_observations
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.run import Run, known_positions
 from gslam_jax.sizing import filter_config, filter_params, frame_noise_scale, map_memory
-from gslam_jax.vo.localmap import map_axes_heading
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
            "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "map_heading",
@@ -73,62 +74,6 @@ def require_ground_truth(mask: jax.Array | np.ndarray, objective: str,
     if not np.any(np.asarray(mask)):
         raise error(f"objective '{objective}' needs ground truth, but the run's ground_truth "
                     f"has no frame with a finite position (x, y); use objective 'loglik'")
-
-
-def map_heading(run: Run, config: Config, prior: PriorMap | None = None) -> float:
-    """The angle (radians) of the map lattice's axes in the run's frame: a prior map's
-    (``GridMap.heading``), else by ``[map] axes``: 0 ("frame"), or the run's start heading
-    ("start"), so that turning the frame the run is given in turns the result with it and
-    changes nothing else."""
-    if prior is not None:
-        return float(prior.grid.heading)
-    return map_axes_heading(config.map.axes, run.start_pose())
-
-
-def on_map_axes(run: Run, heading: float) -> Run:
-    """``run`` in its frame turned by ``heading`` about the origin (the lattice's axes): its
-    start pose and ground truth expressed there; controls and local maps (robot frame) as
-    they are. ``turn_poses(x, heading)`` carries the filter's poses back."""
-    if not heading:
-        return run
-    truth = run.ground_truth
-    if truth is not None:
-        truth = turn_poses(truth, -heading)
-    return run._replace(initial_pose=turn_poses(run.start_pose(), -heading),
-                        ground_truth=truth)
-
-
-class LatticeWarning(UserWarning):
-    """A run's local maps were binned on the map's axes ("map" lattice) at another angle than
-    the map lattice the filter runs on: each local cell is then placed by its centre, two into
-    some map cells and none into others (docs/results.md, "The map frame's orientation")."""
-
-
-def local_lattice_axes(run: Run, tolerance: float = 1e-4) -> float | None:
-    """The angle (radians) in the run's frame of the axes its local maps were binned on: the
-    VO heading of each local map's frame plus its lattice heading (``Run.lattice_headings``),
-    when that is one angle for every local map (a "map" lattice); None otherwise (the robot's
-    axes, or no local map)."""
-    if run.lattice_headings is None or not run.num_local_maps:
-        return None
-    t = np.flatnonzero(run.obs_index >= 0)
-    turns = np.exp(1j * (run.vo_poses()[t, 2]
-                         + np.asarray(run.lattice_headings, np.float64)[run.obs_index[t]]))
-    mean = turns.mean()
-    if np.max(np.abs(np.angle(turns / mean))) > tolerance:
-        return None
-    return float(np.angle(mean))
-
-
-def _check_local_lattices(run: Run, heading: float) -> None:
-    """``LatticeWarning`` when the local maps lie on other axes than the map's at ``heading``."""
-    axes = local_lattice_axes(run)
-    if axes is not None and abs(math.remainder(axes - heading, 2 * math.pi)) > 1e-4:
-        warnings.warn(LatticeWarning(
-            f"the run's local maps were binned on the map's axes at {math.degrees(axes):.3f} "
-            f"deg in its frame, but the map lattice lies at {math.degrees(heading):.3f} deg "
-            "([map] axes, or a prior map's): each local cell is placed by its centre. Build the "
-            "run with the [map] axes it is filtered with"), stacklevel=3)
 
 
 def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
@@ -323,7 +268,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     start spread is drawn on its lattice's axes.
     """
     given, heading, run = filtered_run(run, config, prior)
-    _check_local_lattices(given, heading)
+    check_local_lattices(given, heading)
     cfg = filter_config(config, run, prior)
     params = filter_params(config, run)
     obs = map_observations(run, config)

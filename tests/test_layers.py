@@ -22,7 +22,7 @@ LAYERS = {
     "sim": 4, "metrics": 4,
     "datasets": 5, "loops": 5, "relocalise": 5, "observations": 5,
     "map_reuse": 6, "consistency": 6,
-    "sizing": 7,
+    "sizing": 7, "map_axes": 7,
     "slam": 8,
     "gps": 9, "tuning": 9, "online": 9,
     "app": 10,
