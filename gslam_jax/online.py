@@ -81,19 +81,19 @@ class OnlineStats(NamedTuple):
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
 def online_step(state: rbpf.FilterState, key: jax.Array, t: jax.Array, control: jax.Array,
                 raw_obs: jax.Array, has_obs: jax.Array, lattice_heading: jax.Array,
-                noise_scale: jax.Array, settings: observations.ObsSettings,
+                fallback: jax.Array, settings: observations.ObsSettings,
                 params: rbpf.FilterParams, cfg: rbpf.FilterConfig
                 ) -> tuple[rbpf.FilterState, tuple[rbpf.StepInfo, jax.Array, jax.Array]]:
     """One frame t of the batch run's scan: its key ``fold_in(key, t)``, its raw observation
     [L, L, 2] refined (``observations.refine_observations``) and, where ``has_obs``, the update
     (the local map on a lattice turned by ``lattice_heading``, ``Run.lattice_headings``); the
-    motion noise times ``noise_scale`` (``sizing.frame_noise_scale``).
+    motion noise ``[motion] fallback_scale`` times the VO's where ``fallback``.
     ``state`` is donated. Returns the state and the frame's (StepInfo, best pose, mean pose)."""
     keys = jax.random.fold_in(key, t)[None]
     obs = observations.refine_observations(raw_obs[None], settings)
     index = jnp.where(has_obs, 0, -1).astype(jnp.int32)[None]
     state, out = rbpf.scan_frames(state, keys, control[None], index, obs, params, cfg,
-                                  lattice_heading[None], noise_scale[None])
+                                  lattice_heading[None], fallback[None])
     return state, jax.tree.map(lambda x: x[0], out)
 
 
@@ -247,7 +247,7 @@ class Online:
         self.state, (info, best, mean) = online_step(
             self.state, self.key, jnp.int32(t), jnp.asarray(u, jnp.float32), raw,
             jnp.bool_(local_map is not None), jnp.float32(lattice_heading),
-            jnp.float32(self.config.motion.fallback_scale if vo_failed else 1.0),
+            jnp.bool_(vo_failed),
             self.settings, self.params, self.cfg)
         info, best, mean = jax.device_get((info, best, mean))
         best, mean = turn_poses(best, self.heading), turn_poses(mean, self.heading)

@@ -42,7 +42,7 @@ class Run(NamedTuple):
             ground truth (the metrics skip them).
         vo_failed: [T] bool, frames whose control came from the wheel/IMU fallback (a file
             may store it as integers 0/1); the filter weighs their motion with ``[motion]
-            fallback_scale`` times the noise (``sizing.frame_noise_scale``).
+            fallback_scale`` times the noise (``sizing.fallback_frames``).
         initial_pose: [3] pose before frame 0 (ground-truth frame; zeros if unknown).
         time_origin_ns: the dataset's own clock at timestamp 0, integer nanoseconds (EuRoC:
             its first frame's stamp), or None (the timestamps are the dataset's clock). The

@@ -25,7 +25,7 @@ from gslam_jax.run_checks import coordinate_limit, float32_spacing
 
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "map_memory",
            "filter_config", "extent_filter_config", "resolve_ess_target",
-           "resolve_proposal_draws", "filter_params", "frame_noise_scale"]
+           "resolve_proposal_draws", "filter_params", "fallback_frames"]
 
 
 class MapExtent(NamedTuple):
@@ -240,17 +240,20 @@ def filter_params(config: Config, run: Run | None = None,
             noise = jnp.asarray(run_range_noise(run, config))
     return rbpf.FilterParams(
         motion=MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
-                            jnp.float32(m.alpha_theta), jnp.float32(m.alpha_cross)),
+                            jnp.float32(m.alpha_theta), jnp.float32(m.alpha_cross),
+                            jnp.float32(m.fallback_scale)),
         beta_prev=jnp.float32(config.filter.beta_prev),
         beta_new=jnp.float32(config.filter.beta_new), range_noise=noise)
 
 
-def frame_noise_scale(run: Run, config: Config) -> np.ndarray | None:
-    """[T] float32 each frame's motion-noise scale (``rbpf.step``): ``[motion]
-    fallback_scale`` on the frames whose control came from the fallback odometry
-    (``Run.vo_failed``), 1 elsewhere; None when every frame's is 1 (the filter then runs
-    unscaled, as before the setting)."""
-    scale = config.motion.fallback_scale
-    if run.vo_failed is None or scale == 1.0 or not np.any(run.vo_failed):
+def fallback_frames(run: Run, config: Config, keep: bool = False) -> np.ndarray | None:
+    """[T] bool: the frames whose control came from the fallback odometry (``Run.vo_failed``),
+    whose motion noise the filter scales by ``[motion] fallback_scale`` (``rbpf.step``).
+    None when no frame did, or when the scale is 1 and ``keep`` is false: the filter then
+    runs without the scaling in its program, as before the setting. ``keep``: the flags
+    even at a scale of 1, for a search or a tuning of ``fallback_scale``."""
+    if run.vo_failed is None or not np.any(run.vo_failed):
         return None
-    return np.where(np.asarray(run.vo_failed, bool), scale, 1.0).astype(np.float32)
+    if config.motion.fallback_scale == 1.0 and not keep:
+        return None
+    return np.asarray(run.vo_failed, bool).copy()

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -27,7 +27,7 @@ from gslam_jax.map_reuse import PriorMap, prior_state, rebase
 from gslam_jax.observations import ObsSettings, map_observations, obs_settings, raw_observations
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.run import Run, known_positions
-from gslam_jax.sizing import filter_config, filter_params, frame_noise_scale, map_memory
+from gslam_jax.sizing import fallback_frames, filter_config, filter_params, map_memory
 
 __all__ = ["RunArrays", "run_arrays", "ground_truth_mask", "require_ground_truth", "SlamResult",
            "run_slam", "ExtentWarning", "WeightError", "ChunkReport", "map_heading",
@@ -55,7 +55,7 @@ class RunArrays(NamedTuple):
     mask: jax.Array        # [T] frames with a ground-truth position (``ground_truth_mask``)
     start: jax.Array       # [3]
     obs: ObsSettings       # the config's settings for ``refine_observations``
-    noise_scale: jax.Array | None = None  # [T] (``sizing.frame_noise_scale``; None: all 1)
+    fallback: jax.Array | None = None  # [T] bool (``sizing.fallback_frames``; None: none)
 
 
 def ground_truth_mask(run: Run) -> np.ndarray:
@@ -76,15 +76,23 @@ def require_ground_truth(mask: jax.Array | np.ndarray, objective: str,
                     f"has no frame with a finite position (x, y); use objective 'loglik'")
 
 
-def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
+def run_arrays(run: Run, config: Config, varied: Sequence[str] = (),
+               error: type[InputError] = InputError) -> tuple[RunArrays, rbpf.FilterConfig]:
     """Device arrays of ``run`` (raw observations, to be refined on the device with the
     config's or searched settings) and the static filter config for it; the start pose and
     the reference on the map lattice's axes (``map_heading``; the errors against the
-    reference do not depend on them)."""
+    reference do not depend on them). ``varied``: the settings a search or the tuner varies;
+    with ``fallback_scale`` among them the fallback frames' flags are kept even at a scale of
+    1 (``sizing.fallback_frames``), and a run without such frames is an ``error``."""
+    keep_fallback = "fallback_scale" in varied
+    if keep_fallback and (run.vo_failed is None or not np.any(run.vo_failed)):
+        raise error("fallback_scale scales the motion noise of the frames whose control came "
+                    "from the fallback odometry (Run.vo_failed), and this run has none: it "
+                    "would change nothing; leave it out")
     run = filtered_run(run, config)[2]
     T = run.num_frames
     gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
-    scale = frame_noise_scale(run, config)
+    fallback = fallback_frames(run, config, keep=keep_fallback)
     arrays = RunArrays(
         controls=jnp.asarray(run.controls, jnp.float32),
         obs_index=jnp.asarray(run.obs_index, jnp.int32),
@@ -94,7 +102,7 @@ def run_arrays(run: Run, config: Config) -> tuple[RunArrays, rbpf.FilterConfig]:
         mask=jnp.asarray(ground_truth_mask(run)),
         start=jnp.asarray(run.start_pose(), jnp.float32),
         obs=obs_settings(config),
-        noise_scale=None if scale is None else jnp.asarray(scale))
+        fallback=None if fallback is None else jnp.asarray(fallback))
     return arrays, filter_config(config, run)
 
 
@@ -140,16 +148,16 @@ def _scan_chunk(state: rbpf.FilterState, start: int, frames: tuple, obs: jax.Arr
                 headings: jax.Array, params: rbpf.FilterParams, cfg: rbpf.FilterConfig,
                 growth: maps.PoolGrowth | None) -> tuple[rbpf.FilterState, tuple,
                                                           rbpf.FilterConfig]:
-    """``rbpf.scan_frames`` over one chunk of ``frames`` (keys, controls, obs_index, noise
-    scale or None) from frame ``start`` (local maps ``obs`` on lattices turned by
+    """``rbpf.scan_frames`` over one chunk of ``frames`` (keys, controls, obs_index,
+    fallback flags or None) from frame ``start`` (local maps ``obs`` on lattices turned by
     ``headings``), its outputs on the host. With an automatic pool (``growth``) the chunk is run
     again from its start, in a grown pool, when it ran out of tiles (as long as the memory
     allows; otherwise its outputs carry the status that ``_check_map_status`` names)."""
-    keys, controls, obs_index, scale = frames
+    keys, controls, obs_index, fallback = frames
 
     def scan(s: rbpf.FilterState, cfg: rbpf.FilterConfig) -> tuple[rbpf.FilterState, tuple]:
         return rbpf.scan_frames(s, keys, controls, obs_index, obs, params, cfg, headings,
-                                scale)
+                                fallback)
 
     if growth is None:
         state, out = scan(state, cfg)
@@ -282,9 +290,9 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     pad = (-T) % chunk
     controls = np.concatenate([controls, np.zeros((pad, 3), np.float32)])
     obs_index = np.concatenate([obs_index, -np.ones(pad, np.int32)])
-    scale = frame_noise_scale(run, config)
-    if scale is not None:
-        scale = np.concatenate([scale, np.ones(pad, np.float32)])
+    fallback = fallback_frames(run, config)
+    if fallback is not None:
+        fallback = np.concatenate([fallback, np.zeros(pad, bool)])
     keys = jnp.concatenate([keys, jax.random.split(jax.random.key(0), pad)]) if pad else keys
 
     if prior is None:
@@ -302,7 +310,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         sl = slice(start, start + chunk)
         c0 = time.perf_counter()
         frames = (keys[sl], jnp.asarray(controls[sl]), jnp.asarray(obs_index[sl]),
-                  None if scale is None else jnp.asarray(scale[sl]))
+                  None if fallback is None else jnp.asarray(fallback[sl]))
         state, out, cfg = _scan_chunk(state, start, frames, obs, headings, params, cfg,
                                       growth)
         if start == 0:

@@ -12,7 +12,7 @@ from synthetic import make_run
 from gslam_jax import slam
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
 from gslam_jax.tuning.evidence_fit import fit_noise_scale
-from gslam_jax.tuning.space import MOTION_PARAM_NAMES, SearchError
+from gslam_jax.tuning.space import ALPHA_NAMES, SearchError
 from gslam_jax.vo.localmap import LocalMapParams
 
 LM = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0)
@@ -31,7 +31,7 @@ def drifting_run():
 def _scaled(config: Config, factor: float) -> Config:
     m = config.motion
     return dataclasses.replace(config, motion=dataclasses.replace(
-        m, **{n: getattr(m, n) * factor for n in MOTION_PARAM_NAMES}))
+        m, **{n: getattr(m, n) * factor for n in ALPHA_NAMES}))
 
 
 def test_the_ladder_is_each_runs_evidence_under_fixed_tempering(drifting_run):
@@ -48,7 +48,7 @@ def test_the_ladder_is_each_runs_evidence_under_fixed_tempering(drifting_run):
     assert fit.factor == factors[best]
     assert fit.on_edge == (best in (0, len(factors) - 1)) and not fit.kept
     fitted = fit.config(CONFIG)
-    for n in MOTION_PARAM_NAMES:
+    for n in ALPHA_NAMES:
         assert getattr(fitted.motion, n) == pytest.approx(getattr(CONFIG.motion, n) * fit.factor)
     assert fitted.filter == CONFIG.filter  # the config's own tempering is kept
 

@@ -1,6 +1,7 @@
 """The fallback odometry's frames (``[motion] fallback_scale``): every std of eqs. 2-3 times the
-scale on the frames a Run flags ``vo_failed``, in the batch run, ``Online`` and the tuner (the
-tiled reference's agreement with it: ``test_tiled``); a scale of 1 is the filter as before."""
+scale on the frames a Run flags ``vo_failed``, in the batch run, ``Online``, the search and the
+tuner (the tiled reference's agreement with it: ``test_tiled``); a scale of 1 is the filter as
+before."""
 
 from __future__ import annotations
 
@@ -53,13 +54,15 @@ def test_scaled_multiplies_every_std_and_draw():
                                3 * (apply_motion(pose, u, eps, p) - still), atol=1e-6)
 
 
-def test_frame_noise_scale_marks_the_fallback_frames(failing_run):
-    assert sizing.frame_noise_scale(failing_run, _config(1.0)) is None  # as before
-    assert sizing.frame_noise_scale(failing_run._replace(vo_failed=None), _config(3.0)) is None
-    scale = sizing.frame_noise_scale(failing_run, _config(3.0))
-    want = np.ones(failing_run.num_frames, np.float32)
-    want[FAILED] = 3.0
-    np.testing.assert_array_equal(scale, want)
+def test_fallback_frames_marks_the_fallback_frames(failing_run):
+    assert sizing.fallback_frames(failing_run, _config(1.0)) is None  # as before
+    assert sizing.fallback_frames(failing_run._replace(vo_failed=None), _config(3.0)) is None
+    want = np.zeros(failing_run.num_frames, bool)
+    want[FAILED] = True
+    np.testing.assert_array_equal(sizing.fallback_frames(failing_run, _config(3.0)), want)
+    np.testing.assert_array_equal(sizing.fallback_frames(failing_run, _config(1.0), keep=True),
+                                  want)
+    assert float(sizing.filter_params(_config(3.0)).motion.fallback_scale) == 3.0
     for bad in (0.0, 1e4):
         with pytest.raises(ConfigError, match=r"\[motion\] fallback_scale must be in \(0, 1000\]"):
             _config(bad).validate()
@@ -74,15 +77,16 @@ def test_the_particles_spread_by_the_scaled_noise(proposal):
     T, J = 12, 4096
     p = MotionParams(0.05, 0.02, 0.1)
     u = jnp.tile(jnp.array([0.5, 0.0, 0.1], jnp.float32), (T, 1))
-    s = np.ones(T, np.float32)
-    s[3:6] = 4.0
+    fallback = np.zeros(T, bool)
+    fallback[3:6] = True
+    s = np.where(fallback, 4.0, 1.0)
     sigma = 0.02 * 0.5 + 0.1 * 0.1
     want = float(np.sum((s * sigma) ** 2))
     cfg = rbpf.FilterConfig(J, (16, 16), (-1.3, -1.3), 0.16, 4, proposal=proposal).validate()
-    params = rbpf.FilterParams(motion=p)
+    params = rbpf.FilterParams(motion=p._replace(fallback_scale=4.0))
     state, _ = rbpf.scan_frames(rbpf.init(cfg), rbpf.frame_keys(jax.random.key(0), T), u,
                                 -jnp.ones(T, jnp.int32), jnp.zeros((1, 4, 4, 2)), params, cfg,
-                                noise_scale=jnp.asarray(s))
+                                fallback=jnp.asarray(fallback))
     if proposal == "informed":
         np.testing.assert_allclose(np.asarray(state.prior_cov[:, 2, 2]), want, rtol=1e-5)
     else:
@@ -121,13 +125,13 @@ def test_the_tuner_runs_the_filter_with_the_scale(failing_run):
     config = dataclasses.replace(_config(3.0), filter=FilterSection(particles=8, seed=1,
                                                                       resample_ratio=0.0))
     inputs, cfg = TU.make_inputs(failing_run, config)
-    assert inputs.noise_scale is not None
+    assert inputs.fallback is not None
     inputs = inputs._replace(local_obs=refine_observations(inputs.local_obs, inputs.obs))
     params = sizing.filter_params(config)
     key = jax.random.key(5)
     obj = TU.sw_objectives(key, params, inputs, cfg)
     out = rbpf.run_filter(key, params, inputs.controls, inputs.obs_index, inputs.local_obs,
-                          cfg, inputs.start, inputs.lattice_headings, inputs.noise_scale)
+                          cfg, inputs.start, inputs.lattice_headings, inputs.fallback)
     unscaled = rbpf.run_filter(key, params, inputs.controls, inputs.obs_index,
                                inputs.local_obs, cfg, inputs.start, inputs.lattice_headings)
     evidence = float(jnp.sum(out.infos.log_lik))
@@ -144,3 +148,51 @@ def test_gslam_run_reports_the_fallback_frames_and_their_scale(failing_run, tmp_
             "2.5x the VO's") in capsys.readouterr().out
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["vo_failures"] == 6 and summary["fallback_scale"] == 2.5
+
+
+def test_a_search_over_the_scale_scores_each_value_as_the_filter_does(failing_run):
+    """``fallback_scale`` is a searchable setting: each searched value's objective is a
+    plain filter run's with that value in the config (slam.run_slam, not the batched
+    evaluation), the value 1 included, where the run carries the flags at a scale of 1."""
+    from gslam_jax.tuning import space as SP
+    from gslam_jax.tuning.search import search
+
+    config = _config(1.0)
+    space = SP.SearchSpace(("fallback_scale",), (1.0,), (8.0,), (False,))
+    values = np.array([[1.0], [4.0], [8.0]])
+    res = search(failing_run, config, space, objective="loglik", values=values)
+    got = {float(v[0]): float(o) for v, o in zip(res.values, res.objective)}
+    for v in (1.0, 4.0, 8.0):
+        want = float(np.sum(slam.run_slam(failing_run, _config(v)).log_lik))
+        assert got[v] == pytest.approx(want, rel=1e-4, abs=1e-3), v
+    assert len({round(o, 3) for o in got.values()}) == 3  # the scale changes the evidence
+    with pytest.raises(SP.SearchError, match="fallback_scale .* this run has none"):
+        search(failing_run._replace(vo_failed=None), config, space, objective="loglik",
+               values=values)
+
+
+def test_the_tuner_differentiates_the_scale(failing_run):
+    """The Scibior-Wood gradient of the evidence reaches ``fallback_scale`` through the
+    scaled frames' transition scores: non-zero with the burst before later updates, exactly 0
+    when only frames after the last update are flagged (they change no weight). The default
+    names leave it out, and naming it on a run without such frames is a TuneError."""
+    config = _config(2.0)
+    names = ("fallback_scale",)
+    x = jnp.log(jnp.asarray([2.0], jnp.float32))
+    keys = jax.random.split(jax.random.key(4), 2)
+    T = failing_run.num_frames
+    quiet = failing_run._replace(obs_index=np.where(np.arange(T) < T - 4,
+                                                    failing_run.obs_index, -1))
+    late = np.zeros(T, bool)
+    late[T - 4:] = True
+    grads = []
+    for run in (quiet, quiet._replace(vo_failed=late)):
+        inputs, cfg = TU.make_inputs(run, config)
+        base = sizing.filter_params(config)
+        (_, _), g = TU._value_and_grad(x, keys, base, inputs, names, cfg, "loglik")
+        grads.append(float(g[0]))
+    assert grads[0] != 0.0 and np.isfinite(grads[0])
+    assert grads[1] == 0.0
+    assert "fallback_scale" not in TU.default_names("loglik")
+    with pytest.raises(TU.TuneError, match="fallback_scale .* this run has none"):
+        TU.tune(failing_run._replace(vo_failed=None), config, names=names, steps=1)

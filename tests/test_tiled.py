@@ -101,13 +101,15 @@ def _equivalence() -> dict:
         if mode == "sample":
             params = params._replace(motion=params.motion._replace(alpha_cross=0.03))
         headings = run.lattice_heading_array()
-        scale = None  # "sample" on the robot's lattice: every fifth frame the fallback's
-        if mode == "sample" and lattice == "robot":
-            scale = np.where(np.arange(run.num_frames) % 5 == 2, 3.0, 1.0).astype(np.float32)
+        fallback = scale = None  # "sample" on the robot's lattice: every fifth frame the
+        if mode == "sample" and lattice == "robot":  # fallback's, its noise 3x the VO's
+            fallback = np.arange(run.num_frames) % 5 == 2
+            params = params._replace(motion=params.motion._replace(fallback_scale=3.0))
+            scale = np.where(fallback, 3.0, 1.0)
         d = rbpf.run_filter(key, params, jnp.asarray(run.controls, jnp.float32),
                             jnp.asarray(run.obs_index), jnp.asarray(obs), cfg,
                             lattice_headings=jnp.asarray(headings),
-                            noise_scale=None if scale is None else jnp.asarray(scale))
+                            fallback=None if fallback is None else jnp.asarray(fallback))
         i = jax.device_get(d.infos)
         dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.maps.k),
                             np.asarray(d.final_state.maps.S), 0, 0.0, 0.0,

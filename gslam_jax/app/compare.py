@@ -234,7 +234,7 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     """``compare`` without the output folder: the result dict, both runs and the config."""
     from gslam_jax.machine import environment
     from gslam_jax.observations import local_observations
-    from gslam_jax.sizing import filter_config, filter_params, frame_noise_scale
+    from gslam_jax.sizing import fallback_frames, filter_config, filter_params
     from gslam_jax.slam import map_heading, on_map_axes
 
     config = config or Config()
@@ -267,8 +267,11 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
     say(f"  run: {run.num_frames} frames, {run.num_local_maps} local maps "
         f"({obs.shape[1]}x{obs.shape[1]} cells), map {cfg.map_shape} cells at {cfg.resolution} m, "
         f"J={cfg.num_particles}, unknown_cells={cfg.unknown_cells}, tile {tile:g} m")
-    scale = frame_noise_scale(run, config)  # the fallback odometry's frames
-    dense = run_dense(key, params, run, obs, cfg, noise_scale=scale)
+    fallback = fallback_frames(run, config)  # the fallback odometry's frames
+    dense = run_dense(key, params, run, obs, cfg, fallback=fallback)
+    # the reference takes each frame's noise scale as plain numbers
+    scale = (None if fallback is None
+             else np.where(fallback, config.motion.fallback_scale, 1.0))
     t0 = time.perf_counter()
     draws = draw_noise(key, run.obs_index, cfg)  # compiles and dispatches the draws: not timed
     draw_s = time.perf_counter() - t0

@@ -48,7 +48,7 @@ def _live_bytes(state: rbpf.FilterState, cfg: rbpf.FilterConfig) -> int:
 
 
 def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarray,
-                       cfg: rbpf.FilterConfig, noise_scale: np.ndarray | None = None
+                       cfg: rbpf.FilterConfig, fallback: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Wall time of every local-map update as the run executes it, resampling included (as the
     tiled reference's times are): the run replayed frame by frame through ``rbpf.step`` (the
@@ -58,32 +58,34 @@ def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs:
     The per-frame inputs are sliced into lists of device arrays beforehand, so that no eager
     JAX indexing lands in a timed call.
 
+    ``fallback`` [T] bool: the frames of the fallback odometry (``run_dense``).
+
     Returns [M] seconds and [M] whether each update resampled."""
     all_keys = rbpf.frame_keys(key, run.num_frames)
-    step = jax.jit(lambda k, s, u, local, h=0.0, n=1.0: rbpf.step(
-        k, s, u, local, params, cfg, lattice_heading=h, noise_scale=n), donate_argnums=1)
-    scales = [jnp.float32(n) for n in (np.ones(run.num_frames) if noise_scale is None
-                                       else np.asarray(noise_scale))]
+    step = jax.jit(lambda k, s, u, local, h=0.0, f=False: rbpf.step(
+        k, s, u, local, params, cfg, lattice_heading=h, fallback=f), donate_argnums=1)
+    flags = [jnp.bool_(f) for f in (np.zeros(run.num_frames, bool) if fallback is None
+                                    else np.asarray(fallback))]
     headings = [jnp.float32(h) for h in run.lattice_heading_array()]
     keys = [all_keys[t] for t in range(run.num_frames)]
     controls = [jnp.asarray(u) for u in np.asarray(run.controls, np.float32)]
     local_obs = [jnp.asarray(o) for o in np.asarray(obs)]
     start = jnp.asarray(run.start_pose(), jnp.float32)
-    jax.block_until_ready(keys + controls + local_obs + scales)
+    jax.block_until_ready(keys + controls + local_obs + flags)
     # compile, with the timed calls' argument types
     jax.block_until_ready(step(keys[0], rbpf.init(cfg, start), controls[0], local_obs[0],
-                               headings[0], scales[0]))
+                               headings[0], flags[0]))
     state = rbpf.init(cfg, start)
     times, resampled = [], []
     for t, idx in enumerate(np.asarray(run.obs_index)):
-        scale = scales[t]
+        flag = flags[t]
         if idx < 0:
-            state, _ = step(keys[t], state, controls[t], None, 0.0, scale)
+            state, _ = step(keys[t], state, controls[t], None, 0.0, flag)
             continue
         jax.block_until_ready(state)
         t0 = time.perf_counter()
         state, info = jax.block_until_ready(step(keys[t], state, controls[t], local_obs[idx],
-                                                 headings[idx], scale))
+                                                 headings[idx], flag))
         times.append(time.perf_counter() - t0)
         resampled.append(bool(info.resampled))
     return np.array(times), np.array(resampled, bool)
@@ -91,15 +93,16 @@ def time_dense_updates(key: jax.Array, params: rbpf.FilterParams, run: Run, obs:
 
 def run_dense(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarray,
               cfg: rbpf.FilterConfig, repeats: int = 5,
-              noise_scale: np.ndarray | None = None) -> DenseOutput:
+              fallback: np.ndarray | None = None) -> DenseOutput:
     """The dense filter over the Run (compiled once, then timed), the update alone on its final
-    maps, and every update as the run executes it (``time_dense_updates``); frame t's motion
-    noise times ``noise_scale[t]`` (None: all 1). The state's bytes
+    maps, and every update as the run executes it (``time_dense_updates``); where
+    ``fallback[t]`` (None: nowhere), frame t's motion noise is ``params.motion.fallback_scale``
+    times the VO's. The state's bytes
     are those of its fixed-shape arrays, allocated once: the same at every frame."""
     args = (key, params, jnp.asarray(run.controls, jnp.float32),
             jnp.asarray(run.obs_index, jnp.int32), jnp.asarray(obs), cfg,
             jnp.asarray(run.start_pose(), jnp.float32), jnp.asarray(run.lattice_heading_array()),
-            None if noise_scale is None else jnp.asarray(noise_scale, jnp.float32))
+            None if fallback is None else jnp.asarray(fallback, bool))
     jax.block_until_ready(rbpf.run_filter(*args))  # compile
     t0 = time.perf_counter()
     out = jax.block_until_ready(rbpf.run_filter(*args))
@@ -126,6 +129,6 @@ def run_dense(key: jax.Array, params: rbpf.FilterParams, run: Run, obs: np.ndarr
                                              lattice_heading=heading))
         times.append(time.perf_counter() - t)
     del state
-    run_times, resampled = time_dense_updates(key, params, run, obs, cfg, noise_scale)
+    run_times, resampled = time_dense_updates(key, params, run, obs, cfg, fallback)
     return DenseOutput(i.pose, i.log_w, i.ess, i.resampled, kmap, smap, nbytes, seconds,
                        float(np.median(times)), run_times, resampled, live, i.ancestors)

@@ -276,7 +276,7 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
          params: FilterParams, cfg: FilterConfig, has_obs: Array | bool = True, *,
          propose: Proposal | None = None, resampler: Resampler = resample,
          lattice_heading: Array | float = 0.0,
-         noise_scale: Array | float = 1.0) -> tuple[FilterState, StepInfo]:
+         fallback: Array | bool = False) -> tuple[FilterState, StepInfo]:
     """One frame, the filter's only one: ``propose`` (predict, eq. 24), then, if the frame has
     a local map, ``observe`` (update, then ``resampler``).
 
@@ -284,16 +284,18 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
     frame has one: True (Python) updates, a traced bool chooses under ``lax.cond``. The key is
     split once into the motion draws and the update's draws (``update_noise``). ``propose``
     None: ``propagate`` (the motion proposal) or, with ``cfg.proposal == "informed"``,
-    ``propagate_mean``. ``lattice_heading``: the local map's (``update``). ``noise_scale``:
-    the motion noise's stds of this frame as a multiple of ``params.motion``'s (``scaled``;
-    e.g. ``[motion] fallback_scale`` where the control came from the fallback odometry).
+    ``propagate_mean``. ``lattice_heading``: the local map's (``update``). ``fallback``: the
+    control came from the fallback odometry, so the motion noise's stds are
+    ``params.motion.fallback_scale`` times the VO's (``scaled``); a Python False leaves the
+    frame's motion model untouched (no scaling in the program).
     """
     if propose is None:
         propose = propagate_mean if cfg.proposal == "informed" else propagate
     k_motion, k_update = jax.random.split(key)
-    unscaled = isinstance(noise_scale, float) and noise_scale == 1.0
-    frame_params = (params if unscaled
-                    else params._replace(motion=scaled(params.motion, noise_scale)))
+    frame_params = params
+    if fallback is not False:
+        scale = jnp.where(fallback, params.motion.fallback_scale, 1.0)
+        frame_params = params._replace(motion=scaled(params.motion, scale))
     state = propose(state, u, motion_noise(k_motion, cfg), frame_params)
     if local_obs is None or has_obs is False:
         return state, _no_update_info(state, cfg)
@@ -314,14 +316,15 @@ def _summaries(info: StepInfo) -> tuple[Array, Array]:
 @partial(jax.jit, static_argnames=("cfg",), donate_argnums=(0,))
 def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Array,
                 local_obs: Array, params: FilterParams, cfg: FilterConfig,
-                lattice_headings: Array | None = None, noise_scale: Array | None = None
+                lattice_headings: Array | None = None, fallback: Array | None = None
                 ) -> tuple[FilterState, tuple[StepInfo, Array, Array]]:
     """``lax.scan`` of ``step`` over frames (update where obs_index >= 0).
 
     keys [T], controls [T, 3], obs_index [T] (index into local_obs or -1), local_obs
     [M, L, L, 2] observations (k, S) from ``cells.obs_from_stats`` with M >= 1,
     lattice_headings [M] (``Run.lattice_heading_array``; None: all 0, the robot's axes),
-    noise_scale [T] each frame's motion-noise scale (``step``; None: all 1).
+    fallback [T] bool: the frame's control came from the fallback odometry (``step``; None:
+    none did, or the fallback is weighed as VO).
     Returns the final state and per-frame (StepInfo, best pose, weighted-mean pose).
     ``state`` is donated: the maps are updated in its buffers, so do not use it afterwards
     (pass ``jax.tree.map(jnp.copy, state)`` to keep it).
@@ -333,24 +336,24 @@ def scan_frames(state: FilterState, keys: Array, controls: Array, obs_index: Arr
         heading = 0.0 if lattice_headings is None else lattice_headings[m]
         state, info = step(k, state, u, local_obs[m], params, cfg, idx >= 0,
                            lattice_heading=heading,
-                           noise_scale=1.0 if noise_scale is None else xs[3])
+                           fallback=False if fallback is None else xs[3])
         best, mean = _summaries(info)
         return state, (info, best, mean)
 
-    scales = () if noise_scale is None else (noise_scale,)
-    return lax.scan(frame, state, (keys, controls, obs_index) + scales)
+    flags = () if fallback is None else (fallback,)
+    return lax.scan(frame, state, (keys, controls, obs_index) + flags)
 
 
 @partial(jax.jit, static_argnames=("cfg",))
 def run_filter(key: Array, params: FilterParams, controls: Array, obs_index: Array,
                local_obs: Array, cfg: FilterConfig, start_pose: Array | None = None,
                lattice_headings: Array | None = None,
-               noise_scale: Array | None = None) -> RunOutput:
+               fallback: Array | None = None) -> RunOutput:
     """The whole filter in one jitted call (see ``scan_frames``); vmappable and differentiable
     in ``params``."""
     state = init(cfg, start_pose)
     final, (infos, best, mean) = scan_frames(
         state, frame_keys(key, controls.shape[0]), controls, obs_index, local_obs, params, cfg,
-        lattice_headings, noise_scale)
+        lattice_headings, fallback)
     path = backtrack_path(infos.pose, infos.ancestors, final.best)
     return RunOutput(final, infos, best, mean, path)

@@ -14,8 +14,8 @@ Noise enters reparameterised (eps ~ N(0, 1) times sigma), so samples are differe
 alphas.
 
 A frame whose control came from the fallback odometry (wheels and IMU where VO failed; paper 4:
-"less accurate than those from VO") takes every std times a scale (``scaled``,
-``[motion] fallback_scale``).
+"less accurate than those from VO") takes every std times ``fallback_scale`` (``scaled``,
+``[motion] fallback_scale``), a parameter like the alphas: searchable and differentiable.
 """
 
 from __future__ import annotations
@@ -31,20 +31,25 @@ __all__ = ["MotionParams", "scaled", "motion_stds", "world_step", "control_betwe
 
 
 class MotionParams(NamedTuple):
-    """The VO error constants of eqs. 2-3, and the cross-track one (0: the paper's model;
-    defaults: ``config.MotionSection``)."""
+    """The VO error constants of eqs. 2-3, the cross-track one (0: the paper's model) and the
+    fallback odometry's stds as a multiple of the VO's (1: the same; applied by the filter on
+    the frames a Run flags ``vo_failed``). Defaults: ``config.MotionSection``."""
 
     alpha_d: Array | float
     alpha_theta_d: Array | float
     alpha_theta: Array | float
     alpha_cross: Array | float = 0.0
+    fallback_scale: Array | float = 1.0
 
 
 def scaled(params: MotionParams, scale: Array | float) -> MotionParams:
     """``params`` with every noise std (sigma_d, sigma_theta, sigma_c of eqs. 2-3) times
-    ``scale``: the motion model of a frame whose control is ``scale`` times as uncertain."""
-    return MotionParams(params.alpha_d * scale, params.alpha_theta_d * scale,
-                        params.alpha_theta * scale, params.alpha_cross * scale)
+    ``scale``: the motion model of a frame whose control is ``scale`` times as uncertain
+    (``fallback_scale`` is kept: it is a ratio, not a std)."""
+    return params._replace(alpha_d=params.alpha_d * scale,
+                           alpha_theta_d=params.alpha_theta_d * scale,
+                           alpha_theta=params.alpha_theta * scale,
+                           alpha_cross=params.alpha_cross * scale)
 
 
 def motion_stds(u: Array, params: MotionParams) -> tuple[Array, Array, Array]:

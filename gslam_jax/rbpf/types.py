@@ -160,7 +160,8 @@ class FilterParams(NamedTuple):
     """The continuous (tunable, differentiable) parameters."""
 
     motion: MotionParams = MotionParams(MotionSection.alpha_d, MotionSection.alpha_theta_d,
-                                        MotionSection.alpha_theta, MotionSection.alpha_cross)
+                                        MotionSection.alpha_theta, MotionSection.alpha_cross,
+                                        MotionSection.fallback_scale)
     beta_prev: Array | float = FilterSection.beta_prev
     beta_new: Array | float = FilterSection.beta_new
     # [L * L] variance (m^2) that measurement adds to a cell seen at each local cell's range

@@ -39,7 +39,7 @@ def evaluate_chunk(values: np.ndarray, run: Run, config: Config, names: tuple[st
                    key_data: np.ndarray, objective: str, path: str) -> np.ndarray:
     """On a worker: the objectives of one chunk [B, d], sharded over that worker's JAX devices
     in one call (``evaluation.evaluate`` with ``batch`` = B)."""
-    inputs, cfg = slam.run_arrays(run, config)
+    inputs, cfg = slam.run_arrays(run, config, names)
     key = jax.random.wrap_key_data(np.asarray(key_data))
     return evaluate(values, key, inputs, sizing.filter_params(config, run), names, cfg, objective,
                     path, batch=len(values))

@@ -101,7 +101,7 @@ def _batch_fn(key: Array, inputs: _Inputs, base: rbpf.FilterParams, names: tuple
         obs = (observations_from_values(v, names, inputs.obs, inputs.local_obs)
                if shared is None else shared)
         out = rbpf.run_filter(key, p, inputs.controls, inputs.obs_index, obs, cfg,
-                              inputs.start, inputs.lattice_headings, inputs.noise_scale)
+                              inputs.start, inputs.lattice_headings, inputs.fallback)
         return objective_value(out, objective, inputs.reference, inputs.mask, path)
 
     def block(values: Array) -> Array:

@@ -38,7 +38,7 @@ from gslam_jax import sizing, slam
 from gslam_jax.config import Config
 from gslam_jax.run import Run
 from gslam_jax.tuning.evaluation import auto_batch, default_inner, evaluate
-from gslam_jax.tuning.space import MOTION_PARAM_NAMES, SearchError
+from gslam_jax.tuning.space import ALPHA_NAMES, SearchError
 
 __all__ = ["DEFAULT_FACTORS", "DEFAULT_SEEDS", "MIN_GAIN", "EvidenceFit", "fit_noise_scale"]
 
@@ -84,7 +84,7 @@ def fit_noise_scale(run: Run, config: Config, factors: Sequence[float] = DEFAULT
         raise SearchError(f"factors must be positive and finite, got {factors.tolist()}")
     if len(seeds) == 0:
         raise SearchError("seeds: at least one filter seed is needed")
-    base = np.array([getattr(config.motion, n) for n in MOTION_PARAM_NAMES], np.float64)
+    base = np.array([getattr(config.motion, n) for n in ALPHA_NAMES], np.float64)
     if not np.any(base > 0):
         raise SearchError("[motion] every alpha is 0: there is no noise to scale")
     fixed = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
@@ -97,7 +97,7 @@ def fit_noise_scale(run: Run, config: Config, factors: Sequence[float] = DEFAULT
                        inner=default_inner(devices))  # the search's memory bound
     total = np.zeros(factors.size)
     for i, seed in enumerate(seeds):
-        total += evaluate(values, jax.random.key(seed), inputs, params, MOTION_PARAM_NAMES,
+        total += evaluate(values, jax.random.key(seed), inputs, params, ALPHA_NAMES,
                           cfg, "loglik", batch=min(batch, factors.size))
         if progress is not None:
             progress(i + 1, len(seeds))
@@ -113,6 +113,6 @@ def fit_noise_scale(run: Run, config: Config, factors: Sequence[float] = DEFAULT
     kept = bool(given.size) and best != given[0] and finite[best] - finite[given[0]] <= MIN_GAIN
     if kept:
         best = int(given[0])  # no factor is clearly better than the given noise
-    alphas = {n: float(v) for n, v in zip(MOTION_PARAM_NAMES, values[best])}
+    alphas = {n: float(v) for n, v in zip(ALPHA_NAMES, values[best])}
     return EvidenceFit(factors, log_ev, float(factors[best]), alphas,
                        best in (0, factors.size - 1), kept)

@@ -136,19 +136,19 @@ def sw_objectives(key: Array, params: rbpf.FilterParams, inputs: TuneInputs,
     keys = rbpf.frame_keys(key, inputs.controls.shape[0])
 
     def frame(state: rbpf.FilterState, xs):
-        k, u, idx, ref, m, scale = xs
+        k, u, idx, ref, m, fallback = xs
         local = jnp.maximum(idx, 0)
         state, info = rbpf.step(k, state, u, inputs.local_obs[local], params, cfg, idx >= 0,
                                 propose=sw_propose, resampler=sw_resample,
                                 lattice_heading=inputs.lattice_headings[local],
-                                noise_scale=1.0 if scale is None else scale)
+                                fallback=False if fallback is None else fallback)
         w = jax.nn.softmax(state.log_w)  # self-normalised: weights carry the gradient
         d2 = jnp.sum((state.pose[:, :2] - ref[:2]) ** 2, axis=-1)
         return state, (info.log_lik, jnp.where(m, w @ d2, 0.0))
 
     state, (ll, err) = lax.scan(frame, state, (keys, inputs.controls, inputs.obs_index,
                                                inputs.reference, inputs.mask,
-                                               inputs.noise_scale))
+                                               inputs.fallback))
     n = jnp.maximum(jnp.sum(inputs.mask), 1)
     return Objectives(jnp.sum(ll), jnp.sum(err) / n, maps.status(state.maps))
 
@@ -225,9 +225,11 @@ class TuneResult(NamedTuple):
 def default_names(objective: str, start: dict[str, float] | None = None) -> tuple[str, ...]:
     """The alphas for "loglik" (the tempered likelihood is not normalised in the betas), the
     filter parameters (alphas and betas) for "supervised"; less those whose ``start`` value
-    is 0 (a term switched off, as alpha_cross by default: log space cannot start there)."""
+    is 0 (a term switched off, as alpha_cross by default: log space cannot start there) and
+    ``fallback_scale`` (it matters only on a run with fallback frames: tuned when named)."""
     names = MOTION_PARAM_NAMES if objective == "loglik" else FILTER_PARAM_NAMES
-    return tuple(n for n in names if start is None or start.get(n, 1.0) != 0.0)
+    return tuple(n for n in names if not SETTINGS[n].ratio
+                 and (start is None or start.get(n, 1.0) != 0.0))
 
 
 def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "adam",
@@ -269,7 +271,8 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
             raise TuneError(f"{n} is a threshold (the loss is flat between integers, no "
                             f"gradient); search it with gslam search instead")
     if objective == "loglik" and any(n not in MOTION_PARAM_NAMES for n in names):
-        raise TuneError("objective 'loglik' tunes the alphas only: the tempered likelihood "
+        raise TuneError("objective 'loglik' tunes the motion noise only (the alphas and "
+                        "fallback_scale): the tempered likelihood "
                         "(eqs. 29-31) is not normalised in beta_prev/beta_new, nor across "
                         "observation settings (they change the data); use 'supervised'")
     if objective == "supervised" and run.ground_truth is None:
@@ -278,7 +281,7 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
         raise TuneError(f"optimizer '{optimizer}' is not an optax optimiser")
     if steps < 1 or runs_per_step < 1:
         raise TuneError("steps and runs_per_step must be at least 1")
-    inputs, cfg = slam.run_arrays(run, config)
+    inputs, cfg = slam.run_arrays(run, config, names, TuneError)
     if objective == "supervised":
         slam.require_ground_truth(inputs.mask, objective, TuneError)
     base = sizing.filter_params(config, run)

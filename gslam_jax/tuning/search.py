@@ -137,7 +137,8 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     and its compute).
     """
     values = design_values(run, space, design, n, objective, path, seed, values)
-    inputs, cfg = slam.run_arrays(run, config)  # evaluate() checks "rms"'s truth
+    # evaluate() checks "rms"'s truth
+    inputs, cfg = slam.run_arrays(run, config, space.names, SearchError)
     base = sizing.filter_params(config, run)
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:

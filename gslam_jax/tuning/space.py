@@ -8,8 +8,9 @@ tuner's), the base values of a config, the config holding searched values and th
 
 Two routes to the device, both traced (no recompilation per value):
 
-* filter parameters (``[motion]`` alphas of eqs. 2-3, ``[filter]`` betas of eqs. 29-31):
-  fields of ``rbpf.FilterParams`` (``params_from_values``);
+* filter parameters (``[motion]`` alphas of eqs. 2-3 and the fallback odometry's scale on
+  them, ``[filter]`` betas of eqs. 29-31): fields of ``rbpf.FilterParams``
+  (``params_from_values``);
 * observation settings (``[map]`` min_variance, obs_weight, min_points): fields of
   ``observations.ObsSettings``, applied to the run's raw observations on the device by
   ``observations.refine_observations`` (``observations_from_values``), as in a plain run.
@@ -35,9 +36,9 @@ from gslam_jax.config import Config, ConfigError
 from gslam_jax.errors import InputError
 
 __all__ = ["Setting", "SETTINGS", "PARAM_NAMES", "FILTER_PARAM_NAMES", "OBS_PARAM_NAMES",
-           "MOTION_PARAM_NAMES", "TUNABLE_NAMES", "SearchError", "SearchSpace", "parse_space",
-           "load_space", "params_from_values", "observations_from_values", "base_values",
-           "config_with_values"]
+           "MOTION_PARAM_NAMES", "ALPHA_NAMES", "TUNABLE_NAMES", "SearchError", "SearchSpace",
+           "parse_space", "load_space", "params_from_values", "observations_from_values",
+           "base_values", "config_with_values"]
 
 
 class SearchError(InputError):
@@ -55,6 +56,9 @@ class Setting(NamedTuple):
     minimum: float = 0.0
     integer: bool = False   # the config holds an int: the threshold n >= ceil(value)
     why: str = ""           # why ``minimum``, for the error message
+    # a ratio of the motion noise's stds (fallback_scale), not a std: kept when the noise is
+    # widened as a whole (``evidence_fit``), and tuned only when named
+    ratio: bool = False
 
     @property
     def observation(self) -> bool:
@@ -67,6 +71,7 @@ _SETTINGS = (
     Setting("alpha_theta_d", "motion"),
     Setting("alpha_theta", "motion"),
     Setting("alpha_cross", "motion"),
+    Setting("fallback_scale", "motion", positive=True, ratio=True),
     Setting("beta_prev", "filter", positive=True),
     Setting("beta_new", "filter", positive=True),
     Setting("min_variance", "map", positive=True),
@@ -79,6 +84,7 @@ PARAM_NAMES = tuple(SETTINGS)
 FILTER_PARAM_NAMES = tuple(s.name for s in _SETTINGS if not s.observation)
 OBS_PARAM_NAMES = tuple(s.name for s in _SETTINGS if s.observation)
 MOTION_PARAM_NAMES = tuple(s.name for s in _SETTINGS if s.section == "motion")
+ALPHA_NAMES = tuple(s.name for s in _SETTINGS if s.section == "motion" and not s.ratio)
 TUNABLE_NAMES = tuple(s.name for s in _SETTINGS if not s.integer)  # thresholds: no gradient
 
 
@@ -206,8 +212,8 @@ def params_from_values(values: Array, names: Sequence[str], base: rbpf.FilterPar
 def observations_from_values(values: Array, names: Sequence[str], base: observations.ObsSettings,
                              raw: Array) -> Array:
     """Local-map observations [M, L, L, 2] for one parameter row ``values`` [d]: the raw
-    observations (``slam.run_arrays``) refined by ``observations.refine_observations`` with the named
-    observation settings, the others from ``base``."""
+    observations (``slam.run_arrays``) refined by ``observations.refine_observations`` with the
+    named observation settings, the others from ``base``."""
     col = {n: values[i] for i, n in enumerate(names)}
     settings = base._replace(**{n: col[n] for n in OBS_PARAM_NAMES if n in col})
     return observations.refine_observations(raw, settings)
