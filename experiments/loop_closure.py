@@ -15,13 +15,15 @@ return one loop later; the verdict is ``gslam_jax.loops.closure`` (revisit error
 offset <= 1 m) of the final best particle's path, and the same for the VO-only path.
 
 Prints one line per run, then per (proposal, J) the closure rate at each length and the
-longest loop closed in >= 80 % of the seeds.
+longest loop closed in >= 80 % of the seeds; with --progress also a line on stderr per chunk of
+frames filtered (runs at J = 2000 and more take hours on a small machine).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -132,10 +134,12 @@ def simulate_loop(file: Path, length_m: float, seed: int, config, course: str = 
 def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: list[str],
              informed_max: float, informed_particles: list[int] | None = None,
              max_frames: int | None = None, course: str = "mars-yard-a",
-             margin_per_m: float = 0.1, vo_noise=None, on_row=None) -> list[dict]:
+             margin_per_m: float = 0.1, vo_noise=None, on_row=None,
+             progress: bool = False) -> list[dict]:
     """Every (proposal, J) run of one loop at one seed, as result rows. The map's margin
     around the VO path is at least ``margin_per_m`` times the loop length, so that a path the
-    filter corrects by the VO's drift stays on the map. vo_noise: that of ``course`` if None."""
+    filter corrects by the VO's drift stays on the map. vo_noise: that of ``course`` if None.
+    progress: a line on stderr per chunk of frames filtered."""
     run, config = simulate_loop(loop.file, loop.length_m, seed, config, course, max_frames,
                                 margin_per_m, vo_noise)
     revisit = loops.find_revisit(run.ground_truth, START_M, 0.5 * loop.length_m)
@@ -153,7 +157,8 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
                 row.update(closed=None, note="no revisit within the radius in the driven run")
             else:
                 t0 = time.perf_counter()
-                res = slam.run_slam(run, cfg)
+                res = slam.run_slam(run, cfg, progress=_chunk_lines(
+                    f"{loop.name} seed {seed} {proposal} J={J}", t0) if progress else None)
                 row.update(revisit=list(revisit), store=res.store, map_margin_m=config.map.margin,
                            extent_violations=res.extent_violations,
                            filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
@@ -209,6 +214,14 @@ def plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def _chunk_lines(label: str, t0: float):
+    """A ``run_slam`` progress callback: one line on stderr per call (a chunk of frames)."""
+    def report(done: int, total: int) -> None:
+        print(f"  {label}: frame {done}/{total}, {time.perf_counter() - t0:.0f} s",
+              file=sys.stderr, flush=True)
+    return report
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--circles", type=float, nargs="*", default=[50, 100, 200, 400],
@@ -234,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[])
     ap.add_argument("--json", type=Path, help="write settings and every run here")
     ap.add_argument("--plot", type=Path, help="write the closure plot here (PNG)")
+    ap.add_argument("--progress", action="store_true",
+                    help="a line on stderr per chunk of frames filtered")
     args = ap.parse_args(argv)
     env = environment()
     config = layered_config(args.config, args.course, args.set + [f"map.store={args.store}"])
@@ -271,7 +286,8 @@ def main(argv: list[str] | None = None) -> int:
             for seed in args.seeds:
                 run_loop(loop, seed, config, args.particles, args.proposals,
                          args.informed_max_length, args.informed_particles, course=args.course,
-                         margin_per_m=args.margin_per_m, on_row=on_row)
+                         margin_per_m=args.margin_per_m, on_row=on_row,
+                         progress=args.progress)
     print("\nclosure rate per loop length (share of seeds closed, runs):")
     summ = summary(rows)
     for name, s in summ.items():
