@@ -155,12 +155,11 @@ def score_grid(store: maps.Maps, centre: Array, local_obs: Array, unknown_u: Arr
     the observed cells with a prior at ``centre`` []. ``unknown_u`` [1, D]: the update's
     unknown-cell draws, shared by every offset."""
     obs = compact_observation(local_obs, cfg)
-    bits = maps.known_bits(store, jnp.int32(0), 1, cfg)
     log_v = cells.log_v_obs(obs.k, obs.S)
     rows = jnp.zeros((1,), jnp.int32)
 
     def footprint(pose: Array):
-        f = read_footprints(store, bits, pose[None], rows, unknown_u, obs, cfg)
+        f = read_footprints(store, pose[None], rows, unknown_u, obs, cfg)
         return jax.tree.map(lambda x: x[0], f)
 
     def plane(h: Array) -> Array:

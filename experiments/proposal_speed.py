@@ -27,7 +27,7 @@ from jax import lax
 from gslam_jax import choices, rbpf
 from gslam_jax.app.bench import _synthetic_state, bench_config, synthetic_local_map
 from gslam_jax.machine import environment
-from gslam_jax.rbpf import cells, maps, proposal
+from gslam_jax.rbpf import cells, proposal
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import log_lambda
 
@@ -36,12 +36,11 @@ def score_per_candidate(store, mean, chol, g, unknown_u, obs, params, cfg):
     """The reference: every candidate's footprint and eq. 31 draws read from the maps."""
     J = cfg.num_particles
     rows = jnp.arange(J, dtype=jnp.int32)
-    bits = maps.known_bits(store, jnp.int32(0), J, cfg)
     log_v = cells.log_v_obs(obs.k, obs.S)
 
     def one(g_k):
         pose = mean + jnp.einsum("jab,jb->ja", chol, g_k)
-        return log_lambda(read_footprints(store, bits, pose, rows, unknown_u, obs, cfg), log_v,
+        return log_lambda(read_footprints(store, pose, rows, unknown_u, obs, cfg), log_v,
                           params, cfg)
 
     return lax.map(one, jnp.swapaxes(g, 0, 1)).T

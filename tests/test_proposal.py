@@ -303,11 +303,10 @@ def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std, win
 
     @jax.jit
     def per_candidate(store_, pose, u):
-        bits = maps.known_bits(store_, jnp.int32(0), J, cfg)
         rows = jnp.arange(J, dtype=jnp.int32)
         log_v = cells.log_v_obs(obs.k, obs.S)
         return jax.lax.map(lambda t: log_lambda(read_footprints(
-            store_, bits, pose + jnp.einsum("jab,b->ja", chol, t), rows, u, obs, cfg),
+            store_, pose + jnp.einsum("jab,b->ja", chol, t), rows, u, obs, cfg),
             log_v, params, cfg), grid).T
 
     want = np.asarray(per_candidate(store_, state.pose, u))

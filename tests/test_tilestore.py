@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from gslam_jax.rbpf import tilesample
 from gslam_jax.rbpf import tilestore as ts
 
 H, W, T = 40, 56, 16          # the map is not a whole number of tiles: pages stick out
@@ -45,7 +46,34 @@ def np_add(kmap, smap, parts, cells, on_map, k, S):
                 smap[j].reshape(-1)[cells[i, m]] += S[m]
 
 
+def np_ranked_cells(k: np.ndarray) -> np.ndarray:
+    """Flat cells of a map's known cells (k [H, W] > 0) in eq. 31's rank order: rows of 8 x 8
+    blocks, blocks left to right, then the cells of a block row by row (brute force)."""
+    h, w = k.shape
+    return np.array([(8 * bi + r) * w + 8 * bj + c
+                     for bi in range(h // 8) for bj in range(w // 8)
+                     for r in range(8) for c in range(8) if k[8 * bi + r, 8 * bj + c] > 0],
+                    np.int64)
+
+
+def check_sampler(store: ts.TileStore, kmap: np.ndarray, rng) -> None:
+    """``tilesample.sample_known`` draws, for every particle and uniform, the cell of rank
+    floor(u * #known) in the brute-force order (the dense store's sampler's)."""
+    J = kmap.shape[0]
+    u = rng.random((J, 50)).astype(np.float32)
+    u[:, :2] = [0.0, np.nextafter(np.float32(1), np.float32(0))]  # the first and last ranks
+    idx, total = sample(store, jnp.arange(J), jnp.asarray(u), (H, W))
+    for j in range(J):
+        order = np_ranked_cells(kmap[j])
+        assert int(total[j]) == len(order)
+        if len(order):
+            r = np.clip(np.floor(u[j] * np.float32(len(order))).astype(np.int64), 0,
+                        len(order) - 1)
+            np.testing.assert_array_equal(np.asarray(idx[j]), order[r])
+
+
 write = jax.jit(ts.write, static_argnames=("width", "window"))
+sample = jax.jit(tilesample.sample_known, static_argnames="map_shape")
 resample = jax.jit(ts.resample)
 to_dense = jax.jit(ts.to_dense, static_argnames="map_shape")
 read = jax.jit(ts.read, static_argnames="width")
@@ -72,6 +100,8 @@ def test_writes_and_resampling_match_dense_model(bits):
     store = ts.init(J, (H, W), T, P, bits)
     kmap = np.zeros((J, H, W), np.float32)
     smap = np.zeros((J, H, W), np.float32)
+    if bits:
+        check_sampler(store, kmap, rng)  # no known cell anywhere: totals 0
     for it in range(12):
         for j0 in range(0, J, block):
             parts = np.arange(j0, min(j0 + block, J), dtype=np.int32)
@@ -97,6 +127,7 @@ def test_writes_and_resampling_match_dense_model(bits):
             np.testing.assert_array_equal(np.asarray(b_d), np_bits(kmap))
             np.testing.assert_array_equal(
                 np.asarray(ts.known_bits(store, jnp.arange(2, 5), (H, W))), np_bits(kmap)[2:5])
+            check_sampler(store, kmap, rng)
     # sharing happened: fewer live tiles than pages written
     assert int(ts.live_tiles(store)) < int(np.sum(np.asarray(store.page) < P))
 
@@ -138,6 +169,7 @@ def test_a_grown_pool_holds_the_same_maps_and_goes_on_like_the_dense_model():
     np.testing.assert_array_equal(np.asarray(k_d), kmap)
     np.testing.assert_array_equal(np.asarray(s_d), smap)
     np.testing.assert_array_equal(np.asarray(b_d), np_bits(kmap))
+    check_sampler(store, kmap, rng)
     with pytest.raises(ValueError, match="cannot shrink"):
         ts.grow(store, 299)
 

@@ -112,9 +112,9 @@ def add(store: DenseMaps, particles: Array, cells_: Array, k: Array, S: Array) -
                           S=add_to_cells(_flat(store.S), particles, cells_, S).reshape(shape))
 
 
-def known_bits(store: DenseMaps, j0: Array, n: int) -> Array:
-    """Known-cell bits [n, H/8, W/8, 2] of particles j0 .. j0+n-1."""
-    return lax.dynamic_slice_in_dim(store.known_bits, j0, n)
+def known_bits(store: DenseMaps, rows: Array) -> Array:
+    """Known-cell bits [n, H/8, W/8, 2] of particles ``rows`` [n]."""
+    return jnp.take(store.known_bits, rows, axis=0)
 
 
 def window_origin(pose: Array, cfg: FilterConfig) -> tuple[Array, Array, Array]:

@@ -9,7 +9,6 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.types import FilterConfig, Observation
 
@@ -84,8 +83,8 @@ class Borrowed(NamedTuple):
     can_borrow: Array  # [n] the particle's map has a known cell
 
 
-def read_borrowed(store: maps.Maps, bits: Array, rows: Array, unknown_u: Array,
-                  cfg: FilterConfig) -> Borrowed:
+def read_borrowed(store: maps.Maps, rows: Array, unknown_u: Array, cfg: FilterConfig
+                  ) -> Borrowed:
     """The known cells that the unknown cells of particles ``rows`` borrow (eq. 31, "sample"
     mode; empty otherwise). They depend on the particle's map and uniforms only, not on its
     pose, so every candidate pose of the informed proposal shares them."""
@@ -97,7 +96,7 @@ def read_borrowed(store: maps.Maps, bits: Array, rows: Array, unknown_u: Array,
     # (see importance.log_lambda), so every unknown cell borrows a uniformly random known
     # cell (draws are shared between cells unknown_samples apart, which keeps the search
     # cost independent of the local map). Only the draws are read from the big map.
-    idx, total = jax.vmap(unknown.sample_known_cells)(bits, unknown_u)
+    idx, total = maps.sample_known(store, rows, unknown_u, cfg)
     kb, Sb = maps.read(store, rows, idx, jnp.ones(idx.shape, bool), cfg)
     return Borrowed(kb, Sb, total > 0)
 
@@ -114,11 +113,11 @@ def footprint_at(pose: Array, obs: Observation, borrowed: Borrowed,
                      *read_cells(flat, on_map), borrowed.k, borrowed.S, borrowed.can_borrow)
 
 
-def read_footprints(store: maps.Maps, bits: Array, pose: Array, rows: Array,
-                    unknown_u: Array, obs: Observation, cfg: FilterConfig) -> Footprint:
-    """Everything the update reads from the maps of particles ``rows`` ([n]; ``pose``, ``bits``
-    and ``unknown_u`` are theirs). store: the maps of all particles (``FilterState.maps``),
-    read through ``maps.read``."""
-    borrowed = read_borrowed(store, bits, rows, unknown_u, cfg)
+def read_footprints(store: maps.Maps, pose: Array, rows: Array, unknown_u: Array,
+                    obs: Observation, cfg: FilterConfig) -> Footprint:
+    """Everything the update reads from the maps of particles ``rows`` ([n]; ``pose`` and
+    ``unknown_u`` are theirs). store: the maps of all particles (``FilterState.maps``),
+    read through ``maps.read`` and ``maps.sample_known``."""
+    borrowed = read_borrowed(store, rows, unknown_u, cfg)
     return footprint_at(pose, obs, borrowed,
                         lambda flat, on_map: maps.read(store, rows, flat, on_map, cfg), cfg)

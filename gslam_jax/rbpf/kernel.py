@@ -111,8 +111,7 @@ def _weigh_block(w: _Weighed, j0: Array, n: int, state: FilterState, obs: Observ
     """Particles j0 .. j0+n-1: read their footprints, weigh them, add the local map."""
     rows = j0 + jnp.arange(n, dtype=jnp.int32)
     take = partial(lax.dynamic_slice_in_dim, start_index=j0, slice_size=n)
-    f = read_footprints(w.maps, maps.known_bits(w.maps, j0, n, cfg), take(state.pose), rows,
-                        take(unknown_u), obs, cfg)
+    f = read_footprints(w.maps, take(state.pose), rows, take(unknown_u), obs, cfg)
     log_lam = log_lambda(f, log_v, params, cfg, noise)
     new = w.maps
     if cfg.update_map:

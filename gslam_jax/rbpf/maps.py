@@ -7,7 +7,7 @@ the host driver reach it only through the functions here, which dispatch to the 
 
 * in the filter: ``init`` (empty maps, or a prior map in every particle), ``read`` (the map
   cells under a footprint: eq. 26's priors, eq. 31's borrowed known cells), ``write``
-  (eq. 14), ``known_bits`` ("sample" mode's bitmasks), ``finish_update`` (after an update's
+  (eq. 14), ``sample_known`` (eq. 31's uniform known cells), ``finish_update`` (after an update's
   writes), ``resample`` (each particle takes its ancestor's maps), ``particle_map``,
   ``to_dense``, ``status``;
 * on the host: ``choose_store`` (``store = "auto"``), ``pool_tiles``, ``map_bytes`` (what a
@@ -21,18 +21,19 @@ from __future__ import annotations
 import warnings
 from typing import Union
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
 from gslam_jax.config import ConfigError
-from gslam_jax.rbpf import densestore, tilestore
+from gslam_jax.rbpf import densestore, tilesample, tilestore, unknown
 from gslam_jax.rbpf.densestore import DenseMaps
 from gslam_jax.rbpf.tilestore import TileStore
 from gslam_jax.rbpf.types import FilterConfig, FilterState
 
 __all__ = ["Maps", "DenseMaps", "TileStore", "MapStoreNotice", "init", "read", "write",
-           "known_bits", "finish_update", "resample", "particle_map", "to_dense", "status",
+           "sample_known", "finish_update", "resample", "particle_map", "to_dense", "status",
            "free_tiles", "page_window", "pool_tiles", "map_bytes", "peak_bytes", "choose_store",
            "check_memory", "check_status", "grow_pool", "PoolGrowth"]
 
@@ -86,14 +87,14 @@ def write(maps: Maps, particles: Array, cells_: Array, k: Array, S: Array,
     return densestore.add(maps, particles, cells_, k, S)
 
 
-def known_bits(maps: Maps, j0: Array, n: int, cfg: FilterConfig) -> Array:
-    """Known-cell bits [n, H/8, W/8, 2] of particles j0 .. j0+n-1 ("sample" mode; otherwise
-    [n, 0, 0, 2])."""
-    if cfg.unknown_cells != "sample":
-        return jnp.zeros((n, 0, 0, 2), jnp.uint32)
+def sample_known(maps: Maps, rows: Array, u: Array, cfg: FilterConfig) -> tuple[Array, Array]:
+    """Uniform known cells of the maps of particles ``rows`` [n], one per uniform of ``u``
+    [n, S] ("sample" mode, eq. 31): (flat map cells [n, S], known cells [n]). Both stores draw
+    the same cells (``unknown.sample_known_cells``; the shared store without scanning whole
+    maps, ``tilesample``); where a map has none the cells are meaningless."""
     if _shared(maps):
-        return tilestore.known_bits(maps, j0 + jnp.arange(n, dtype=jnp.int32), cfg.map_shape)
-    return densestore.known_bits(maps, j0, n)
+        return tilesample.sample_known(maps, rows, u, cfg.map_shape)
+    return jax.vmap(unknown.sample_known_cells)(densestore.known_bits(maps, rows), u)
 
 
 def finish_update(maps: Maps, pose: Array, cfg: FilterConfig) -> Maps:

@@ -154,8 +154,7 @@ def candidate_scorer(store: maps.Maps, mean: Array, chol: Array, unknown_u: Arra
     H, W = cfg.map_shape
     side = candidate_window(cfg)
     rows = jnp.arange(J, dtype=jnp.int32)
-    borrowed = read_borrowed(store, maps.known_bits(store, jnp.int32(0), J, cfg), rows,
-                             unknown_u, cfg)
+    borrowed = read_borrowed(store, rows, unknown_u, cfg)
     obs = thin_observation(obs, cfg.proposal_cell_stride)
     log_v = cells.log_v_obs(obs.k, obs.S)
     noise = cell_noise(obs.index, params)

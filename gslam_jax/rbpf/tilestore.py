@@ -3,7 +3,8 @@
 The dense store keeps a whole [H, W] map per particle, so memory grows with particles x area
 and resampling copies dead particles' maps. Here the global map is cut into tiles of T x T
 cells; a fixed pool holds ``pool_tiles`` tiles of k and S (and, in "sample" mode, each tile's
-known-cell bitmasks, ``unknown.pack_known``), and each particle has a page table
+known-cell bitmasks, ``unknown.pack_known``, and their counts per row of blocks, which
+``tilesample`` draws eq. 31's known cells from), and each particle has a page table
 [tiles_y, tiles_x] of pool indices. This is the paper's copy-on-write tile store (6.3; the
 NumPy one is ``gslam_jax.tiled``) with static shapes, so it runs under jit, vmap and scan:
 
@@ -59,6 +60,7 @@ class TileStore(NamedTuple):
     kpool: Array     # [P + 1, T, T] float32 degrees of freedom k
     spool: Array     # [P + 1, T, T] float32 sums of squared deviations S
     bpool: Array     # [P + 1, T/8, T/8, 2] uint32 known-cell bits ([P + 1, 0, 0, 2] if unused)
+    cpool: Array     # [P + 1, T/8] int32 known cells per row of blocks ([P + 1, 0] if unused)
     page: Array      # [J, tiles_y, tiles_x] int32 pool index of each page (P: never written)
     refcount: Array  # [P] int32 page-table entries pointing at each tile
     free: Array      # [P] int32 free tiles in free[:n_free]
@@ -94,6 +96,7 @@ def init(num_particles: int, map_shape: tuple[int, int], tile: int, pool_tiles: 
         kpool=jnp.zeros((P + 1, T, T), jnp.float32),
         spool=jnp.zeros((P + 1, T, T), jnp.float32),
         bpool=jnp.zeros((P + 1, nb, nb, 2), jnp.uint32),
+        cpool=jnp.zeros((P + 1, nb), jnp.int32),
         page=jnp.full((num_particles,) + pages_per_side(map_shape, T), P, jnp.int32),
         refcount=jnp.zeros((P,), jnp.int32),
         free=jnp.arange(P, dtype=jnp.int32),
@@ -123,14 +126,15 @@ def with_prior(store: TileStore, k: Array, S: Array) -> TileStore:
     ok = n <= P
     slot = jnp.where(used & ok, jnp.cumsum(used, dtype=jnp.int32) - 1, P)
     put = jnp.where(slot < P, slot, P + 1)  # out of range: dropped by the scatters
-    bpool = store.bpool
+    bpool, cpool = store.bpool, store.cpool
     if bpool.shape[1]:
-        bpool = bpool.at[put].set(jax.vmap(lambda t: unknown.pack_known(t > 0))(kt),
-                                  mode="drop")
+        bits = jax.vmap(lambda t: unknown.pack_known(t > 0))(kt)
+        bpool = bpool.at[put].set(bits, mode="drop")
+        cpool = cpool.at[put].set(unknown.block_row_counts(bits), mode="drop")
     placed = jnp.where(ok, n, 0)
     return store._replace(
         kpool=store.kpool.at[put].set(kt, mode="drop"),
-        spool=store.spool.at[put].set(st, mode="drop"), bpool=bpool,
+        spool=store.spool.at[put].set(st, mode="drop"), bpool=bpool, cpool=cpool,
         page=jnp.broadcast_to(slot.reshape(ty, tx), (J, ty, tx)),
         refcount=jnp.zeros((P,), jnp.int32).at[slot].set(J, mode="drop"),
         free=(jnp.arange(P, dtype=jnp.int32) + placed) % P,
@@ -294,13 +298,16 @@ def add(store: TileStore, particles: Array, cells: Array, on_map: Array, k: Arra
 
 
 def _refresh_bits(store: TileStore, tiles: Array) -> TileStore:
-    """Known-cell bits of the pool tiles ``tiles`` (P + 1: skip) recomputed from their k."""
+    """Known-cell bits and counts of the pool tiles ``tiles`` (P + 1: skip) recomputed from
+    their k."""
     if store.bpool.shape[1] == 0:
         return store
     P = store.refcount.shape[0]
     k = store.kpool[jnp.minimum(tiles, P)]
     bits = jax.vmap(lambda t: unknown.pack_known(t > 0))(k)
-    return store._replace(bpool=store.bpool.at[tiles].set(bits, mode="drop"))
+    return store._replace(bpool=store.bpool.at[tiles].set(bits, mode="drop"),
+                          cpool=store.cpool.at[tiles].set(unknown.block_row_counts(bits),
+                                                          mode="drop"))
 
 
 def write(store: TileStore, particles: Array, cells: Array, on_map: Array, k: Array, S: Array,
@@ -348,6 +355,7 @@ def grow(store: TileStore, pool_tiles: int) -> TileStore:
     free = jnp.concatenate([jnp.arange(P, new, dtype=jnp.int32), store.free])
     return store._replace(
         kpool=pool(store.kpool), spool=pool(store.spool), bpool=pool(store.bpool),
+        cpool=pool(store.cpool),
         page=jnp.where(store.page == P, new, store.page),
         refcount=jnp.concatenate([store.refcount, jnp.zeros((extra,), jnp.int32)]),
         free=free, n_free=store.n_free + extra)
@@ -377,17 +385,18 @@ def live_tiles(store: TileStore) -> Array:
 
 
 def tile_bytes(store: TileStore) -> int:
-    """Bytes of one pool tile: its k, S and known-cell bits."""
+    """Bytes of one pool tile: its k, S, known-cell bits and their counts."""
     return sum(x.dtype.itemsize * math.prod(x.shape[1:])
-               for x in (store.kpool, store.spool, store.bpool))
+               for x in (store.kpool, store.spool, store.bpool, store.cpool))
 
 
 def nbytes(num_particles: int, map_shape: tuple[int, int], tile: int, pool_tiles: int,
            bits: bool) -> int:
     """Bytes ``init`` allocates: the pool with its zero tile (k, S and, with ``bits``, the
-    known-cell bits of each tile), the page tables, the reference counts and the free stack."""
+    known-cell bits of each tile and their counts per row of blocks), the page tables, the
+    reference counts and the free stack."""
     T, B = tile, unknown.BLOCK
-    bit_bytes = (T // B) ** 2 * 2 * 4 if bits else 0
+    bit_bytes = ((T // B) ** 2 * 2 * 4 + (T // B) * 4) if bits else 0
     ty, tx = pages_per_side(map_shape, T)
     return (pool_tiles + 1) * (T * T * 2 * 4 + bit_bytes) + 4 * (num_particles * ty * tx
                                                                  + 2 * pool_tiles)

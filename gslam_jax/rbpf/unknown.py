@@ -11,6 +11,9 @@ comes from a float32 uniform u on a grid of 2^-23, as r = floor(u * #known): eac
 gets probability 1 / #known to within a relative 1 / floor(2^23 / #known) (5 % for a whole
 640 x 640 map known, 0.4 % for 30,000 known cells), and above 2^23 known cells some are never
 drawn.
+
+The shared-tile store draws the same cells without scanning whole maps (``tilesample``): it
+keeps each tile's known cells per row of blocks and searches those counts, in the same order.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array, lax
 
-__all__ = ["BLOCK", "pack_known", "sample_known_cells"]
+__all__ = ["BLOCK", "pack_known", "block_row_counts", "uniform_rank", "select_in_block",
+           "sample_known_cells"]
 
 BLOCK = 8  # block side in cells; 64 cells = two uint32 words
 
@@ -33,6 +37,17 @@ def pack_known(known: Array) -> Array:
     return jnp.sum(bits << shifts, axis=-1, dtype=jnp.uint32)
 
 
+def block_row_counts(bits: Array) -> Array:
+    """Known cells per row of blocks: uint32 [..., Hb, Wb, 2] -> int32 [..., Hb]."""
+    return jnp.sum(lax.population_count(bits).astype(jnp.int32), axis=(-2, -1))
+
+
+def uniform_rank(u: Array, total: Array) -> Array:
+    """The rank floor(u * total) of a known cell, in [0, total - 1] (0 when total is 0)."""
+    return jnp.clip(jnp.floor(u * total.astype(u.dtype)).astype(jnp.int32), 0,
+                    jnp.maximum(total - 1, 0))
+
+
 def _select_bit(word: Array, rank: Array) -> Array:
     """Position of the ``rank``-th (0-based) set bit of each uint32 ``word``."""
     pos = jnp.zeros_like(rank)
@@ -43,6 +58,13 @@ def _select_bit(word: Array, rank: Array) -> Array:
         word = jnp.where(go, word >> jnp.uint32(width), word)
         pos = jnp.where(go, pos + width, pos)
     return pos
+
+
+def select_in_block(lo: Array, hi: Array, rank: Array) -> Array:
+    """Position (bit r * 8 + c) of the ``rank``-th known cell of a block's two words."""
+    count_lo = lax.population_count(lo).astype(rank.dtype)
+    return jnp.where(rank < count_lo, _select_bit(lo, rank),
+                     32 + _select_bit(hi, rank - count_lo))
 
 
 def sample_known_cells(bits: Array, u: Array) -> tuple[Array, Array]:
@@ -58,16 +80,12 @@ def sample_known_cells(bits: Array, u: Array) -> tuple[Array, Array]:
     Hb, Wb, _ = bits.shape
     lo = bits[..., 0].reshape(-1)
     hi = bits[..., 1].reshape(-1)
-    count_lo = lax.population_count(lo).astype(jnp.int32)
-    counts = count_lo + lax.population_count(hi).astype(jnp.int32)
+    counts = (lax.population_count(lo) + lax.population_count(hi)).astype(jnp.int32)
     cum = jnp.cumsum(counts)
     total = cum[-1]
-    r = jnp.clip(jnp.floor(u * total.astype(u.dtype)).astype(jnp.int32), 0, jnp.maximum(total - 1, 0))
+    r = uniform_rank(u, total)
     block = jnp.clip(jnp.searchsorted(cum, r, side="right"), 0, cum.shape[0] - 1)
-    rank = r - (cum[block] - counts[block])
-    in_lo = rank < count_lo[block]
-    pos = jnp.where(in_lo, _select_bit(lo[block], rank),
-                    32 + _select_bit(hi[block], rank - count_lo[block]))
+    pos = select_in_block(lo[block], hi[block], r - (cum[block] - counts[block]))
     row = (block // Wb) * BLOCK + pos // BLOCK
     col = (block % Wb) * BLOCK + pos % BLOCK
     return row * (Wb * BLOCK) + col, total
