@@ -11,6 +11,7 @@ from synthetic import World, make_run
 
 from gslam_jax import observations, rbpf, sizing, slam
 from gslam_jax.config import Config, FilterSection, MotionSection
+from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf.cells import obs_from_stats
 from gslam_jax.rbpf.footprint import observation_cells
 from gslam_jax.rbpf.importance import _log_importance, log_importance
@@ -295,6 +296,11 @@ def test_update_in_particle_blocks_equals_one_pass(mode):
     np.testing.assert_allclose(blocks.final_state.maps.S, one.final_state.maps.S, rtol=1e-6)
     np.testing.assert_array_equal(blocks.final_state.maps.known_bits,
                                   one.final_state.maps.known_bits)
+    if mode == "sample":  # the segment counts kept beside the bits are the bits' own
+        np.testing.assert_array_equal(one.final_state.maps.known_counts,
+                                      unknown.segment_counts(one.final_state.maps.known_bits))
+        assert int(one.final_state.maps.known_counts.sum()) == int(
+            np.sum(np.asarray(one.final_state.maps.k) > 0))
 
     auto = CPU_BLOCK_CELLS // 4096 if jax.default_backend() == "cpu" else 200
     big = _shared_base(mode)._replace(num_particles=200, observed_cells=4096)

@@ -44,3 +44,28 @@ def test_rank_order_is_block_row_major():
     u = (np.arange(n) + 0.5) / n
     idx, _ = unknown.sample_known_cells(unknown.pack_known(jnp.asarray(known)), jnp.asarray(u, jnp.float32))
     assert np.asarray(idx).tolist() == order
+
+
+def test_segments_draw_the_cells_of_the_whole_map_sampler():
+    """``sample_by_segments`` over ``segment_counts`` gives, for every uniform, the cell that
+    ``sample_known_cells`` gives from the whole map's bits: maps 7 blocks wide (the last
+    segment padded), sparse, dense and empty."""
+    rng = np.random.default_rng(3)
+    u = jnp.asarray(np.concatenate([[0.0, np.nextafter(np.float32(1), np.float32(0))],
+                                    rng.random(998)]), jnp.float32)
+    for density in (0.0, 0.02, 0.5):
+        known = rng.random((40, 56)) < density
+        bits = unknown.pack_known(jnp.asarray(known))
+        seg = unknown.segment_counts(bits)
+        assert seg.shape == (5, 2) and int(seg.sum()) == known.sum()
+
+        def words(row, col, bits=bits):
+            block = col[:, None] * unknown.SEGMENT + jnp.arange(unknown.SEGMENT)
+            w = bits[row[:, None], jnp.minimum(block, bits.shape[1] - 1)]
+            return jnp.where((block < bits.shape[1])[..., None], w, jnp.uint32(0))
+
+        got, total = unknown.sample_by_segments(seg, words, u, 56)
+        want, want_total = unknown.sample_known_cells(bits, u)
+        assert int(total) == int(want_total) == known.sum()
+        if known.any():
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

@@ -4,7 +4,9 @@ Simple to index, and the fastest store while the maps fit in memory; but memory 
 particles x map area, and resampling copies the maps of the particles left without offspring
 (``gather_particles``). ``tilestore`` shares tiles between particles instead; ``rbpf.maps``
 chooses between the two. "sample" mode also keeps each map's known-cell bitmasks
-(``unknown.pack_known``), refreshed around every footprint after a write (``finish_update``).
+(``unknown.pack_known``) and their counts per segment (``unknown.segment_counts``, which
+``sample_known`` draws eq. 31's known cells from), refreshed around every footprint after a
+write (``finish_update``).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf.types import FilterConfig
 
 __all__ = ["DenseMaps", "ROW_BAND", "init", "nbytes", "read_cells", "add_to_cells", "read",
-           "add", "known_bits", "window_origin", "written_rows", "finish_update",
+           "add", "known_bits", "sample_known", "window_origin", "written_rows", "finish_update",
            "gather_particles", "resample"]
 
 ROW_BAND = 64  # map rows per copy when resampling copies only the written rows
@@ -31,6 +33,9 @@ class DenseMaps(NamedTuple):
     k: Array           # [J, H, W] float32 degrees of freedom k
     S: Array           # [J, H, W] float32 sums of squared deviations S
     known_bits: Array  # [J, H/8, W/8, 2] uint32 known-cell bits ("sample" mode; else [J, 0, 0, 2])
+    # [J, H/8, ceil(W/8 / SEGMENT)] int32 known cells per segment (``unknown.segment_counts``;
+    # else [J, 0, 0])
+    known_counts: Array
     rows: Array        # [2] int32 map rows [lo, hi) that any update may have written so far
 
 
@@ -44,21 +49,25 @@ def init(num_particles: int, map_shape: tuple[int, int], bits: bool,
     nb = (H // unknown.BLOCK, W // unknown.BLOCK) if bits else (0, 0)
     if prior is None:
         k, S = jnp.zeros(shape, jnp.float32), jnp.zeros(shape, jnp.float32)
-        known = jnp.zeros((num_particles,) + nb + (2,), jnp.uint32)
+        one = jnp.zeros(nb + (2,), jnp.uint32)
     else:
         pk, pS = (jnp.asarray(x, jnp.float32) for x in prior)
         k, S = jnp.broadcast_to(pk, shape), jnp.broadcast_to(pS, shape)
         one = unknown.pack_known(pk > 0) if bits else jnp.zeros(nb + (2,), jnp.uint32)
-        known = jnp.broadcast_to(one, (num_particles,) + nb + (2,))
-    return DenseMaps(k=k, S=S, known_bits=known, rows=jnp.array([H, 0], jnp.int32))
+    counts = unknown.segment_counts(one) if bits else jnp.zeros((0, 0), jnp.int32)
+    return DenseMaps(k=k, S=S, known_bits=jnp.broadcast_to(one, (num_particles,) + one.shape),
+                     known_counts=jnp.broadcast_to(counts, (num_particles,) + counts.shape),
+                     rows=jnp.array([H, 0], jnp.int32))
 
 
 def nbytes(num_particles: int, map_shape: tuple[int, int], bits: bool) -> int:
     """Bytes ``init`` allocates for the maps: k and S [J, H, W] float32, plus the known-cell
-    bits [J, H/8, W/8, 2] uint32 with ``bits`` (resampling copies them in place)."""
+    bits [J, H/8, W/8, 2] uint32 and their segment counts with ``bits`` (resampling copies
+    them in place)."""
     H, W = map_shape
     B = unknown.BLOCK
-    bit_bytes = (H // B) * (W // B) * 2 * 4 if bits else 0
+    segments = -(-(W // B) // unknown.SEGMENT)
+    bit_bytes = (H // B) * ((W // B) * 2 * 4 + segments * 4) if bits else 0
     return num_particles * (H * W * 2 * 4 + bit_bytes)
 
 
@@ -117,6 +126,25 @@ def known_bits(store: DenseMaps, rows: Array) -> Array:
     return jnp.take(store.known_bits, rows, axis=0)
 
 
+def sample_known(store: DenseMaps, rows: Array, u: Array, width: int) -> tuple[Array, Array]:
+    """Eq. 31's uniform known cells of the maps of particles ``rows`` [n], one per uniform of
+    ``u`` [n, S]: (flat cells [n, S], known cells [n]), as ``unknown.sample_known_cells``
+    draws them, from the segment counts (``unknown.sample_by_segments``)."""
+
+    def one(j: Array, v: Array) -> tuple[Array, Array]:
+        Wb = store.known_bits.shape[2]
+        n = unknown.SEGMENT
+
+        def words(row: Array, col: Array) -> Array:
+            block = col[:, None] * n + jnp.arange(n)  # [S, n]; past the map's edge: empty
+            w = store.known_bits[j, row[:, None], jnp.minimum(block, Wb - 1)]
+            return jnp.where((block < Wb)[..., None], w, jnp.uint32(0))
+
+        return unknown.sample_by_segments(store.known_counts[j], words, v, width)
+
+    return jax.vmap(one)(rows, u)
+
+
 def window_origin(pose: Array, cfg: FilterConfig) -> tuple[Array, Array, Array]:
     """Top-left cell (i, j) of the block-aligned window that holds a particle's footprint.
 
@@ -146,19 +174,25 @@ def written_rows(rows: Array, pose: Array, cfg: FilterConfig) -> Array:
 
 def finish_update(store: DenseMaps, pose: Array, cfg: FilterConfig) -> DenseMaps:
     """After an update from ``pose`` [J, 3] wrote the maps: the known-cell bits refreshed
-    around each footprint ("sample" mode) and the written rows widened (``written_rows``)."""
-    bits = store.known_bits
+    around each footprint ("sample" mode), with the segment counts of the rows of blocks they
+    lie in, and the written rows widened (``written_rows``)."""
+    bits, counts = store.known_bits, store.known_counts
     if cfg.unknown_cells == "sample" and cfg.update_map:
 
-        def refresh(k, bits, pose):
+        def refresh(k, bits, counts, pose):
             b, Wn = unknown.BLOCK, cfg.window
             oi, oj, _ = window_origin(pose, cfg)
             known = lax.dynamic_slice(k, (oi, oj), (Wn, Wn)) > 0
-            return lax.dynamic_update_slice(bits, unknown.pack_known(known),
+            bits = lax.dynamic_update_slice(bits, unknown.pack_known(known),
                                             (oi // b, oj // b, 0))
+            band = lax.dynamic_slice_in_dim(bits, oi // b, Wn // b)  # whole rows of blocks
+            counts = lax.dynamic_update_slice_in_dim(counts, unknown.segment_counts(band),
+                                                     oi // b, 0)
+            return bits, counts
 
-        bits = jax.vmap(refresh)(store.k, bits, pose)
-    return store._replace(known_bits=bits, rows=written_rows(store.rows, pose, cfg))
+        bits, counts = jax.vmap(refresh)(store.k, bits, counts, pose)
+    return store._replace(known_bits=bits, known_counts=counts,
+                          rows=written_rows(store.rows, pose, cfg))
 
 
 def gather_particles(particles, ancestors: Array, rows: Array | None = None):
@@ -204,5 +238,6 @@ def gather_particles(particles, ancestors: Array, rows: Array | None = None):
 def resample(store: DenseMaps, ancestors: Array) -> DenseMaps:
     """Particle i takes the maps of particle ancestors[i] (survivors kept in place,
     ``resampling.keep_in_place``): the dead particles' maps copied over the written rows."""
-    k, S, bits = gather_particles((store.k, store.S, store.known_bits), ancestors, store.rows)
-    return store._replace(k=k, S=S, known_bits=bits)
+    k, S = gather_particles((store.k, store.S), ancestors, store.rows)
+    bits, counts = gather_particles((store.known_bits, store.known_counts), ancestors)
+    return store._replace(k=k, S=S, known_bits=bits, known_counts=counts)

@@ -21,13 +21,12 @@ from __future__ import annotations
 import warnings
 from typing import Union
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
 from gslam_jax.config import ConfigError
-from gslam_jax.rbpf import densestore, tilesample, tilestore, unknown
+from gslam_jax.rbpf import densestore, tilesample, tilestore
 from gslam_jax.rbpf.densestore import DenseMaps
 from gslam_jax.rbpf.tilestore import TileStore
 from gslam_jax.rbpf.types import FilterConfig, FilterState
@@ -94,7 +93,7 @@ def sample_known(maps: Maps, rows: Array, u: Array, cfg: FilterConfig) -> tuple[
     maps, ``tilesample``); where a map has none the cells are meaningless."""
     if _shared(maps):
         return tilesample.sample_known(maps, rows, u, cfg.map_shape)
-    return jax.vmap(unknown.sample_known_cells)(densestore.known_bits(maps, rows), u)
+    return densestore.sample_known(maps, rows, u, cfg.map_shape[1])
 
 
 def finish_update(maps: Maps, pose: Array, cfg: FilterConfig) -> Maps:

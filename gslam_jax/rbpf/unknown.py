@@ -12,19 +12,25 @@ gets probability 1 / #known to within a relative 1 / floor(2^23 / #known) (5 % f
 640 x 640 map known, 0.4 % for 30,000 known cells), and above 2^23 known cells some are never
 drawn.
 
-The shared-tile store draws the same cells without scanning whole maps (``tilesample``): it
-keeps each tile's known cells per row of blocks and searches those counts, in the same order.
+Both stores draw the same cells without scanning whole maps (``sample_by_segments``): they
+keep the known cells of every *segment*, a run of consecutive blocks of one row of blocks
+(``SEGMENT`` blocks in the dense store, one tile's width in the shared store), find the segment
+of rank r from the cumulative segment counts, then the block within it. The order of the ranks
+is the same, so a uniform names the same cell as ``sample_known_cells``.
 """
 
 from __future__ import annotations
 
+from typing import Callable
+
 import jax.numpy as jnp
 from jax import Array, lax
 
-__all__ = ["BLOCK", "pack_known", "block_row_counts", "uniform_rank", "select_in_block",
-           "sample_known_cells"]
+__all__ = ["BLOCK", "SEGMENT", "pack_known", "block_row_counts", "segment_counts",
+           "uniform_rank", "select_in_block", "sample_known_cells", "sample_by_segments"]
 
 BLOCK = 8  # block side in cells; 64 cells = two uint32 words
+SEGMENT = 4  # blocks per segment of the dense store's counts (``segment_counts``)
 
 
 def pack_known(known: Array) -> Array:
@@ -40,6 +46,16 @@ def pack_known(known: Array) -> Array:
 def block_row_counts(bits: Array) -> Array:
     """Known cells per row of blocks: uint32 [..., Hb, Wb, 2] -> int32 [..., Hb]."""
     return jnp.sum(lax.population_count(bits).astype(jnp.int32), axis=(-2, -1))
+
+
+def segment_counts(bits: Array, segment: int = SEGMENT) -> Array:
+    """Known cells per segment of ``segment`` blocks: uint32 [..., Hb, Wb, 2] -> int32
+    [..., Hb, ceil(Wb / segment)] (the last segment of a row padded with empty blocks)."""
+    per_block = jnp.sum(lax.population_count(bits).astype(jnp.int32), axis=-1)
+    Wb = per_block.shape[-1]
+    pad = -Wb % segment
+    per_block = jnp.pad(per_block, [(0, 0)] * (per_block.ndim - 1) + [(0, pad)])
+    return per_block.reshape(per_block.shape[:-1] + (-1, segment)).sum(-1)
 
 
 def uniform_rank(u: Array, total: Array) -> Array:
@@ -89,3 +105,38 @@ def sample_known_cells(bits: Array, u: Array) -> tuple[Array, Array]:
     row = (block // Wb) * BLOCK + pos // BLOCK
     col = (block % Wb) * BLOCK + pos % BLOCK
     return row * (Wb * BLOCK) + col, total
+
+
+def sample_by_segments(seg: Array, words: Callable[[Array, Array], Array], u: Array,
+                       width: int) -> tuple[Array, Array]:
+    """``sample_known_cells`` from segment counts, without the whole map's bits.
+
+    Args:
+        seg: int32 [R, C] known cells of segment (r, c): blocks c * n .. c * n + n - 1 of row
+            of blocks r (n blocks per segment; blocks past the map's edge are empty).
+        words: (r [S], c [S]) -> uint32 [S, n, 2], the words of those segments' blocks.
+        u: uniforms [S], one cell each.
+        width: the map's width in cells.
+    Returns:
+        (flat cell indices [S], number of known cells), as ``sample_known_cells`` gives for
+        the same map and uniforms.
+    """
+    R, C = seg.shape
+    flat = seg.reshape(-1)
+    cum = jnp.cumsum(flat)
+    total = cum[-1]
+    r = uniform_rank(u, total)
+    s = jnp.clip(jnp.searchsorted(cum, r, side="right"), 0, R * C - 1)
+    rank = r - (cum[s] - flat[s])
+    row, col = s // C, s % C
+    w = words(row, col)  # [S, n, 2]
+    n = w.shape[-2]
+    counts = jnp.sum(lax.population_count(w).astype(jnp.int32), axis=-1)  # [S, n]
+    ccum = jnp.cumsum(counts, axis=-1)
+    b = jnp.minimum(jnp.sum(ccum <= rank[:, None], axis=-1), n - 1)[:, None]  # first > rank
+    pick = jnp.take_along_axis
+    in_block = rank - (pick(ccum, b, -1) - pick(counts, b, -1))[:, 0]
+    pos = select_in_block(pick(w[..., 0], b, -1)[:, 0], pick(w[..., 1], b, -1)[:, 0], in_block)
+    cell_row = row * BLOCK + pos // BLOCK
+    cell_col = (col * n + b[:, 0]) * BLOCK + pos % BLOCK
+    return cell_row * width + cell_col, total
