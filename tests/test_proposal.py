@@ -120,8 +120,8 @@ def _small_case(points: int = 3, J: int = 4, seed: int = 0):
     k = np.where(known, rng.integers(1, 30, (64, 64)), 0).astype(np.float32)
     S = np.where(known, k * rng.uniform(0.001, 0.05, (64, 64)), 0).astype(np.float32)
     dense = densestore.DenseMaps(jnp.broadcast_to(k, (J, 64, 64)), jnp.broadcast_to(S, (J, 64, 64)),
-                                 jnp.zeros((J, 0, 0, 2), jnp.uint32), jnp.zeros((J, 0, 0), jnp.int32),
-                                 jnp.array([0, 64], jnp.int32))
+                                 jnp.zeros((J, 0, 0, 2), jnp.uint32),
+                                 jnp.zeros((J, 0, 0), jnp.int32), jnp.array([0, 64], jnp.int32))
     pose = jnp.asarray(np.column_stack([5.1 + 0.05 * rng.normal(size=J),
                                         5.0 + 0.05 * rng.normal(size=J),
                                         0.3 + 0.02 * rng.normal(size=J)]), jnp.float32)
