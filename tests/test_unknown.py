@@ -69,3 +69,14 @@ def test_segments_draw_the_cells_of_the_whole_map_sampler():
         assert int(total) == int(want_total) == known.sum()
         if known.any():
             np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
+def test_the_sampler_benchmark_runs_and_finds_the_same_cells(capsys):
+    """``experiments.known_cell_sampler`` at a CI size: both stores' segment samplers draw
+    the whole-map scan's cells (it exits 1 otherwise) and it prints its figures."""
+    from experiments import known_cell_sampler
+
+    assert known_cell_sampler.main(["--map", "64", "104", "--particles", "3", "--density",
+                                    "0.1", "--samples", "32", "--repeats", "1"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("same cells: True") == 2 and "# jax" in out
