@@ -65,7 +65,8 @@ def test_default_names_leave_out_a_term_switched_off():
 def test_forward_values_equal_the_filter(short_run):
     config = _config(8)
     inputs, cfg = TU.make_inputs(short_run, config)
-    inputs = inputs._replace(local_obs=observations.refine_observations(inputs.local_obs, inputs.obs))
+    inputs = inputs._replace(local_obs=observations.refine_observations(inputs.local_obs,
+                                                                        inputs.obs))
     params = sizing.filter_params(config)
     key = jax.random.key(5)
     obj = TU.sw_objectives(key, params, inputs, cfg)

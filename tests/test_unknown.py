@@ -42,7 +42,8 @@ def test_rank_order_is_block_row_major():
              if known[8 * bi + r, 8 * bj + c]]
     n = len(order)
     u = (np.arange(n) + 0.5) / n
-    idx, _ = unknown.sample_known_cells(unknown.pack_known(jnp.asarray(known)), jnp.asarray(u, jnp.float32))
+    idx, _ = unknown.sample_known_cells(unknown.pack_known(jnp.asarray(known)),
+                                        jnp.asarray(u, jnp.float32))
     assert np.asarray(idx).tolist() == order
 
 

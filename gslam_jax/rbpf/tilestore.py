@@ -180,7 +180,10 @@ def read(store: TileStore, particles: Array, cells: Array, on_map: Array,
     """(k, S) [n, M] at flat map cells ``cells`` [n, M] of particles ``particles`` [n]; 0 where
     not on_map or never written."""
     idx = pool_index(store, particles, cells, on_map, width)
-    get = lambda pool: pool.reshape(-1).at[idx].get(mode="promise_in_bounds")
+
+    def get(pool: Array) -> Array:
+        return pool.reshape(-1).at[idx].get(mode="promise_in_bounds")
+
     return get(store.kpool), get(store.spool)
 
 
@@ -256,7 +259,8 @@ def prepare(store: TileStore, particles: Array, cells: Array, written: Array, wi
     refcount = store.refcount.at[new].set(1, mode="drop")
     refcount = refcount.at[jnp.where(copy & ok, cur, P)].add(-1, mode="drop")
     n_free = store.n_free - jnp.where(ok, m, 0)
-    status = store.status | jnp.where(ok, 0, POOL_EXHAUSTED) | jnp.where(outside, WINDOW_EXCEEDED, 0)
+    status = (store.status | jnp.where(ok, 0, POOL_EXHAUSTED)
+              | jnp.where(outside, WINDOW_EXCEEDED, 0))
     store = store._replace(kpool=kpool, spool=spool, page=flat_page.reshape(store.page.shape),
                            refcount=refcount, n_free=n_free,
                            peak=jnp.maximum(store.peak, P - n_free), status=status)
