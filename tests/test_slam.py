@@ -3,6 +3,7 @@ memory are a ConfigError before anything is allocated; the variance floor defaul
 
 import dataclasses
 
+import jax
 import numpy as np
 import pytest
 from synthetic import make_run
@@ -67,9 +68,13 @@ def test_map_memory_check_against_a_given_budget(unknown_cells):
     cfg = sizing.filter_config(config, run)
     H, W = cfg.map_shape
     need = maps.map_bytes(cfg)
-    # k and S float32; "sample" mode adds two uint32 known-cell bit words per 8 x 8 block
-    bits = (H // 8) * (W // 8) * 2 * 4 if unknown_cells == "sample" else 0
+    # k and S float32; "sample" mode adds two uint32 known-cell bit words per 8 x 8 block and
+    # an int32 count per segment of 4 blocks in a row of blocks
+    bits = ((H // 8) * ((W // 8) * 2 * 4 + -(-(W // 8) // 4) * 4)
+            if unknown_cells == "sample" else 0)
     assert need == 8 * (H * W * 2 * 4 + bits)
+    allocated = maps.init(cfg)  # what the store holds, less its [2] written-rows bounds
+    assert need == sum(x.nbytes for x in jax.tree.leaves(allocated)) - allocated.rows.nbytes
     maps.check_memory(cfg, available=need)
     with pytest.raises(ConfigError, match="the particle maps need"):
         maps.check_memory(cfg, available=need - 1)
