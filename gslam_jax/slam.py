@@ -84,15 +84,15 @@ def run_arrays(run: Run, config: Config, varied: Sequence[str] = (),
     reference do not depend on them). ``varied``: the settings a search or the tuner varies;
     with ``fallback_scale`` among them the fallback frames' flags are kept even at a scale of
     1 (``sizing.fallback_frames``), and a run without such frames is an ``error``."""
+    run = filtered_run(run, config)[2]
     keep_fallback = "fallback_scale" in varied
-    if keep_fallback and (run.vo_failed is None or not np.any(run.vo_failed)):
+    fallback = fallback_frames(run, config, keep=keep_fallback)
+    if keep_fallback and fallback is None:
         raise error("fallback_scale scales the motion noise of the frames whose control came "
                     "from the fallback odometry (Run.vo_failed), and this run has none: it "
                     "would change nothing; leave it out")
-    run = filtered_run(run, config)[2]
     T = run.num_frames
     gt = run.ground_truth if run.ground_truth is not None else np.full((T, 3), np.nan)
-    fallback = fallback_frames(run, config, keep=keep_fallback)
     arrays = RunArrays(
         controls=jnp.asarray(run.controls, jnp.float32),
         obs_index=jnp.asarray(run.obs_index, jnp.int32),

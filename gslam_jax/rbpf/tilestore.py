@@ -128,9 +128,9 @@ def with_prior(store: TileStore, k: Array, S: Array) -> TileStore:
     put = jnp.where(slot < P, slot, P + 1)  # out of range: dropped by the scatters
     bpool, cpool = store.bpool, store.cpool
     if bpool.shape[1]:
-        bits = jax.vmap(lambda t: unknown.pack_known(t > 0))(kt)
+        bits, counts = _known_cells(kt)
         bpool = bpool.at[put].set(bits, mode="drop")
-        cpool = cpool.at[put].set(unknown.block_row_counts(bits), mode="drop")
+        cpool = cpool.at[put].set(counts, mode="drop")
     placed = jnp.where(ok, n, 0)
     return store._replace(
         kpool=store.kpool.at[put].set(kt, mode="drop"),
@@ -301,17 +301,22 @@ def add(store: TileStore, particles: Array, cells: Array, on_map: Array, k: Arra
     return store._replace(kpool=put(store.kpool, k), spool=put(store.spool, S))
 
 
+def _known_cells(k: Array) -> tuple[Array, Array]:
+    """Known-cell bits [n, T/8, T/8, 2] of tiles k [n, T, T] and their counts per row of blocks
+    [n, T/8] (``unknown.segment_counts`` with segments a tile wide)."""
+    bits = jax.vmap(lambda t: unknown.pack_known(t > 0))(k)
+    return bits, unknown.segment_counts(bits, bits.shape[-2])[..., 0]
+
+
 def _refresh_bits(store: TileStore, tiles: Array) -> TileStore:
     """Known-cell bits and counts of the pool tiles ``tiles`` (P + 1: skip) recomputed from
     their k."""
     if store.bpool.shape[1] == 0:
         return store
     P = store.refcount.shape[0]
-    k = store.kpool[jnp.minimum(tiles, P)]
-    bits = jax.vmap(lambda t: unknown.pack_known(t > 0))(k)
+    bits, counts = _known_cells(store.kpool[jnp.minimum(tiles, P)])
     return store._replace(bpool=store.bpool.at[tiles].set(bits, mode="drop"),
-                          cpool=store.cpool.at[tiles].set(unknown.block_row_counts(bits),
-                                                          mode="drop"))
+                          cpool=store.cpool.at[tiles].set(counts, mode="drop"))
 
 
 def write(store: TileStore, particles: Array, cells: Array, on_map: Array, k: Array, S: Array,

@@ -26,7 +26,7 @@ from typing import Callable
 import jax.numpy as jnp
 from jax import Array, lax
 
-__all__ = ["BLOCK", "SEGMENT", "pack_known", "block_row_counts", "segment_counts",
+__all__ = ["BLOCK", "SEGMENT", "pack_known", "segment_counts",
            "uniform_rank", "select_in_block", "sample_known_cells", "sample_by_segments"]
 
 BLOCK = 8  # block side in cells; 64 cells = two uint32 words
@@ -41,11 +41,6 @@ def pack_known(known: Array) -> Array:
     shifts = jnp.arange(32, dtype=jnp.uint32)
     # Disjoint bits, so the sum is the bitwise OR.
     return jnp.sum(bits << shifts, axis=-1, dtype=jnp.uint32)
-
-
-def block_row_counts(bits: Array) -> Array:
-    """Known cells per row of blocks: uint32 [..., Hb, Wb, 2] -> int32 [..., Hb]."""
-    return jnp.sum(lax.population_count(bits).astype(jnp.int32), axis=(-2, -1))
 
 
 def segment_counts(bits: Array, segment: int = SEGMENT) -> Array:
