@@ -23,7 +23,7 @@ from gslam_jax.app import cli
 from gslam_jax.app.pipeline import load_prior
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
 from gslam_jax.gridmap import GridMap, MapFileError, save_map
-from gslam_jax.rbpf import maps, tilestore, unknown
+from gslam_jax.rbpf import maps, tilebytes, tilestore, unknown
 from gslam_jax.run import Run, integrate_controls
 from gslam_jax.vo.localmap import LocalMapParams, build_local_maps
 
@@ -79,7 +79,7 @@ def test_init_gives_every_particle_the_prior(store, mode):
         assert sorted(counts[counts > 0]) == [J] * n
         free = np.asarray(state.maps.free)[:int(state.maps.n_free)]
         assert sorted(free.tolist()) == np.flatnonzero(counts == 0).tolist()
-        full = tilestore.peak_bytes(state.maps._replace(peak=jnp.int32(J * n)))
+        full = tilebytes.peak_bytes(state.maps._replace(peak=jnp.int32(J * n)))
         assert maps.peak_bytes(state.maps, cfg) < full  # not J copies
 
 

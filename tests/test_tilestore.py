@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gslam_jax.rbpf import tilesample
+from gslam_jax.rbpf import tilebytes, tilesample
 from gslam_jax.rbpf import tilestore as ts
 
 H, W, T = 40, 56, 16          # the map is not a whole number of tiles: pages stick out
@@ -227,8 +227,8 @@ def test_pool_exhaustion_is_flagged_and_changes_nothing():
     for a, b in zip(before, to_dense(store, (H, W))):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert int(store.n_free) == P
-    with pytest.raises(ts.PoolExhaustedError, match=r"\[map\] pool_tiles = 5"):
-        ts.check_status(store.status, P)
+    with pytest.raises(tilebytes.PoolExhaustedError, match=r"\[map\] pool_tiles = 5"):
+        tilebytes.check_status(store.status, P)
 
 
 def test_store_vmaps_over_independent_filters():
@@ -328,7 +328,8 @@ def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
     from gslam_jax import slam
 
     run, config = _pool_run_and_config()
-    with pytest.raises(ts.PoolExhaustedError, match=r"^frame \d+: .*\[map\] pool_tiles = 30"):
+    exhausted = r"^frame \d+: .*\[map\] pool_tiles = 30"
+    with pytest.raises(tilebytes.PoolExhaustedError, match=exhausted):
         slam.run_slam(run, config)
 
 
@@ -369,7 +370,7 @@ def test_an_automatic_pool_without_room_to_grow_says_it_is_automatic(monkeypatch
     monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 30))
     cfg = slam.filter_config(automatic, run)
     monkeypatch.setattr(slam, "map_memory", lambda: (3 * maps.map_bytes(cfg), "test memory"))
-    with pytest.raises(ts.PoolExhaustedError,
+    with pytest.raises(tilebytes.PoolExhaustedError,
                        match=r"^frame \d+: .*automatic pool of 30 tiles ran out, and the memory "
                              r"has no room to grow it.*set \[map\] pool_tiles to a fixed size "
                              r"above 30"):
@@ -444,5 +445,6 @@ def test_search_and_tune_do_not_score_a_run_whose_pool_ran_out():
     space = parse_space({"alpha_d": [0.05, 0.2]})
     with pytest.raises(SearchError, match=r"\[map\] pool_tiles"):
         search.search(run, config, space, design="sobol", n=2)
-    with pytest.raises(ts.PoolExhaustedError, match=r"^tune step 0: .*\[map\] pool_tiles = 30"):
+    exhausted = r"^tune step 0: .*\[map\] pool_tiles = 30"
+    with pytest.raises(tilebytes.PoolExhaustedError, match=exhausted):
         tuning.tune(run, config, "supervised", names=["alpha_d"], steps=1, runs_per_step=1)

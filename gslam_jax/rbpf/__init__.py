@@ -11,7 +11,8 @@ Modules, one idea each:
 * ``footprint``: where a local map lands in each particle's map and what an update reads there;
 * ``importance``: the log importance factor of each particle (eqs. 26, 30 / 31);
 * ``maps``: the map-store seam (allocate, read, write, copy on resampling, sizing) in front
-  of the dense store (``densestore``) and the shared-tile store (``tilestore``);
+  of the dense store (``densestore``) and the shared-tile store (``tilestore``, with its
+  host-side byte counts and errors in ``tilebytes``);
 * ``draws``: the random numbers of each frame (keys, the proposal's normals, an update's
   uniforms), so that the tiled reference can be driven with the same ones;
 * ``kernel``: ``init``, ``predict``, ``update`` (weigh, write, normalise), ``resample``

@@ -26,7 +26,7 @@ import numpy as np
 from jax import Array
 
 from gslam_jax.config import ConfigError
-from gslam_jax.rbpf import densestore, tilesample, tilestore
+from gslam_jax.rbpf import densestore, tilebytes, tilesample, tilestore
 from gslam_jax.rbpf.densestore import DenseMaps
 from gslam_jax.rbpf.tilestore import TileStore
 from gslam_jax.rbpf.types import FilterConfig, FilterState
@@ -164,7 +164,7 @@ def map_bytes(cfg: FilterConfig) -> int:
     maps, or the shared store's pool (allocated up front), page tables and bookkeeping."""
     bits = cfg.unknown_cells == "sample"
     if cfg.store == "shared":
-        return tilestore.nbytes(cfg.num_particles, cfg.map_shape, cfg.tile, pool_tiles(cfg),
+        return tilebytes.nbytes(cfg.num_particles, cfg.map_shape, cfg.tile, pool_tiles(cfg),
                                 bits)
     return densestore.nbytes(cfg.num_particles, cfg.map_shape, bits)
 
@@ -172,7 +172,7 @@ def map_bytes(cfg: FilterConfig) -> int:
 def peak_bytes(maps: Maps, cfg: FilterConfig) -> int:
     """Most bytes the maps held at once (host side): the dense maps (fixed), or the shared
     store's peak of live tiles plus its page tables and bookkeeping."""
-    return tilestore.peak_bytes(maps) if _shared(maps) else map_bytes(cfg)
+    return tilebytes.peak_bytes(maps) if _shared(maps) else map_bytes(cfg)
 
 
 def _gib(n: int) -> str:
@@ -230,7 +230,7 @@ def check_status(status_bits: int | Array, cfg: FilterConfig, where: str = "",
                  automatic: bool = False) -> None:
     """Raise the host-side error for a store's ``status`` bits (0: fine); ``where`` prefixes
     the message (the frame, the tuning step); ``automatic``: the pool is a ``PoolGrowth``'s."""
-    tilestore.check_status(status_bits, pool_tiles(cfg), where, automatic)
+    tilebytes.check_status(status_bits, pool_tiles(cfg), where, automatic)
 
 
 def grow_pool(maps_: Maps, cfg: FilterConfig, need_free: int, available: int
