@@ -16,7 +16,9 @@ offset <= 1 m) of the final best particle's path, and the same for the VO-only p
 
 Prints one line per run, then per (proposal, J) the closure rate at each length and the
 longest loop closed in >= 80 % of the seeds; with --progress also a line on stderr per chunk of
-frames filtered (runs at J = 2000 and more take hours on a small machine).
+frames filtered (runs at J = 2000 and more take hours on a small machine). Runs made apart (a
+seed per process, J = 2000 on another machine) are summarised and plotted together with
+--from-json A.json B.json ... --plot loops.png, which runs nothing.
 """
 
 from __future__ import annotations
@@ -214,6 +216,35 @@ def plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def print_summary(rows: list[dict]) -> dict:
+    """Print ``summary(rows)``, a line per (proposal, J), and return it."""
+    print("\nclosure rate per loop length (share of seeds closed, runs):")
+    summ = summary(rows)
+    for name, s in summ.items():
+        rates = ", ".join(f"{x:g} m {r:.0%} ({n})" for x, (r, n) in s["rates"].items())
+        longest = "none" if s["longest"] is None else f"{s['longest']:g} m"
+        print(f"  {name}: {rates}; longest closed in >= 80 %: {longest}")
+    return summ
+
+
+def read_rows(files: list[Path]) -> list[dict]:
+    """The result rows of ``--json`` files, in order. A run (loop, seed, proposal, J) found in
+    two files, or a file that is not such a JSON, is an error naming the file."""
+    rows, seen = [], {}
+    for file in files:
+        try:
+            got = json.loads(Path(file).read_text())["rows"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise SystemExit(f"{file}: not a loop_closure --json file ({e})")
+        for r in got:
+            key = (r["loop"], r["seed"], r["proposal"], r["particles"])
+            if key in seen:
+                raise SystemExit(f"{file}: run {key} is also in {seen[key]}")
+            seen[key] = file
+            rows.append(r)
+    return rows
+
+
 def _chunk_lines(label: str, t0: float):
     """A ``run_slam`` progress callback: one line on stderr per call (a chunk of frames)."""
     def report(done: int, total: int) -> None:
@@ -249,7 +280,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plot", type=Path, help="write the closure plot here (PNG)")
     ap.add_argument("--progress", action="store_true",
                     help="a line on stderr per chunk of frames filtered")
+    ap.add_argument("--from-json", type=Path, nargs="+",
+                    help="run nothing: summarise (and --plot) the rows of these --json files")
     args = ap.parse_args(argv)
+    if args.from_json:
+        rows = read_rows(args.from_json)
+        print_summary(rows)
+        if args.plot:
+            plot(rows, args.plot)
+        return 0
     env = environment()
     config = layered_config(args.config, args.course, args.set + [f"map.store={args.store}"])
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
@@ -288,12 +327,7 @@ def main(argv: list[str] | None = None) -> int:
                          args.informed_max_length, args.informed_particles, course=args.course,
                          margin_per_m=args.margin_per_m, on_row=on_row,
                          progress=args.progress)
-    print("\nclosure rate per loop length (share of seeds closed, runs):")
-    summ = summary(rows)
-    for name, s in summ.items():
-        rates = ", ".join(f"{x:g} m {r:.0%} ({n})" for x, (r, n) in s["rates"].items())
-        longest = "none" if s["longest"] is None else f"{s['longest']:g} m"
-        print(f"  {name}: {rates}; longest closed in >= 80 %: {longest}")
+    summ = print_summary(rows)
     settings["summary"] = {k: {"rates": {str(x): v for x, v in s["rates"].items()},
                                "longest": s["longest"]} for k, s in summ.items()}
     write()

@@ -3,6 +3,7 @@ and a CI-sized run of experiments/loop_closure.py."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -187,3 +188,35 @@ def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     s = summary(rows)["motion J=8"]
     assert s["rates"][30.0] == (float(row["closed"]), 1)
     assert s["longest"] == (30.0 if row["closed"] else None)
+
+
+def _rows_file(folder, name: str, rows: list[dict]):
+    path = folder / name
+    path.write_text(json.dumps({"settings": {}, "environment": {}, "rows": rows}))
+    return path
+
+
+def _row(seed: int, J: int, length: float, closed: bool) -> dict:
+    return {"loop": f"circle-{length:g}", "kind": "circle", "length_m": length, "seed": seed,
+            "proposal": "motion", "particles": J, "closed": closed, "vo_closed": False}
+
+
+def test_runs_made_apart_are_summarised_together(tmp_path, capsys) -> None:
+    """--from-json pools the rows of several --json files (a seed per process) into one
+    summary, and refuses a run found twice, naming the file."""
+    from experiments.loop_closure import main
+
+    a = _rows_file(tmp_path, "a.json", [_row(s, 200, 400.0, s != 1) for s in range(5)])
+    b = _rows_file(tmp_path, "b.json", [_row(0, 2000, 800.0, True), _row(1, 2000, 800.0, False)])
+    c = _rows_file(tmp_path, "c.json", [_row(s, 2000, 800.0, True) for s in (2, 3, 4)])
+    assert main(["--from-json", str(a), str(b), str(c)]) == 0
+    out = capsys.readouterr().out
+    assert "motion J=200: 400 m 80% (5); longest closed in >= 80 %: 400 m" in out
+    assert "motion J=2000: 800 m 80% (5); longest closed in >= 80 %: 800 m" in out
+    with pytest.raises(SystemExit, match=r"c\.json: run \('circle-800', 2, 'motion', 2000\) "
+                                         r"is also in .*c2\.json"):
+        c2 = _rows_file(tmp_path, "c2.json", [_row(2, 2000, 800.0, True)])
+        main(["--from-json", str(c2), str(c)])
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(SystemExit, match=r"bad\.json: not a loop_closure --json file"):
+        main(["--from-json", str(tmp_path / "bad.json")])
