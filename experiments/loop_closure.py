@@ -18,7 +18,8 @@ Prints one line per run, then per (proposal, J) the closure rate at each length 
 longest loop closed in >= 80 % of the seeds; with --progress also a line on stderr per chunk of
 frames filtered (runs at J = 2000 and more take hours on a small machine). Runs made apart (a
 seed per process, J = 2000 on another machine) are summarised and plotted together with
---from-json A.json B.json ... --plot loops.png, which runs nothing.
+--from-json A.json B.json ... --plot loops.png, which runs nothing; --resume keeps the runs
+already in --json and runs the rest (after an interruption, or to add seeds).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Collection, NamedTuple
 
 import numpy as np
 
@@ -133,41 +134,52 @@ def simulate_loop(file: Path, length_m: float, seed: int, config, course: str = 
     return run, config
 
 
+def planned(loop: Loop, particles: list[int], proposals: list[str], informed_max: float,
+            informed_particles: list[int] | None = None) -> list[tuple[str, int]]:
+    """The (proposal, J) runs of ``loop``: the informed proposal only up to ``informed_max``
+    metres, at ``informed_particles`` where given."""
+    return [(proposal, J) for proposal in proposals
+            if proposal != "informed" or loop.length_m <= informed_max
+            for J in ((informed_particles or particles) if proposal == "informed" else particles)]
+
+
 def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: list[str],
              informed_max: float, informed_particles: list[int] | None = None,
              max_frames: int | None = None, course: str = "mars-yard-a",
              margin_per_m: float = 0.1, vo_noise=None, on_row=None,
-             progress: bool = False) -> list[dict]:
-    """Every (proposal, J) run of one loop at one seed, as result rows. The map's margin
-    around the VO path is at least ``margin_per_m`` times the loop length, so that a path the
-    filter corrects by the VO's drift stays on the map. vo_noise: that of ``course`` if None.
-    progress: a line on stderr per chunk of frames filtered."""
+             progress: bool = False, skip: Collection[tuple[str, int]] = ()) -> list[dict]:
+    """Every (proposal, J) run of one loop at one seed (``planned``, less those in ``skip``),
+    as result rows. The map's margin around the VO path is at least ``margin_per_m`` times
+    the loop length, so that a path the filter corrects by the VO's drift stays on the map.
+    vo_noise: that of ``course`` if None. progress: a line on stderr per chunk of frames
+    filtered."""
+    todo = [x for x in planned(loop, particles, proposals, informed_max, informed_particles)
+            if x not in skip]
+    if not todo:
+        return []
     run, config = simulate_loop(loop.file, loop.length_m, seed, config, course, max_frames,
                                 margin_per_m, vo_noise)
     revisit = loops.find_revisit(run.ground_truth, START_M, 0.5 * loop.length_m)
     rows = []
-    for proposal in proposals:
-        if proposal == "informed" and loop.length_m > informed_max:
-            continue
-        for J in (informed_particles or particles) if proposal == "informed" else particles:
-            cfg = apply_overrides(config, [f"filter.particles={J}", f"filter.proposal={proposal}",
-                                           f"filter.seed={seed}"])
-            row = {"loop": loop.name, "kind": loop.kind, "length_m": loop.length_m,
-                   "seed": seed, "proposal": proposal, "particles": J,
-                   "frames": run.num_frames, "local_maps": run.num_local_maps}
-            if revisit is None:
-                row.update(closed=None, note="no revisit within the radius in the driven run")
-            else:
-                t0 = time.perf_counter()
-                res = slam.run_slam(run, cfg, progress=_chunk_lines(
-                    f"{loop.name} seed {seed} {proposal} J={J}", t0) if progress else None)
-                row.update(revisit=list(revisit), store=res.store, map_margin_m=config.map.margin,
-                           extent_violations=res.extent_violations,
-                           filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
-                           **score(run, res, revisit))
-            rows.append(row)
-            if on_row:
-                on_row(row)
+    for proposal, J in todo:
+        cfg = apply_overrides(config, [f"filter.particles={J}", f"filter.proposal={proposal}",
+                                       f"filter.seed={seed}"])
+        row = {"loop": loop.name, "kind": loop.kind, "length_m": loop.length_m,
+               "seed": seed, "proposal": proposal, "particles": J,
+               "frames": run.num_frames, "local_maps": run.num_local_maps}
+        if revisit is None:
+            row.update(closed=None, note="no revisit within the radius in the driven run")
+        else:
+            t0 = time.perf_counter()
+            res = slam.run_slam(run, cfg, progress=_chunk_lines(
+                f"{loop.name} seed {seed} {proposal} J={J}", t0) if progress else None)
+            row.update(revisit=list(revisit), store=res.store, map_margin_m=config.map.margin,
+                       extent_violations=res.extent_violations,
+                       filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
+                       **score(run, res, revisit))
+        rows.append(row)
+        if on_row:
+            on_row(row)
     return rows
 
 
@@ -245,6 +257,27 @@ def read_rows(files: list[Path]) -> list[dict]:
     return rows
 
 
+# The settings that decide what a run computes: a resumed file must have the same.
+RUN_SETTINGS = ("config", "set", "store", "course", "overlap", "margin_per_m", "radius")
+
+
+def resumed_rows(file: Path | None, settings: dict) -> list[dict]:
+    """The rows of an earlier ``--json`` ``file`` to resume (none if it does not exist yet);
+    an error naming the setting where its run settings differ from ``settings``."""
+    if file is None:
+        raise SystemExit("--resume needs --json FILE: the runs to keep are read from it")
+    if not Path(file).exists():
+        return []
+    rows = read_rows([file])
+    before = json.loads(Path(file).read_text()).get("settings", {})
+    for name in RUN_SETTINGS:
+        if before.get(name) != settings[name]:
+            raise SystemExit(f"{file}: --resume with --{name.replace('_', '-')} "
+                             f"{settings[name]!r}, but its runs were made with "
+                             f"{before.get(name)!r}")
+    return rows
+
+
 def _chunk_lines(label: str, t0: float):
     """A ``run_slam`` progress callback: one line on stderr per call (a chunk of frames)."""
     def report(done: int, total: int) -> None:
@@ -280,6 +313,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plot", type=Path, help="write the closure plot here (PNG)")
     ap.add_argument("--progress", action="store_true",
                     help="a line on stderr per chunk of frames filtered")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the runs already in --json and run only the others (the "
+                    "settings that decide a run must be the file's)")
     ap.add_argument("--from-json", type=Path, nargs="+",
                     help="run nothing: summarise (and --plot) the rows of these --json files")
     args = ap.parse_args(argv)
@@ -292,9 +328,9 @@ def main(argv: list[str] | None = None) -> int:
     env = environment()
     config = layered_config(args.config, args.course, args.set + [f"map.store={args.store}"])
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
-    rows: list[dict] = []
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
     settings["kitti"] = [str(p) for p in args.kitti]
+    rows = resumed_rows(args.json, settings) if args.resume else []
 
     def write() -> None:
         if args.json:
@@ -323,10 +359,12 @@ def main(argv: list[str] | None = None) -> int:
                                  kitti_file(folder, file, a, b, args.overlap)))
         for loop in todo:
             for seed in args.seeds:
+                done = {(r["proposal"], r["particles"]) for r in rows
+                        if (r["loop"], r["seed"]) == (loop.name, seed)}
                 run_loop(loop, seed, config, args.particles, args.proposals,
                          args.informed_max_length, args.informed_particles, course=args.course,
                          margin_per_m=args.margin_per_m, on_row=on_row,
-                         progress=args.progress)
+                         progress=args.progress, skip=done)
     summ = print_summary(rows)
     settings["summary"] = {k: {"rates": {str(x): v for x, v in s["rates"].items()},
                                "longest": s["longest"]} for k, s in summ.items()}

@@ -220,3 +220,32 @@ def test_runs_made_apart_are_summarised_together(tmp_path, capsys) -> None:
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(SystemExit, match=r"bad\.json: not a loop_closure --json file"):
         main(["--from-json", str(tmp_path / "bad.json")])
+
+
+def test_resume_runs_only_the_runs_missing_from_the_file(tmp_path, monkeypatch, capsys) -> None:
+    """--resume keeps the runs already in --json, simulates only the missing ones, and refuses
+    a file made with other run settings, naming the setting."""
+    import experiments.loop_closure as lc
+
+    settings = {"config": None, "set": [], "store": "auto", "course": "mars-yard-a",
+                "overlap": 20.0, "margin_per_m": 0.1, "radius": 2.0}
+    file = tmp_path / "runs.json"
+    file.write_text(json.dumps({"settings": settings, "environment": {},
+                                "rows": [_row(1, 8, 30.0, True)]}))
+
+    class Simulated(Exception):
+        pass
+
+    def simulate(file_, length, seed, *a, **k):
+        raise Simulated(seed)
+
+    monkeypatch.setattr(lc, "simulate_loop", simulate)
+    args = ["--circles", "30", "--particles", "8", "--proposals", "motion", "--json", str(file),
+            "--resume"]
+    assert lc.main(args + ["--seeds", "1"]) == 0  # nothing left to run: nothing simulated
+    assert "motion J=8: 30 m 100% (1)" in capsys.readouterr().out
+    assert json.loads(file.read_text())["rows"] == [_row(1, 8, 30.0, True)]
+    with pytest.raises(Simulated, match="2"):
+        lc.main(args + ["--seeds", "1", "2"])
+    with pytest.raises(SystemExit, match=r"runs\.json: --resume with --course 'arroyo-a'"):
+        lc.main(args + ["--seeds", "1", "--course", "arroyo-a"])
