@@ -14,6 +14,10 @@ and VO noise) and the filter seed. The revisit scored is the frame at 10 m of tr
 return one loop later; the verdict is ``gslam_jax.loops.closure`` (revisit error and map
 offset <= 1 m) of the final best particle's path, and the same for the VO-only path.
 
+Each run also records the cloud just before the sensor can first see the start's map
+(``approach_*``: the particle nearest the truth, and how many are within 1 m): where none is
+near, no weighting at the revisit can close the loop, and more particles are what it needs.
+
 Prints one line per run, then per (proposal, J) the closure rate at each length and the
 longest loop closed in >= 80 % of the seeds; with --progress also a line on stderr per chunk of
 frames filtered (runs at J = 2000 and more take hours on a small machine). Runs made apart (a
@@ -41,6 +45,7 @@ from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
 START_M = 10.0  # the revisit's first frame: this far along the loop
+APPROACH_M = 2.0  # the cloud is read this far before the sensor first reaches the start's map
 
 
 class Loop(NamedTuple):
@@ -122,6 +127,30 @@ def score(run, res, revisit: loops.Revisit) -> dict:
             "vo_rms_m": metrics.rms_after_fit(res.vo_path, run.ground_truth)}
 
 
+def approach_frame(truth: np.ndarray, revisit: loops.Revisit, reach_m: float) -> int:
+    """The last frame at least ``APPROACH_M`` metres of travel before the sensor (range ``reach_m``) can
+    first see the map made at the loop's start: the particles there have met nothing but
+    their own maps since, so how near the truth they are is the sample's doing alone."""
+    arc = loops.arc_length(truth)
+    at = arc[revisit.j] - (reach_m + APPROACH_M + START_M)
+    return int(np.clip(np.searchsorted(arc, at, side="right") - 1, 0, revisit.j))
+
+
+class ApproachCloud:
+    """An ``on_chunk`` callback that keeps how near the particles came to the truth at one
+    frame: ``nearest_m`` and ``within_1m`` (particles within 1 m, the closure's tolerance)."""
+
+    def __init__(self, frame: int):
+        self.frame, self.nearest_m, self.within_1m = frame, None, None
+
+    def __call__(self, report: slam.ChunkReport) -> None:
+        t = self.frame - report.start
+        if 0 <= t < len(report.best_pose):
+            xy = np.asarray(report.info.pose[t])[:, :2]
+            d = np.hypot(*(xy - np.asarray(report.run.ground_truth)[self.frame, :2]).T)
+            self.nearest_m, self.within_1m = float(d.min()), int(np.sum(d <= 1.0))
+
+
 def simulate_loop(file: Path, length_m: float, seed: int, config, course: str = "mars-yard-a",
                   max_frames: int | None = None, margin_per_m: float = 0.1, vo_noise=None):
     """(Run, config) of a loop driven by the trajectory ``file``: the config's map margin
@@ -171,12 +200,16 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
             row.update(closed=None, note="no revisit within the radius in the driven run")
         else:
             t0 = time.perf_counter()
+            cloud = ApproachCloud(approach_frame(run.ground_truth, revisit,
+                                                 localmap_params(config).max_range))
             res = slam.run_slam(run, cfg, progress=_chunk_lines(
-                f"{loop.name} seed {seed} {proposal} J={J}", t0) if progress else None)
+                f"{loop.name} seed {seed} {proposal} J={J}", t0) if progress else None,
+                on_chunk=cloud)
             row.update(revisit=list(revisit), store=res.store, map_margin_m=config.map.margin,
                        extent_violations=res.extent_violations,
                        filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
-                       **score(run, res, revisit))
+                       approach_frame=cloud.frame, approach_nearest_m=cloud.nearest_m,
+                       approach_within_1m=cloud.within_1m, **score(run, res, revisit))
         rows.append(row)
         if on_row:
             on_row(row)
@@ -345,8 +378,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{r['loop']:>16} seed {r['seed']} {r['proposal']:>8} J={r['particles']:<5} "
                   f"error {r['error_m']:6.2f} m offset {r['map_offset_m']:5.2f} m "
                   f"{'CLOSED' if r['closed'] else 'open  '} | VO {r['vo_error_m']:6.2f} m "
-                  f"{'closed' if r['vo_closed'] else 'open'} | {r['wall_seconds']:.0f} s",
-                  flush=True)
+                  f"{'closed' if r['vo_closed'] else 'open'} | nearest particle before the "
+                  f"revisit {r['approach_nearest_m']:.2f} m ({r['approach_within_1m']} within "
+                  f"1 m) | {r['wall_seconds']:.0f} s", flush=True)
         write()
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -185,6 +185,12 @@ def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     rv = loops.Revisit(*row["revisit"])
     vo_err = abs(_rel(run.vo_poses(), rv.i, rv.j) - _rel(run.ground_truth, rv.i, rv.j))
     assert row["vo_error_m"] == pytest.approx(vo_err) and row["vo_closed"] is False
+    arc = loops.arc_length(run.ground_truth)  # the cloud is read before the start is in view
+    before = arc[rv.j] - arc[row["approach_frame"]]
+    reach = SMALL.localmap.max_range + 2.0 + 10.0  # sensor range, APPROACH_M, START_M
+    assert reach <= before < reach + 0.5
+    assert 0 <= row["approach_within_1m"] <= 8
+    assert (row["approach_within_1m"] > 0) == (row["approach_nearest_m"] <= 1.0)
     s = summary(rows)["motion J=8"]
     assert s["rates"][30.0] == (float(row["closed"]), 1)
     assert s["longest"] == (30.0 if row["closed"] else None)
