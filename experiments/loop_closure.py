@@ -128,27 +128,34 @@ def score(run, res, revisit: loops.Revisit) -> dict:
 
 
 def approach_frame(truth: np.ndarray, revisit: loops.Revisit, reach_m: float) -> int:
-    """The last frame at least ``APPROACH_M`` metres of travel before the sensor (range ``reach_m``) can
-    first see the map made at the loop's start: the particles there have met nothing but
-    their own maps since, so how near the truth they are is the sample's doing alone."""
+    """The last frame at least ``APPROACH_M`` metres of travel before the sensor (range
+    ``reach_m``) can first see the map made at the loop's start: the particles there have met
+    nothing but their own maps since, so how near the truth they are is the sample's doing
+    alone."""
     arc = loops.arc_length(truth)
     at = arc[revisit.j] - (reach_m + APPROACH_M + START_M)
     return int(np.clip(np.searchsorted(arc, at, side="right") - 1, 0, revisit.j))
 
 
+APPROACH_RADII = (1, 2, 3, 5)  # m: particles are counted within each of the truth
+
+
 class ApproachCloud:
     """An ``on_chunk`` callback that keeps how near the particles came to the truth at one
-    frame: ``nearest_m`` and ``within_1m`` (particles within 1 m, the closure's tolerance)."""
+    frame: ``nearest_m`` and ``within`` (particles within each of ``APPROACH_RADII`` metres;
+    1 m is the closure's tolerance, the wider ones tell its density where none is that near)."""
 
     def __init__(self, frame: int):
-        self.frame, self.nearest_m, self.within_1m = frame, None, None
+        self.frame, self.nearest_m, self.within = frame, None, {}
 
     def __call__(self, report: slam.ChunkReport) -> None:
         t = self.frame - report.start
         if 0 <= t < len(report.best_pose):
             xy = np.asarray(report.info.pose[t])[:, :2]
             d = np.hypot(*(xy - np.asarray(report.run.ground_truth)[self.frame, :2]).T)
-            self.nearest_m, self.within_1m = float(d.min()), int(np.sum(d <= 1.0))
+            self.nearest_m = float(d.min())
+            self.within = {f"approach_within_{r}m": int(np.sum(d <= r))
+                           for r in APPROACH_RADII}
 
 
 def simulate_loop(file: Path, length_m: float, seed: int, config, course: str = "mars-yard-a",
@@ -209,7 +216,7 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
                        extent_violations=res.extent_violations,
                        filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
                        approach_frame=cloud.frame, approach_nearest_m=cloud.nearest_m,
-                       approach_within_1m=cloud.within_1m, **score(run, res, revisit))
+                       **cloud.within, **score(run, res, revisit))
         rows.append(row)
         if on_row:
             on_row(row)

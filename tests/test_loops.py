@@ -189,7 +189,8 @@ def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     before = arc[rv.j] - arc[row["approach_frame"]]
     reach = SMALL.localmap.max_range + 2.0 + 10.0  # sensor range, APPROACH_M, START_M
     assert reach <= before < reach + 0.5
-    assert 0 <= row["approach_within_1m"] <= 8
+    counts = [row[f"approach_within_{r}m"] for r in (1, 2, 3, 5)]
+    assert 0 <= counts[0] and counts == sorted(counts) and counts[-1] <= 8
     assert (row["approach_within_1m"] > 0) == (row["approach_nearest_m"] <= 1.0)
     s = summary(rows)["motion J=8"]
     assert s["rates"][30.0] == (float(row["closed"]), 1)
