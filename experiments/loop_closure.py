@@ -15,8 +15,9 @@ return one loop later; the verdict is ``gslam_jax.loops.closure`` (revisit error
 offset <= 1 m) of the final best particle's path, and the same for the VO-only path.
 
 Each run also records the cloud just before the sensor can first see the start's map
-(``approach_*``: the particle nearest the truth, and how many are within 1 m): where none is
-near, no weighting at the revisit can close the loop, and more particles are what it needs.
+(``approach_*``: the particle nearest the truth, and how many are within 1, 2, 3 and 5 m of
+it): where none is within the closure's 1 m, no weighting at the revisit can close the loop,
+and more particles are what it needs.
 
 Prints one line per run, then per (proposal, J) the closure rate at each length and the
 longest loop closed in >= 80 % of the seeds; with --progress also a line on stderr per chunk of
