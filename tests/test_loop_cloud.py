@@ -37,3 +37,29 @@ def test_cloud_rows_on_a_hand_made_cloud():
     np.testing.assert_allclose(r["vo_error_m"], 0.5)
     assert (r["resampled"], r["updates"]) == (1, 10)  # frames 1-10
     assert (rows[2]["resampled"], rows[2]["updates"]) == (2, 10)  # frames 11-20
+
+
+def test_cloud_rows_zoom_in_from_the_approach_and_count_the_near_weight():
+    # the cloud above; from frame 14 on a row every 2 m; weights 0.4 / 0.3 / 0.2 / 0.1
+    T = 21
+    truth = np.stack([np.arange(T, dtype=float), np.zeros(T), np.zeros(T)], axis=1)
+    a = np.arange(T) / 10.0
+    corners = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
+    poses = np.zeros((T, 4, 3))
+    poses[:, :, :2] = truth[:, None, :2] + np.array([0.0, 1.0]) + a[:, None, None] * corners
+    log_w = np.broadcast_to(np.log([0.4, 0.3, 0.2, 0.1]), (T, 4))
+    resampled = np.zeros(T, bool)
+    resampled[[3, 12, 13]] = True
+    rows = cloud_rows(truth, truth, truth, poses, np.full(T, 3.5), resampled, np.ones(T, bool),
+                      every_m=10.0, log_w=log_w, zoom_from=14, zoom_m=2.0)
+
+    assert [r["frame"] for r in rows] == [0, 10, 14, 16, 18, 20]
+    # t = 10: the corners (1, -1) and (-1, -1) lie exactly 1 m from the truth, the others
+    # sqrt(1 + 4) m; t = 0: every particle 1 m off (a = 0)
+    assert [r["within_1m"] for r in rows[:2]] == [4, 2]
+    np.testing.assert_allclose(rows[1]["weight_within_1m"], 0.3 + 0.1)
+    np.testing.assert_allclose(rows[0]["weight_within_1m"], 1.0)
+    assert rows[-1]["within_1m"] == 0 and rows[-1]["weight_within_1m"] == 0.0
+    assert [(r["resampled"], r["updates"]) for r in rows[2:]] == [(2, 4), (0, 2), (0, 2), (0, 2)]
+    assert np.isnan(cloud_rows(truth, truth, truth, poses, np.full(T, 3.5), resampled,
+                               np.ones(T, bool), every_m=10.0)[0]["weight_within_1m"])
