@@ -90,8 +90,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="metres of travel per row from the approach frame on")
     ap.add_argument("--max-frames", type=int)
     args = ap.parse_args(argv)
+    # --set comes last, so that e.g. map.store=shared repeats a loop_closure run exactly
     config = layered_config(args.config, args.course,
-                            args.set + ["map.store=auto", f"filter.seed={args.seed}"])
+                            ["map.store=auto", f"filter.seed={args.seed}"] + args.set)
     with tempfile.TemporaryDirectory() as tmp:
         if args.kitti is None:
             file, length = circle_file(Path(tmp), args.circle, 20.0), args.circle
@@ -101,6 +102,7 @@ def main(argv: list[str] | None = None) -> None:
                 raise SystemExit(f"{args.kitti}: no return within {args.radius} m to cut a "
                                  "loop from")
             a, b, length = cuts[0]
+            length = round(length, 1)  # as loop_closure names and sizes the loop
             file = kitti_file(Path(tmp), args.kitti, a, b, 20.0)
             print(f"{args.kitti}: poses {a}-{b}, a {length:.1f} m loop")
         run, config = simulate_loop(file, length, args.seed, config, args.course,
