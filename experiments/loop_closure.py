@@ -144,17 +144,24 @@ APPROACH_RADII = (1, 2, 3, 5)  # m: particles are counted within each of the tru
 class ApproachCloud:
     """An ``on_chunk`` callback that keeps how near the particles came to the truth at one
     frame: ``nearest_m`` and ``within`` (particles within each of ``APPROACH_RADII`` metres;
-    1 m is the closure's tolerance, the wider ones tell its density where none is that near)."""
+    1 m is the closure's tolerance, the wider ones tell its density where none is that near),
+    and ``nearest_heading_deg``, the heading error of the particle nearest in position (a
+    near particle turned a few degrees scores worse on the old map than the far ones as it
+    drives on: docs/results.md, KITTI 00)."""
 
     def __init__(self, frame: int):
         self.frame, self.nearest_m, self.within = frame, None, {}
+        self.nearest_heading_deg = None
 
     def __call__(self, report: slam.ChunkReport) -> None:
         t = self.frame - report.start
         if 0 <= t < len(report.best_pose):
-            xy = np.asarray(report.info.pose[t])[:, :2]
-            d = np.hypot(*(xy - np.asarray(report.run.ground_truth)[self.frame, :2]).T)
+            pose = np.asarray(report.info.pose[t], np.float64)
+            truth = np.asarray(report.run.ground_truth, np.float64)[self.frame]
+            d = np.hypot(*(pose[:, :2] - truth[:2]).T)
             self.nearest_m = float(d.min())
+            turn = np.angle(np.exp(1j * (pose[int(np.argmin(d)), 2] - truth[2])))
+            self.nearest_heading_deg = float(np.degrees(turn))
             self.within = {f"approach_within_{r}m": int(np.sum(d <= r))
                            for r in APPROACH_RADII}
 
@@ -217,6 +224,7 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
                        extent_violations=res.extent_violations,
                        filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
                        approach_frame=cloud.frame, approach_nearest_m=cloud.nearest_m,
+                       approach_nearest_heading_deg=cloud.nearest_heading_deg,
                        **cloud.within, **score(run, res, revisit))
         rows.append(row)
         if on_row:

@@ -39,7 +39,8 @@ def cloud_rows(truth: np.ndarray, vo: np.ndarray, best: np.ndarray, poses: np.nd
     """One row per ``every_m`` metres of true travel (and the last frame), and from frame
     ``zoom_from`` on (when given) one per ``zoom_m`` metres: the cloud ``poses`` [T, J, 3] at
     that frame against ``truth`` [T, 3], with the errors of ``vo`` and ``best`` [T, 3] there,
-    the particles within ``NEAR_M`` of the truth and the share of the normalised weights
+    the heading error of the particle nearest the truth, the particles within ``NEAR_M`` of
+    the truth and the share of the normalised weights
     ``log_w`` [T, J] they hold (NaN without weights), and the resamplings and updates since
     the previous row."""
     arc = loops.arc_length(truth)
@@ -63,7 +64,10 @@ def cloud_rows(truth: np.ndarray, vo: np.ndarray, best: np.ndarray, poses: np.nd
             "cloud_rms_m": float(np.sqrt(np.mean(np.sum((xy - mean) ** 2, axis=1)))),
             "heading_std_deg": float(np.degrees(np.std(np.angle(
                 np.exp(1j * (poses[t, :, 2] - heading)))))),
-            "nearest_particle_m": float(dist.min()), "within_1m": int(near.sum()),
+            "nearest_particle_m": float(dist.min()),
+            "nearest_heading_deg": float(np.degrees(np.angle(
+                np.exp(1j * (poses[t, int(np.argmin(dist)), 2] - truth[t, 2]))))),
+            "within_1m": int(near.sum()),
             "weight_within_1m": share,
             "mean_error_m": float(np.hypot(*(mean - true_xy))),
             "best_error_m": float(np.hypot(*(best[t, :2] - true_xy))),
@@ -120,12 +124,13 @@ def main(argv: list[str] | None = None) -> None:
               "revisit error best path "
               f"{loops.revisit_error(truth, res.best_path, revisit.i, revisit.j):.2f} m, VO "
               f"{loops.revisit_error(truth, res.vo_path, revisit.i, revisit.j):.2f} m")
-    print("travel m | cloud rms m | heading std deg | nearest particle m | within 1 m (weight) "
-          "| mean err m | best err m | VO err m | ESS | resampled / updates")
+    print("travel m | cloud rms m | heading std deg | nearest particle m (heading err deg) | "
+          "within 1 m (weight) | mean err m | best err m | VO err m | ESS | resampled / updates")
     for r in cloud_rows(truth, np.asarray(res.vo_path), np.asarray(res.best_path), poses, ess,
                         resampled, updated, args.every, log_w, zoom_from, args.zoom):
         print(f"{r['travel_m']:8.0f} | {r['cloud_rms_m']:11.2f} | {r['heading_std_deg']:15.2f} | "
-              f"{r['nearest_particle_m']:18.2f} | {r['within_1m']:6d} ({r['weight_within_1m']:.3f})"
+              f"{r['nearest_particle_m']:18.2f} ({r['nearest_heading_deg']:+5.2f}) | "
+              f"{r['within_1m']:6d} ({r['weight_within_1m']:.3f})"
               f" | {r['mean_error_m']:10.2f} | {r['best_error_m']:10.2f} | "
               f"{r['vo_error_m']:8.2f} | {r['ess']:5.1f} | {r['resampled']} / {r['updates']}")
 

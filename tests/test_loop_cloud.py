@@ -47,6 +47,7 @@ def test_cloud_rows_zoom_in_from_the_approach_and_count_the_near_weight():
     corners = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
     poses = np.zeros((T, 4, 3))
     poses[:, :, :2] = truth[:, None, :2] + np.array([0.0, 1.0]) + a[:, None, None] * corners
+    poses[:, :, 2] = math.pi + np.array([0.1, -0.1, 0.1, -0.1])
     log_w = np.broadcast_to(np.log([0.4, 0.3, 0.2, 0.1]), (T, 4))
     resampled = np.zeros(T, bool)
     resampled[[3, 12, 13]] = True
@@ -60,6 +61,9 @@ def test_cloud_rows_zoom_in_from_the_approach_and_count_the_near_weight():
     np.testing.assert_allclose(rows[1]["weight_within_1m"], 0.3 + 0.1)
     np.testing.assert_allclose(rows[0]["weight_within_1m"], 1.0)
     assert rows[-1]["within_1m"] == 0 and rows[-1]["weight_within_1m"] == 0.0
+    # the nearest at t = 10 is the first corner at y = 0, particle 1 (heading pi - 0.1 against
+    # the truth's 0)
+    np.testing.assert_allclose(rows[1]["nearest_heading_deg"], math.degrees(math.pi - 0.1))
     assert [(r["resampled"], r["updates"]) for r in rows[2:]] == [(2, 4), (0, 2), (0, 2), (0, 2)]
     assert np.isnan(cloud_rows(truth, truth, truth, poses, np.full(T, 3.5), resampled,
                                np.ones(T, bool), every_m=10.0)[0]["weight_within_1m"])

@@ -192,6 +192,7 @@ def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     counts = [row[f"approach_within_{r}m"] for r in (1, 2, 3, 5)]
     assert 0 <= counts[0] and counts == sorted(counts) and counts[-1] <= 8
     assert (row["approach_within_1m"] > 0) == (row["approach_nearest_m"] <= 1.0)
+    assert -180.0 <= row["approach_nearest_heading_deg"] <= 180.0
     s = summary(rows)["motion J=8"]
     assert s["rates"][30.0] == (float(row["closed"]), 1)
     assert s["longest"] == (30.0 if row["closed"] else None)
@@ -256,3 +257,31 @@ def test_resume_runs_only_the_runs_missing_from_the_file(tmp_path, monkeypatch, 
         lc.main(args + ["--seeds", "1", "2"])
     with pytest.raises(SystemExit, match=r"runs\.json: --resume with --course 'arroyo-a'"):
         lc.main(args + ["--seeds", "1", "--course", "arroyo-a"])
+
+
+def test_approach_cloud_reads_its_frame_of_a_hand_made_cloud() -> None:
+    """ApproachCloud on two chunks of a hand-made cloud: it reads only its own frame; the
+    distances, counts and the nearest particle's heading error (wrapped across +-pi) are the
+    ones worked out by hand."""
+    from types import SimpleNamespace
+
+    from experiments.loop_closure import ApproachCloud
+
+    truth = np.zeros((6, 3))
+    truth[:, 0] = np.arange(6.0)
+    truth[:, 2] = math.pi - 0.01  # the truth heads just short of +pi
+    pose = np.zeros((6, 4, 3))
+    pose[:, :, :2] = truth[:, None, :2] + np.array([[0.0, 0.6], [3.0, 0.0], [0.0, -1.5],
+                                                    [40.0, 0.0]])
+    pose[:, :, 2] = -math.pi + 0.02  # 0.03 rad to the left of the truth, across the wrap
+    pose[4, 2, 2] = 0.0
+    run = SimpleNamespace(ground_truth=truth)
+    cloud = ApproachCloud(4)
+    for start in (0, 3):
+        n = 3
+        cloud(SimpleNamespace(start=start, best_pose=truth[start:start + n], run=run,
+                              info=SimpleNamespace(pose=pose[start:start + n])))
+    assert cloud.nearest_m == pytest.approx(0.6)
+    assert cloud.within == {"approach_within_1m": 1, "approach_within_2m": 2,
+                            "approach_within_3m": 3, "approach_within_5m": 3}
+    assert cloud.nearest_heading_deg == pytest.approx(math.degrees(0.03))
