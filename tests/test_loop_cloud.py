@@ -10,20 +10,28 @@ import numpy as np
 from experiments.loop_cloud import cloud_rows
 
 
-def test_cloud_rows_on_a_hand_made_cloud():
-    # 21 frames 1 m apart along x; four particles at the corners of a square of side 2 a
-    # around a point 1 m to the left of the truth, a = t / 10; headings +-0.1 rad around pi
-    T = 21
+T = 21  # frames of the hand-made cloud
+
+
+def _square_cloud() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """21 frames 1 m apart along x (truth heading 0); four particles at the corners of a square
+    of side 2 a around a point 1 m to the left of the truth, a = t / 10; headings +-0.1 rad
+    around pi (wrapping across +-pi); resampled at frames 3, 12 and 13."""
     truth = np.stack([np.arange(T, dtype=float), np.zeros(T), np.zeros(T)], axis=1)
     a = np.arange(T) / 10.0
     corners = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
     poses = np.zeros((T, 4, 3))
     poses[:, :, :2] = truth[:, None, :2] + np.array([0.0, 1.0]) + a[:, None, None] * corners
-    poses[:, :, 2] = math.pi + np.array([0.1, -0.1, 0.1, -0.1])  # wraps across +-pi
-    vo = truth + np.array([0.0, 0.5, 0.0])
-    best = poses[:, 0]
+    poses[:, :, 2] = math.pi + np.array([0.1, -0.1, 0.1, -0.1])
     resampled = np.zeros(T, bool)
     resampled[[3, 12, 13]] = True
+    return truth, poses, resampled
+
+
+def test_cloud_rows_on_a_hand_made_cloud():
+    truth, poses, resampled = _square_cloud()
+    vo = truth + np.array([0.0, 0.5, 0.0])
+    best = poses[:, 0]
     updated = np.ones(T, bool)
     rows = cloud_rows(truth, vo, best, poses, np.full(T, 3.5), resampled, updated, every_m=10.0)
 
@@ -41,16 +49,8 @@ def test_cloud_rows_on_a_hand_made_cloud():
 
 def test_cloud_rows_zoom_in_from_the_approach_and_count_the_near_weight():
     # the cloud above; from frame 14 on a row every 2 m; weights 0.4 / 0.3 / 0.2 / 0.1
-    T = 21
-    truth = np.stack([np.arange(T, dtype=float), np.zeros(T), np.zeros(T)], axis=1)
-    a = np.arange(T) / 10.0
-    corners = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
-    poses = np.zeros((T, 4, 3))
-    poses[:, :, :2] = truth[:, None, :2] + np.array([0.0, 1.0]) + a[:, None, None] * corners
-    poses[:, :, 2] = math.pi + np.array([0.1, -0.1, 0.1, -0.1])
+    truth, poses, resampled = _square_cloud()
     log_w = np.broadcast_to(np.log([0.4, 0.3, 0.2, 0.1]), (T, 4))
-    resampled = np.zeros(T, bool)
-    resampled[[3, 12, 13]] = True
     rows = cloud_rows(truth, truth, truth, poses, np.full(T, 3.5), resampled, np.ones(T, bool),
                       every_m=10.0, log_w=log_w, zoom_from=14, zoom_m=2.0)
 
