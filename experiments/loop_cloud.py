@@ -27,6 +27,7 @@ from experiments.loop_closure import (START_M, approach_frame, circle_file, kitt
                                       kitti_file, simulate_loop)
 from gslam_jax import loops, slam
 from gslam_jax.config import layered_config
+from gslam_jax.gridmap import turn_poses
 from gslam_jax.vo.localmap import localmap_params
 
 NEAR_M = 1.0  # the closure's tolerance: particles this near the truth are counted
@@ -112,8 +113,11 @@ def main(argv: list[str] | None = None) -> None:
         run, config = simulate_loop(file, length, args.seed, config, args.course,
                                     args.max_frames)
     chunks: list = []  # per chunk: the host-side StepInfo fields read below
+    # the particles are filtered on the map lattice's axes: turned back into the run's frame,
+    # where the truth, the best path and the VO path are
     res = slam.run_slam(run, config, on_chunk=lambda r: chunks.append(
-        (r.info.pose, r.info.log_w, r.info.ess, r.info.resampled, r.info.updated)))
+        (turn_poses(r.info.pose, r.heading), r.info.log_w, r.info.ess, r.info.resampled,
+         r.info.updated)))
     poses, log_w, ess, resampled, updated = (np.concatenate(x) for x in zip(*chunks))
     truth = np.asarray(run.ground_truth, np.float64)
     revisit = loops.find_revisit(truth, START_M, 0.5 * length)
