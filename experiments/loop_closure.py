@@ -39,13 +39,13 @@ from typing import Collection, NamedTuple
 
 import numpy as np
 
+from experiments.loop_paths import START_M, circle_file, kitti_cuts, kitti_file
 from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim_path import simulate_path
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
-START_M = 10.0  # the revisit's first frame: this far along the loop
 APPROACH_M = 2.0  # the cloud is read this far before the sensor first reaches the start's map
 
 
@@ -57,61 +57,6 @@ class Loop(NamedTuple):
     kind: str
     length_m: float
     file: Path
-
-
-def circle_file(folder: Path, length: float, overlap: float, step: float = 0.5) -> Path:
-    """A TUM file of a circle of perimeter ``length`` driven once plus ``overlap`` metres."""
-    r = length / (2 * np.pi)
-    phi = np.arange(0.0, (length + overlap) / r + 1e-9, step / r)
-    rows = [f"{0.1 * k:.3f} {r * np.sin(p):.6f} {r * (1 - np.cos(p)):.6f} 0 0 0 "
-            f"{np.sin(p / 2):.9f} {np.cos(p / 2):.9f}" for k, p in enumerate(phi)]
-    path = folder / f"circle-{length:g}.tum"
-    path.write_text("\n".join(rows) + "\n")
-    return path
-
-
-def _kitti_xy(file: Path) -> np.ndarray:
-    """Positions in the ground plane (camera x, z) of a KITTI pose file with times."""
-    data = np.loadtxt(file, ndmin=2)
-    m = data[:, -12:].reshape(-1, 3, 4)
-    return np.stack([m[:, 0, 3], m[:, 2, 3]], axis=1)
-
-
-def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5
-               ) -> list[tuple[int, int, float]]:
-    """(a, b, loop length) per requested length: the first return b of a pose a to within
-    ``radius`` after leaving it by more than twice that, the pair whose loop is nearest the
-    length; a runs over every ``every``-th pose."""
-    xy = _kitti_xy(file)
-    arc = loops.arc_length(xy)
-    found = []
-    for a in range(0, len(xy), every):
-        d = np.hypot(*(xy[a:] - xy[a]).T)
-        away = np.flatnonzero(d > 2 * radius)
-        if away.size == 0:
-            continue
-        back = np.flatnonzero((d <= radius) & (np.arange(len(d)) > away[0]))
-        if back.size:
-            b = a + int(back[0])
-            found.append((a, b, float(arc[b] - arc[a])))
-    out = []
-    for want in lengths:
-        if not found:
-            break
-        out.append(min(found, key=lambda f: abs(f[2] - want)))
-    return out
-
-
-def kitti_file(folder: Path, file: Path, a: int, b: int, overlap: float) -> Path:
-    """The lines of a KITTI pose file from START_M metres before pose a (so that the revisit
-    scored is a, b) to ``overlap`` metres after b."""
-    lines = [ln for ln in file.read_text().splitlines() if ln.strip()]
-    arc = loops.arc_length(_kitti_xy(file))
-    first = int(np.searchsorted(arc, arc[a] - START_M))
-    end = int(np.searchsorted(arc, arc[b] + overlap))
-    path = folder / f"{file.stem}-{a}-{b}.txt"
-    path.write_text("\n".join(lines[first:end + 1]) + "\n")
-    return path
 
 
 def score(run, res, revisit: loops.Revisit) -> dict:

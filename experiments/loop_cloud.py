@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.loop_closure import (START_M, approach_frame, circle_file, kitti_cuts,
-                                      kitti_file, simulate_loop)
+from experiments.loop_closure import approach_frame, simulate_loop
+from experiments.loop_paths import START_M, circle_file, kitti_cuts, kitti_file
 from gslam_jax import loops, slam
 from gslam_jax.config import layered_config
 from gslam_jax.gridmap import turn_poses
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--circle", type=float, default=800.0, help="circle perimeter, m")
     ap.add_argument("--kitti", type=Path, help="a KITTI pose file to cut the loop from instead "
-                    "(``loop_closure.kitti_cuts``: the first return nearest --length)")
+                    "(``loop_paths.kitti_cuts``: the first return nearest --length)")
     ap.add_argument("--length", type=float, default=800.0, help="KITTI loop length wanted, m")
     ap.add_argument("--radius", type=float, default=2.0, help="revisit radius of a KITTI cut, m")
     ap.add_argument("--seed", type=int, default=0, help="simulation and filter seed")

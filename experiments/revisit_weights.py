@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.stats import spearmanr
 
-from experiments.loop_closure import START_M, circle_file
+from experiments.loop_paths import START_M, circle_file
 from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim_path import simulate_path

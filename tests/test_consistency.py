@@ -22,7 +22,7 @@ PARAMS = ConsistencyParams(stretch_m=8.0, gap_m=20.0)
 @pytest.fixture(scope="module")
 def loop(tmp_path_factory):
     """A 40 m circle driven once and 16 m on, in the Mars Yard world."""
-    from experiments.loop_closure import circle_file
+    from experiments.loop_paths import circle_file
 
     file = circle_file(tmp_path_factory.mktemp("loop"), 40.0, 16.0)
     run, _ = simulate_path(file, seed=2, course="mars-yard-a", params=localmap_params(SMALL))

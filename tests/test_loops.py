@@ -140,7 +140,7 @@ def test_map_offset_finds_a_shifted_copy() -> None:
 @pytest.fixture(scope="module")
 def noisy_loop(tmp_path_factory):
     """A 30 m circle driven with 4x the Mars Yard VO noise: VO misses the start by > 1 m."""
-    from experiments.loop_closure import circle_file
+    from experiments.loop_paths import circle_file
 
     file = circle_file(tmp_path_factory.mktemp("loop"), 30.0, 15.0)
     vo = VO_PROFILES["mars-yard-a"].scaled(4.0)
