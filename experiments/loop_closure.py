@@ -35,11 +35,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Collection, NamedTuple
+from typing import Collection
 
 import numpy as np
 
-from experiments.loop_paths import START_M, circle_file, kitti_cuts, kitti_file
+from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops
 from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim_path import simulate_path
@@ -47,16 +47,6 @@ from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
 APPROACH_M = 2.0  # the cloud is read this far before the sensor first reaches the start's map
-
-
-class Loop(NamedTuple):
-    """A loop to drive: its name, kind ("circle" or "kitti"), nominal length and the
-    trajectory file (TUM or KITTI) that drives it plus the overlap."""
-
-    name: str
-    kind: str
-    length_m: float
-    file: Path
 
 
 def score(run, res, revisit: loops.Revisit) -> dict:
@@ -346,12 +336,9 @@ def main(argv: list[str] | None = None) -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        todo = [Loop(f"circle-{x:g}", "circle", x, circle_file(folder, x, args.overlap))
-                for x in args.circles]
+        todo = [circle_loop(folder, x, args.overlap) for x in args.circles]
         for file in args.kitti:
-            for a, b, length in kitti_cuts(file, args.kitti_lengths, args.radius):
-                todo.append(Loop(f"kitti{file.stem}-{a}-{b}", "kitti", round(length, 1),
-                                 kitti_file(folder, file, a, b, args.overlap)))
+            todo += kitti_loops(folder, file, args.kitti_lengths, args.radius, args.overlap)
         for loop in todo:
             for seed in args.seeds:
                 done = {(r["proposal"], r["particles"]) for r in rows

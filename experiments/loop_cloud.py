@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.loop_closure import approach_frame, simulate_loop
-from experiments.loop_paths import START_M, circle_file, kitti_cuts, kitti_file
+from experiments.loop_paths import START_M, circle_loop, kitti_loops
 from gslam_jax import loops, slam
 from gslam_jax.config import layered_config
 from gslam_jax.gridmap import turn_poses
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--circle", type=float, default=800.0, help="circle perimeter, m")
     ap.add_argument("--kitti", type=Path, help="a KITTI pose file to cut the loop from instead "
-                    "(``loop_paths.kitti_cuts``: the first return nearest --length)")
+                    "(``loop_paths.kitti_loops``: the first return nearest --length)")
     ap.add_argument("--length", type=float, default=800.0, help="KITTI loop length wanted, m")
     ap.add_argument("--radius", type=float, default=2.0, help="revisit radius of a KITTI cut, m")
     ap.add_argument("--seed", type=int, default=0, help="simulation and filter seed")
@@ -100,17 +100,15 @@ def main(argv: list[str] | None = None) -> None:
                             ["map.store=auto", f"filter.seed={args.seed}"] + args.set)
     with tempfile.TemporaryDirectory() as tmp:
         if args.kitti is None:
-            file, length = circle_file(Path(tmp), args.circle, 20.0), args.circle
+            loop = circle_loop(Path(tmp), args.circle, 20.0)
         else:
-            cuts = kitti_cuts(args.kitti, [args.length], args.radius)
+            cuts = kitti_loops(Path(tmp), args.kitti, [args.length], args.radius, 20.0)
             if not cuts:
                 raise SystemExit(f"{args.kitti}: no return within {args.radius} m to cut a "
                                  "loop from")
-            a, b, length = cuts[0]
-            length = round(length, 1)  # as loop_closure names and sizes the loop
-            file = kitti_file(Path(tmp), args.kitti, a, b, 20.0)
-            print(f"{args.kitti}: poses {a}-{b}, a {length:.1f} m loop")
-        run, config = simulate_loop(file, length, args.seed, config, args.course,
+            loop = cuts[0]
+            print(f"{args.kitti}: {loop.name}, a {loop.length_m:.1f} m loop")
+        run, config = simulate_loop(loop.file, loop.length_m, args.seed, config, args.course,
                                     args.max_frames)
     chunks: list = []  # per chunk: the host-side StepInfo fields read below
     # the particles are filtered on the map lattice's axes: turned back into the run's frame,
@@ -120,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
          r.info.updated)))
     poses, log_w, ess, resampled, updated = (np.concatenate(x) for x in zip(*chunks))
     truth = np.asarray(run.ground_truth, np.float64)
-    revisit = loops.find_revisit(truth, START_M, 0.5 * length)
+    revisit = loops.find_revisit(truth, START_M, 0.5 * loop.length_m)
     zoom_from = None
     if revisit is not None:
         zoom_from = approach_frame(truth, revisit, localmap_params(config).max_range)

@@ -9,12 +9,38 @@ one loop later (``loops.find_revisit``); a KITTI cut therefore starts that far b
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from gslam_jax import loops
 
 START_M = 10.0  # the revisit's first frame: this far along the loop
+
+
+class Loop(NamedTuple):
+    """A loop to drive: its name, kind ("circle" or "kitti"), nominal length and the
+    trajectory file (TUM or KITTI) that drives it plus the overlap."""
+
+    name: str
+    kind: str
+    length_m: float
+    file: Path
+
+
+def circle_loop(folder: Path, length: float, overlap: float) -> Loop:
+    """The circle of perimeter ``length`` (``circle_file`` in ``folder``)."""
+    return Loop(f"circle-{length:g}", "circle", length, circle_file(folder, length, overlap))
+
+
+def kitti_loops(folder: Path, file: Path, lengths: list[float], radius: float,
+                overlap: float) -> list[Loop]:
+    """The cuts of a KITTI pose file nearest ``lengths`` (``kitti_cuts``), their files in
+    ``folder``. The length is rounded to 0.1 m: it names the loop and sizes its map's margin,
+    so every experiment driving the cut gets the same map."""
+    return [Loop(f"kitti{file.stem}-{a}-{b}", "kitti", round(length, 1),
+                 kitti_file(folder, file, a, b, overlap))
+            for a, b, length in kitti_cuts(file, lengths, radius)]
 
 
 def circle_file(folder: Path, length: float, overlap: float, step: float = 0.5) -> Path:
