@@ -16,7 +16,7 @@ from gslam_jax import sizing
 from gslam_jax.config import Config, ConfigError, apply_overrides
 from gslam_jax.observations import RING_M, range_noise_profile
 from gslam_jax.rbpf import FilterParams
-from gslam_jax.rbpf.importance import cell_noise, log_importance
+from gslam_jax.rbpf.importance import cell_noise, known_cell_terms, log_importance
 
 
 def eq26(k, S, kp, Sp):
@@ -54,6 +54,21 @@ def test_ignore_mode_adds_noise_to_the_predicted_variance(seed):
     assert float(none) == float(zero)
     np.testing.assert_allclose(float(none), eq26(k[prev], S[prev], kp[prev], Sp[prev]).mean()
                                / 0.2, rtol=2e-4, atol=2e-3)
+
+
+def test_known_cell_terms_are_eq26_at_the_known_cells_of_batched_footprints():
+    (k, S, kp, Sp, noise), (k1, S1, kp1, Sp1, _) = _cells(2), _cells(3)
+    k, S, kp, Sp = (np.stack(x) for x in ((k, k1), (S, S1), (kp, kp1), (Sp, Sp1)))
+    k[0, 0], S[0, 0], kp[0, 0], Sp[0, 0] = 0, 0, 5, 0.01  # unobserved, its map cell known
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    known, lam = known_cell_terms(f32(k), f32(S), f32(kp), f32(Sp), f32(noise))
+    want_known = (k > 0) & (kp > 0)
+    np.testing.assert_array_equal(np.asarray(known), want_known)
+    assert want_known.any() and (~want_known).any() and not want_known[0, 0]
+    Sp_noisy = Sp + kp * noise[None, :]  # the same noise per observed cell for every row
+    np.testing.assert_allclose(np.asarray(lam)[want_known],
+                               eq26(k, S, kp, Sp_noisy)[want_known], rtol=2e-4, atol=2e-3)
+    assert np.all(np.asarray(lam)[~want_known] == 0)
 
 
 @pytest.mark.parametrize("draws", [64, 16])  # borrowed cell per observed cell / cell c mod D

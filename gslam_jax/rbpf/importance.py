@@ -14,7 +14,7 @@ from gslam_jax.rbpf import cells
 from gslam_jax.rbpf.footprint import Footprint
 from gslam_jax.rbpf.types import FilterConfig, FilterParams
 
-__all__ = ["log_importance", "log_lambda", "cell_noise"]
+__all__ = ["log_importance", "log_lambda", "cell_noise", "known_cell_terms"]
 
 
 def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
@@ -45,19 +45,33 @@ def cell_noise(obs_index: Array, params: FilterParams) -> Array | None:
     return jnp.take(jnp.asarray(params.range_noise), obs_index, mode="clip")
 
 
+def known_cell_terms(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
+                     noise: Array | None = None, log_v: Array | None = None
+                     ) -> tuple[Array, Array]:
+    """Eq. 26 at each observed cell whose map cell is known (G_prev of eqs. 29-31), for
+    per-cell arrays of any shape (e.g. [n, M] footprints): (known [..., M], log lambda_g
+    [..., M], 0 where not known). ``noise`` and ``log_v`` as in ``log_importance``."""
+    has = k_obs > 0
+    prev = has & (k_prior > 0)
+    one = jnp.ones_like(k_obs)
+    if noise is not None:
+        S_prior = S_prior + k_prior * noise
+    lam = cells.log_predictive_integer(jnp.where(has, k_obs, one), jnp.where(has, S_obs, one),
+                                       jnp.where(prev, k_prior, one),
+                                       jnp.where(prev, S_prior, one), log_v=log_v)
+    return prev, jnp.where(prev, lam, 0.0)
+
+
 def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borrow,
                     params, unknown_cells, log_v=None, noise=None):
     """``log_importance``; ``log_v`` (``cells.log_v_obs``) may be passed in when shared, and
     in "sample" mode k_borrow, S_borrow may be the draws themselves ([D], see below)."""
     log_pred = partial(cells.log_predictive_integer, log_v=log_v)
     has = k_obs > 0
-    prev = has & (k_prior > 0)
     one = jnp.ones_like(k_obs)
     ko, So = jnp.where(has, k_obs, one), jnp.where(has, S_obs, one)
-    if noise is not None:
-        S_prior = S_prior + k_prior * noise
-    lam_prev = log_pred(ko, So, jnp.where(prev, k_prior, one), jnp.where(prev, S_prior, one))
-    sum_prev = jnp.sum(jnp.where(prev, lam_prev, 0.0))
+    prev, lam_prev = known_cell_terms(k_obs, S_obs, k_prior, S_prior, noise, log_v)
+    sum_prev = jnp.sum(lam_prev)
     if unknown_cells == "ignore":  # eq. 30
         n_prev = jnp.sum(prev)
         return jnp.where(n_prev > 0, sum_prev / (params.beta_prev * jnp.maximum(n_prev, 1)), 0.0)
