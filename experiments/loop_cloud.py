@@ -24,10 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from experiments.loop_closure import approach_frame, simulate_loop
-from experiments.loop_paths import START_M, circle_loop, kitti_loops
+from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops
 from gslam_jax import loops, slam
-from gslam_jax.config import layered_config
+from gslam_jax.config import Config, layered_config
 from gslam_jax.gridmap import turn_poses
+from gslam_jax.run import Run
 from gslam_jax.vo.localmap import localmap_params
 
 NEAR_M = 1.0  # the closure's tolerance: particles this near the truth are counted
@@ -79,8 +80,8 @@ def cloud_rows(truth: np.ndarray, vo: np.ndarray, best: np.ndarray, poses: np.nd
     return rows
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_loop_arguments(ap: argparse.ArgumentParser) -> None:
+    """The loop, world and filter settings shared by the loop tools (``simulated_loop``)."""
     ap.add_argument("--circle", type=float, default=800.0, help="circle perimeter, m")
     ap.add_argument("--kitti", type=Path, help="a KITTI pose file to cut the loop from instead "
                     "(``loop_paths.kitti_loops``: the first return nearest --length)")
@@ -90,12 +91,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--course", default="arroyo-a", help="world kind and VO noise")
     ap.add_argument("--config", type=Path)
     ap.add_argument("--set", action="append", default=[])
-    ap.add_argument("--every", type=float, default=50.0, help="metres of travel per row")
-    ap.add_argument("--zoom", type=float, default=2.0,
-                    help="metres of travel per row from the approach frame on")
     ap.add_argument("--max-frames", type=int)
-    args = ap.parse_args(argv)
-    # --set comes last, so that e.g. map.store=shared repeats a loop_closure run exactly
+
+
+def simulated_loop(args: argparse.Namespace) -> tuple[Loop, Run, Config]:
+    """The loop of ``add_loop_arguments``' settings, its simulated Run and the config to filter
+    it with, as ``loop_closure`` drives it: ``--set`` comes last, so that e.g.
+    ``map.store=shared`` repeats a ``loop_closure`` run exactly."""
     config = layered_config(args.config, args.course,
                             ["map.store=auto", f"filter.seed={args.seed}"] + args.set)
     with tempfile.TemporaryDirectory() as tmp:
@@ -110,6 +112,17 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{args.kitti}: {loop.name}, a {loop.length_m:.1f} m loop")
         run, config = simulate_loop(loop.file, loop.length_m, args.seed, config, args.course,
                                     args.max_frames)
+    return loop, run, config
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_loop_arguments(ap)
+    ap.add_argument("--every", type=float, default=50.0, help="metres of travel per row")
+    ap.add_argument("--zoom", type=float, default=2.0,
+                    help="metres of travel per row from the approach frame on")
+    args = ap.parse_args(argv)
+    loop, run, config = simulated_loop(args)
     chunks: list = []  # per chunk: the host-side StepInfo fields read below
     # the particles are filtered on the map lattice's axes: turned back into the run's frame,
     # where the truth, the best path and the VO path are
