@@ -33,7 +33,7 @@ import numpy as np
 from experiments.loop_closure import approach_frame
 from experiments.loop_cloud import NEAR_M, add_loop_arguments, simulated_loop
 from experiments.loop_paths import START_M
-from gslam_jax import loops, slam
+from gslam_jax import loops, rbpf, slam
 from gslam_jax.observations import map_observations
 from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
@@ -86,16 +86,16 @@ class _Scorer:
     """Scores one update's local map for every particle against the given maps."""
 
     def __init__(self, report: slam.ChunkReport, config):
-        run, cfg = report.run, report.cfg
-        self.params = filter_params(config, run)
-        self.observations = map_observations(run, config)
-        self.cfg = cfg
-        self.rows = jnp.arange(cfg.num_particles, dtype=jnp.int32)
+        self.params = filter_params(config, report.run)
+        self.observations = map_observations(report.run, config)
+        self.rows = np.arange(report.cfg.num_particles)
 
-    def __call__(self, store: maps.Maps, pose: np.ndarray, rows: np.ndarray, local_obs,
-                 lattice_heading: float, frame: int) -> tuple[np.ndarray, np.ndarray]:
-        """(known [J, M], eq. 26 per observed cell [J, M]) at ``pose`` [J, 3]."""
-        cfg = self.cfg
+    def __call__(self, store: maps.Maps, cfg: rbpf.FilterConfig, pose: np.ndarray,
+                 rows: np.ndarray, local_obs, lattice_heading: float, frame: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """(known [J, M], eq. 26 per observed cell [J, M]) at ``pose`` [J, 3] against the
+        ``rows`` of ``store`` (``cfg``: the one the store was made with; a shared pool may
+        have grown since the snapshot)."""
         obs = compact_observation(local_obs, cfg, lattice_heading)
         u = jax.random.uniform(jax.random.key(frame), (cfg.num_particles, cfg.unknown_samples))
         fp = read_footprints(store, jnp.asarray(pose, jnp.float32), jnp.asarray(rows, jnp.int32),
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         if end < first or end >= last:
             return
         if "snapshot" not in state:  # a copy: the chunk's state is donated to the next chunk
-            state["snapshot"] = jax.tree.map(jnp.copy, r.state.maps)
+            state["snapshot"] = jax.tree.map(jnp.copy, r.state.maps), r.cfg
             state["lineage"] = np.arange(r.cfg.num_particles)
             state["score"] = _Scorer(r, config)
             return
@@ -152,15 +152,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
         local = score.observations[int(index[frame])]
         heading = float(r.run.lattice_heading_array()[int(index[frame])])
         at = (local, heading, frame)
-        known, lam = score(r.state.maps, pose, score.rows, *at)
-        known_before, _ = score(state["snapshot"], pose, state["lineage"], *at)
+        known, lam = score(r.state.maps, r.cfg, pose, score.rows, *at)
+        known_before, _ = score(*state["snapshot"], pose, state["lineage"], *at)
         true_pose = np.asarray(r.run.ground_truth, np.float64)[frame]
         own_heading = pose.copy()
         own_heading[:, 2] = true_pose[2]
         values = split_terms(known, known_before, lam)
         values["per_cell_at_truth"] = _per_cell(*score(
-            r.state.maps, np.broadcast_to(true_pose, pose.shape), score.rows, *at))
-        values["per_cell_true_heading"] = _per_cell(*score(r.state.maps, own_heading,
+            r.state.maps, r.cfg, np.broadcast_to(true_pose, pose.shape), score.rows, *at))
+        values["per_cell_true_heading"] = _per_cell(*score(r.state.maps, r.cfg, own_heading,
                                                            score.rows, *at))
         dist = np.hypot(*(pose[:, :2] - true_pose[:2]).T)
         values["heading_err_deg"] = np.degrees(np.angle(np.exp(1j * (pose[:, 2]
