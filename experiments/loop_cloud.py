@@ -135,10 +135,12 @@ def main(argv: list[str] | None = None) -> None:
     zoom_from = None
     if revisit is not None:
         zoom_from = approach_frame(truth, revisit, localmap_params(config).max_range)
+        verdict = loops.closure(run, np.asarray(res.best_path), revisit)  # loop_closure's
         print(f"revisit: frames {revisit.i} and {revisit.j} (approach frame {zoom_from}); "
-              "revisit error best path "
-              f"{loops.revisit_error(truth, res.best_path, revisit.i, revisit.j):.2f} m, VO "
-              f"{loops.revisit_error(truth, res.vo_path, revisit.i, revisit.j):.2f} m")
+              f"best path: revisit error {verdict.error_m:.2f} m, map offset "
+              f"{verdict.map_offset_m:.2f} m, {'closed' if verdict.closed else 'open'}; VO "
+              f"revisit error {loops.revisit_error(truth, res.vo_path, revisit.i, revisit.j):.2f}"
+              " m")
     print("travel m | cloud rms m | heading std deg | nearest particle m (heading err deg) | "
           "within 1 m (weight) | mean err m | best err m | VO err m | ESS | resampled / updates")
     for r in cloud_rows(truth, np.asarray(res.vo_path), np.asarray(res.best_path), poses, ess,
