@@ -12,7 +12,10 @@ pose j to within --radius of an earlier pose i, with the travel between them nea
 corridor world of --course (``datasets.sim_path``); seed s is both the simulation seed (world
 and VO noise) and the filter seed. The revisit scored is the frame at 10 m of travel and its
 return one loop later; the verdict is ``gslam_jax.loops.closure`` (revisit error and map
-offset <= 1 m) of the final best particle's path, and the same for the VO-only path.
+offset <= 1 m) of the final best particle's path, of the final densest particle's path
+(``[filter] estimate = "mode"``: after a revisit's resampling the weights are nearly equal, and
+the best particle can be one of the few that missed the start while most of the weight is
+near the truth; ``--verdict mode`` summarises by it) and of the VO-only path.
 
 Each run also records the cloud just before the sensor can first see the start's map
 (``approach_*``: the particle nearest the truth, and how many are within 1, 2, 3 and 5 m of
@@ -50,11 +53,15 @@ APPROACH_M = 2.0  # the cloud is read this far before the sensor first reaches t
 
 
 def score(run, res, revisit: loops.Revisit) -> dict:
-    """The closure figures of one filter run: its best particle's path and the VO path."""
+    """The closure figures of one filter run: its best particle's path, the path of its final
+    densest particle (``[filter] estimate = "mode"``, ``mode_*``) and the VO path."""
     slam_c = loops.closure(run, res.best_path, revisit)
+    mode_c = loops.closure(run, res.mode_path, revisit)
     vo_c = loops.closure(run, res.vo_path, revisit)
     return {"closed": slam_c.closed, "error_m": slam_c.error_m,
             "map_offset_m": slam_c.map_offset_m, "map_corr": slam_c.map_corr,
+            "mode_closed": mode_c.closed, "mode_error_m": mode_c.error_m,
+            "mode_map_offset_m": mode_c.map_offset_m,
             "smoothed_error_m": loops.revisit_error(run.ground_truth, res.smoothed_path,
                                                     revisit.i, revisit.j),
             "vo_closed": vo_c.closed, "vo_error_m": vo_c.error_m,
@@ -167,23 +174,31 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
     return rows
 
 
-def summary(rows: list[dict], share: float = 0.8) -> dict:
+VERDICTS = {"best": "closed", "mode": "mode_closed"}  # --verdict: the path a verdict is of
+
+
+def summary(rows: list[dict], share: float = 0.8, verdict: str = "best") -> dict:
     """Per "proposal J=..": the closure rate at each length and the longest length closed in
-    at least ``share`` of its runs (None when none is)."""
-    out = {}
+    at least ``share`` of its runs (None when none is), by the verdict on the best particle's
+    path or (``verdict = "mode"``) on the densest particle's."""
+    field, out = VERDICTS[verdict], {}
+    for r in rows:
+        if r["closed"] is not None and field not in r:
+            raise ValueError(f"{r['loop']} seed {r['seed']} {r['proposal']} J={r['particles']}: "
+                             f"no {verdict} verdict (a run from before it was recorded)")
     for key in sorted({(r["proposal"], r["particles"]) for r in rows}):
         mine = [r for r in rows if (r["proposal"], r["particles"]) == key
                 and r["closed"] is not None]
         rates = {}
         for length in sorted({r["length_m"] for r in mine}):
-            got = [r["closed"] for r in mine if r["length_m"] == length]
+            got = [r[field] for r in mine if r["length_m"] == length]
             rates[length] = (sum(got) / len(got), len(got))
         ok = [length for length, (rate, _) in rates.items() if rate >= share]
         out[f"{key[0]} J={key[1]}"] = {"rates": rates, "longest": max(ok) if ok else None}
     return out
 
 
-def plot(rows: list[dict], path: Path) -> None:
+def plot(rows: list[dict], path: Path, verdict: str = "best") -> None:
     """Closure probability against loop length, one line per (proposal, J: informed dotted);
     VO only dashed. Circles and KITTI cuts share the length axis."""
     import matplotlib
@@ -191,7 +206,7 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.2))
-    for name, s in summary(rows).items():
+    for name, s in summary(rows, verdict=verdict).items():
         lengths = sorted(s["rates"])
         style = "s:" if name.startswith("informed") else "o-"
         ax.plot(lengths, [s["rates"][x][0] for x in lengths], style, label=name)
@@ -205,17 +220,18 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel("loop length (m)")
     ax.set_ylabel("closure probability (share of seeds)")
-    ax.set_title("revisit error and map offset <= 1 m")
+    ax.set_title(f"revisit error and map offset <= 1 m ({verdict} particle's path)")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
 
-def print_summary(rows: list[dict]) -> dict:
-    """Print ``summary(rows)``, a line per (proposal, J), and return it."""
-    print("\nclosure rate per loop length (share of seeds closed, runs):")
-    summ = summary(rows)
+def print_summary(rows: list[dict], verdict: str = "best") -> dict:
+    """Print ``summary(rows, verdict=verdict)``, a line per (proposal, J), and return it."""
+    print(f"\nclosure rate per loop length (share of seeds closed, runs; {verdict} particle's "
+          "path):")
+    summ = summary(rows, verdict=verdict)
     for name, s in summ.items():
         rates = ", ".join(f"{x:g} m {r:.0%} ({n})" for x, (r, n) in s["rates"].items())
         longest = "none" if s["longest"] is None else f"{s['longest']:g} m"
@@ -300,14 +316,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--resume", action="store_true",
                     help="keep the runs already in --json and run only the others (the "
                     "settings that decide a run must be the file's)")
+    ap.add_argument("--verdict", choices=sorted(VERDICTS), default="best",
+                    help="the path the summary and plot judge: the final best particle's (the "
+                    "paper's) or its densest particle's ([filter] estimate = \"mode\"); each "
+                    "run's line gives both")
     ap.add_argument("--from-json", type=Path, nargs="+",
                     help="run nothing: summarise (and --plot) the rows of these --json files")
     args = ap.parse_args(argv)
     if args.from_json:
         rows = read_rows(args.from_json)
-        print_summary(rows)
+        try:
+            print_summary(rows, args.verdict)
+        except ValueError as err:
+            raise SystemExit(f"--from-json: {err}") from None
         if args.plot:
-            plot(rows, args.plot)
+            plot(rows, args.plot, args.verdict)
         return 0
     env = environment()
     config = layered_config(args.config, args.course, args.set + [f"map.store={args.store}"])
@@ -328,7 +351,9 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print(f"{r['loop']:>16} seed {r['seed']} {r['proposal']:>8} J={r['particles']:<5} "
                   f"error {r['error_m']:6.2f} m offset {r['map_offset_m']:5.2f} m "
-                  f"{'CLOSED' if r['closed'] else 'open  '} | VO {r['vo_error_m']:6.2f} m "
+                  f"{'CLOSED' if r['closed'] else 'open  '} | mode {r['mode_error_m']:6.2f} m "
+                  f"offset {r['mode_map_offset_m']:5.2f} m "
+                  f"{'CLOSED' if r['mode_closed'] else 'open  '} | VO {r['vo_error_m']:6.2f} m "
                   f"{'closed' if r['vo_closed'] else 'open'} | nearest particle before the "
                   f"revisit {r['approach_nearest_m']:.2f} m ({r['approach_within_1m']} within "
                   f"1 m) | {r['wall_seconds']:.0f} s", flush=True)
@@ -347,12 +372,12 @@ def main(argv: list[str] | None = None) -> int:
                          args.informed_max_length, args.informed_particles, course=args.course,
                          margin_per_m=args.margin_per_m, on_row=on_row,
                          progress=args.progress, skip=done)
-    summ = print_summary(rows)
+    summ = print_summary(rows, args.verdict)
     settings["summary"] = {k: {"rates": {str(x): v for x, v in s["rates"].items()},
                                "longest": s["longest"]} for k, s in summ.items()}
     write()
     if args.plot:
-        plot(rows, args.plot)
+        plot(rows, args.plot, args.verdict)
     return 0
 
 

@@ -221,13 +221,14 @@ class SlamResult(NamedTuple):
     compile_frames: int = 0    # frames run in the first chunk, timed with the compilation
     map_heading: float = 0.0   # radians: the map lattice's axes in the run's frame ([map] axes)
     steps_path: np.ndarray | None = None  # [T, 3] the smoother's mean steps, composed
+    mode_path: np.ndarray | None = None   # [T, 3] the final densest particle's ancestral path
 
     @property
     def path(self) -> np.ndarray:
         """[T, 3] the reported trajectory ([filter] estimate): ``best_path``, ``mean_pose``,
-        ``smoothed_path`` or ``steps_path``."""
-        return {"best": self.best_path, "mean": self.mean_pose,
-                "smoothed": self.smoothed_path, "steps": self.steps_path}[self.estimate]
+        ``smoothed_path``, ``steps_path`` or ``mode_path``."""
+        return {"best": self.best_path, "mean": self.mean_pose, "smoothed": self.smoothed_path,
+                "steps": self.steps_path, "mode": self.mode_path}[self.estimate]
 
     @property
     def grid(self) -> GridMap:
@@ -338,6 +339,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     path = np.asarray(rbpf.backtrack_path(poses, ancestry, jnp.int32(final_best)))
     smoothed = np.asarray(rbpf.smoothed_mean_path(poses, ancestry, state.log_w))
     steps = np.asarray(rbpf.smoothed_step_path(poses, ancestry, state.log_w))
+    mode = np.asarray(rbpf.ancestry_path("mode", poses, ancestry, state.log_w, state.best))
     dropped = int(np.sum(infos.dropped_cells))
     if dropped:  # observed_cells(run) sizes M so that this cannot happen
         raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "
@@ -360,4 +362,4 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         compile_seconds=compile_s, compile_frames=min(chunk, T), store=cfg.store,
         map_bytes=maps.map_bytes(cfg),
         map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate,
-        map_heading=heading, steps_path=back(steps))
+        map_heading=heading, steps_path=back(steps), mode_path=back(mode))

@@ -196,6 +196,11 @@ def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     s = summary(rows)["motion J=8"]
     assert s["rates"][30.0] == (float(row["closed"]), 1)
     assert s["longest"] == (30.0 if row["closed"] else None)
+    # the densest particle's path, judged the same way
+    assert math.isfinite(row["mode_error_m"])
+    assert row["mode_closed"] == (row["mode_error_m"] <= 1.0 and row["mode_map_offset_m"] <= 1.0)
+    s = summary(rows, verdict="mode")["motion J=8"]
+    assert s["rates"][30.0] == (float(row["mode_closed"]), 1)
 
 
 def _rows_file(folder, name: str, rows: list[dict]):
@@ -228,6 +233,13 @@ def test_runs_made_apart_are_summarised_together(tmp_path, capsys) -> None:
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(SystemExit, match=r"bad\.json: not a loop_closure --json file"):
         main(["--from-json", str(tmp_path / "bad.json")])
+    # the densest particle's verdict where the rows have it, a named error where they do not
+    m = _rows_file(tmp_path, "m.json", [dict(_row(s, 200, 400.0, False), mode_closed=s > 0)
+                                        for s in range(5)])
+    assert main(["--from-json", str(m), "--verdict", "mode"]) == 0
+    assert "motion J=200: 400 m 80% (5)" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match=r"circle-400 seed 0 motion J=200: no mode verdict"):
+        main(["--from-json", str(a), "--verdict", "mode"])
 
 
 def test_resume_runs_only_the_runs_missing_from_the_file(tmp_path, monkeypatch, capsys) -> None:

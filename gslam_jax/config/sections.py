@@ -238,7 +238,8 @@ class Config:
              "must be in [0, 1] (0: automatic by the run's sensor)"),
             (f.estimate in choices.ESTIMATES, "filter", "estimate",
              f"must be one of {', '.join(choices.ESTIMATES)} (final best particle's path, "
-             "each frame's weighted mean pose, or the smoother's mean path)"),
+             "each frame's weighted mean pose, the smoother's mean path or mean steps, or "
+             "the path of the final cloud's densest particle)"),
             (f.proposal in choices.PROPOSALS, "filter", "proposal",
              f"must be one of {', '.join(choices.PROPOSALS)} (the motion model alone, or "
              "informed by the local map)"),

@@ -1,0 +1,69 @@
+"""The ``mode`` estimate: ``rbpf.densest_particle`` against a brute-force count over every
+pair, and the path it reports against following the ancestry by hand."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gslam_jax import rbpf
+from gslam_jax.rbpf.paths import MODE_RADIUS_M
+
+
+def _brute_force(pose: np.ndarray, log_w: np.ndarray, radius: float) -> int:
+    w = np.exp(log_w - log_w.max())
+    w = w / w.sum()
+    mass = [sum(w[i] for i in range(len(w))
+                if np.hypot(*(pose[i, :2] - pose[j, :2])) <= radius) for j in range(len(w))]
+    mass = np.asarray(mass)
+    top = np.flatnonzero(mass >= mass.max() - 1e-6)
+    return int(top[np.argmax(w[top])])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_densest_particle_matches_a_count_over_every_pair(seed):
+    """Clouds of 2-4 clusters of random size and spread (some with duplicated particles, as
+    after a resampling), random weights; J = 300, more than one block of rows."""
+    rng = np.random.default_rng(seed)
+    J = 300
+    centres = rng.uniform(-20, 20, (rng.integers(2, 5), 2))
+    which = rng.integers(0, len(centres), J)
+    xy = centres[which] + rng.normal(0, rng.uniform(0.2, 2.0), (J, 2))
+    if seed % 2:  # duplicated particles, as after a resampling
+        xy[::7] = xy[1::7]
+    pose = np.concatenate([xy, rng.uniform(-np.pi, np.pi, (J, 1))], 1).astype(np.float32)
+    log_w = rng.normal(0, 1.0, J).astype(np.float32)
+    got = int(rbpf.densest_particle(jnp.asarray(pose), jnp.asarray(log_w)))
+    assert got == _brute_force(pose, log_w, MODE_RADIUS_M)
+
+
+def test_the_mode_is_the_cluster_not_the_single_heaviest_particle():
+    """One particle 10 m off with 30 % of the weight, 70 near the origin sharing the rest: the
+    best particle is the lone one, the densest is the near one of highest weight."""
+    rng = np.random.default_rng(0)
+    xy = np.concatenate([[[10.0, 0.0]], rng.normal(0, 0.2, (70, 2))])
+    pose = np.concatenate([xy, np.zeros((71, 1))], 1).astype(np.float32)
+    w = np.concatenate([[0.3], np.full(70, 0.01)])
+    w[5] = 0.0101
+    log_w = np.log(w / w.sum()).astype(np.float32)
+    assert int(np.argmax(log_w)) == 0
+    assert int(rbpf.densest_particle(jnp.asarray(pose), jnp.asarray(log_w))) == 5
+
+
+def test_mode_path_follows_the_densest_particles_ancestry():
+    """``ancestry_path("mode")`` is the densest final particle's ancestral path, traced by hand
+    through a random ancestry."""
+    rng = np.random.default_rng(3)
+    T, J = 12, 40
+    poses = rng.normal(0, 3.0, (T, J, 3)).astype(np.float32)
+    ancestors = rng.integers(0, J, (T, J)).astype(np.int32)
+    log_w = rng.normal(0, 1.0, J).astype(np.float32)
+    path = np.asarray(rbpf.ancestry_path("mode", jnp.asarray(poses), jnp.asarray(ancestors),
+                                         jnp.asarray(log_w), jnp.int32(0)))
+    j = _brute_force(poses[-1], log_w, MODE_RADIUS_M)
+    want = np.empty((T, 3), np.float32)
+    for t in range(T - 1, -1, -1):
+        want[t] = poses[t, j]
+        j = ancestors[t, j]
+    np.testing.assert_array_equal(path, want)
