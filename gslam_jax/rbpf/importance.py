@@ -88,17 +88,15 @@ def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borr
         grid = partial(_by_draw, draws=D)
         log_v = cells.log_v_obs(k_obs, S_obs) if log_v is None else log_v
         kb = jnp.where(can_borrow & (k_borrow > 0), k_borrow, 0.0)[None, :]
-        new_g = grid(has & ~prev) & (kb > 0)
+        new = grid(has & ~prev) & (kb > 0)
         Sb = S_borrow[None, :] if noise is None else S_borrow[None, :] + kb * grid(noise)
         # padding: a cell with k = S = 1 (log v = 0), finite, never new (not in the sum below)
-        lam_g = cells.log_predictive_integer(grid(ko, fill=1), grid(So, fill=1),
-                                             jnp.where(new_g, kb, 1.0),
-                                             jnp.where(new_g, Sb, 1.0),
-                                             log_v=grid(log_v))
-        # summed on the grid: the padding is never new, and slicing [:M] back out of the
-        # grid before the sum made XLA CPU run the whole kernel 2-3x slower when M is not a
-        # multiple of D
-        new, lam_new = new_g, lam_g
+        # The sum runs on the grid: slicing [:M] back out of it first made XLA CPU run the
+        # whole kernel 2-3x slower when M is not a multiple of D.
+        lam_new = cells.log_predictive_integer(grid(ko, fill=1), grid(So, fill=1),
+                                               jnp.where(new, kb, 1.0),
+                                               jnp.where(new, Sb, 1.0),
+                                               log_v=grid(log_v))
     sum_new = jnp.sum(jnp.where(new, lam_new, 0.0))
     n_obs = jnp.maximum(jnp.sum(has), 1)
     return (sum_prev / params.beta_prev + sum_new / params.beta_new) / n_obs  # eq. 31
