@@ -180,7 +180,9 @@ VERDICTS = {"best": "closed", "mode": "mode_closed"}  # --verdict: the path a ve
 def summary(rows: list[dict], share: float = 0.8, verdict: str = "best") -> dict:
     """Per "proposal J=..": the closure rate at each length and the longest length closed in
     at least ``share`` of its runs (None when none is), by the verdict on the best particle's
-    path or (``verdict = "mode"``) on the densest particle's."""
+    path or (``verdict = "mode"``) on the densest particle's; and "approach": [closed, runs]
+    of the runs that had a particle within 1 m of the truth before the revisit ("near") and
+    of those that had none ("none"), over the runs that recorded their cloud."""
     field, out = VERDICTS[verdict], {}
     for r in rows:
         if r["closed"] is not None and field not in r:
@@ -194,7 +196,13 @@ def summary(rows: list[dict], share: float = 0.8, verdict: str = "best") -> dict
             got = [r[field] for r in mine if r["length_m"] == length]
             rates[length] = (sum(got) / len(got), len(got))
         ok = [length for length, (rate, _) in rates.items() if rate >= share]
-        out[f"{key[0]} J={key[1]}"] = {"rates": rates, "longest": max(ok) if ok else None}
+        approach = {"near": [0, 0], "none": [0, 0]}
+        for r in mine:
+            if "approach_within_1m" in r:
+                side = approach["near" if r["approach_within_1m"] > 0 else "none"]
+                side[0], side[1] = side[0] + bool(r[field]), side[1] + 1
+        out[f"{key[0]} J={key[1]}"] = {"rates": rates, "longest": max(ok) if ok else None,
+                                       "approach": approach}
     return out
 
 
@@ -236,6 +244,10 @@ def print_summary(rows: list[dict], verdict: str = "best") -> dict:
         rates = ", ".join(f"{x:g} m {r:.0%} ({n})" for x, (r, n) in s["rates"].items())
         longest = "none" if s["longest"] is None else f"{s['longest']:g} m"
         print(f"  {name}: {rates}; longest closed in >= 80 %: {longest}")
+        (near_c, near_n), (none_c, none_n) = s["approach"]["near"], s["approach"]["none"]
+        if near_n + none_n:
+            print(f"    closed with a particle within 1 m before the revisit: {near_c}/{near_n}"
+                  f"; with none: {none_c}/{none_n}")
     return summ
 
 

@@ -234,10 +234,15 @@ def test_runs_made_apart_are_summarised_together(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit, match=r"bad\.json: not a loop_closure --json file"):
         main(["--from-json", str(tmp_path / "bad.json")])
     # the densest particle's verdict where the rows have it, a named error where they do not
-    m = _rows_file(tmp_path, "m.json", [dict(_row(s, 200, 400.0, False), mode_closed=s > 0)
-                                        for s in range(5)])
+    # (and split by the cloud before the revisit: seeds 1 and 3 had a particle within 1 m of
+    # the truth, 0 and 2 none; seed 4 did not record its cloud and is left out of the split)
+    m = _rows_file(tmp_path, "m.json", [
+        dict(_row(s, 200, 400.0, False), mode_closed=s > 0,
+             **({"approach_within_1m": s % 2} if s < 4 else {})) for s in range(5)])
     assert main(["--from-json", str(m), "--verdict", "mode"]) == 0
-    assert "motion J=200: 400 m 80% (5)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "motion J=200: 400 m 80% (5)" in out
+    assert "closed with a particle within 1 m before the revisit: 2/2; with none: 1/2" in out
     with pytest.raises(SystemExit, match=r"circle-400 seed 0 motion J=200: no mode verdict"):
         main(["--from-json", str(a), "--verdict", "mode"])
 
