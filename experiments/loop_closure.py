@@ -6,21 +6,23 @@ number of particles J (the paper's section 9 question).
         --particles 20 200 --seeds 0 1 2 3 4 --json loops.json --plot loops.png
     # a big machine: --particles 2000 20000 --store shared
 
-Loops: circles of the given perimeters, and cuts of KITTI pose files: the first return of a
-pose j to within --radius of an earlier pose i, with the travel between them nearest each
---kitti-lengths value. Each loop is driven once and then --overlap metres on, through a
-corridor world of --course (``datasets.sim_path``); seed s is both the simulation seed (world
-and VO noise) and the filter seed. The revisit scored is the frame at 10 m of travel and its
-return one loop later; the verdict is ``gslam_jax.loops.closure`` (revisit error and map
-offset <= 1 m) of the final best particle's path, of the final densest particle's path
-(``[filter] estimate = "mode"``: after a revisit's resampling the weights are nearly equal, and
-the best particle can be one of the few that missed the start while most of the weight is
+Loops: circles of the given perimeters, and cuts of KITTI pose files: the first return of a pose
+j to within --radius of an earlier pose i, with the travel between them nearest each
+--kitti-lengths value, among the simple loops (none that holds a shorter loop the filter would
+meet and close first: ``loop_paths.kitti_cuts``). Each loop is driven once and then --overlap
+metres on, through a corridor world of --course (``datasets.sim_path``); seed s is both the
+simulation seed (world and VO noise) and the filter seed. The revisit scored is the frame at 10
+m of travel and its return one loop later; the verdict is ``gslam_jax.loops.closure`` (revisit
+error and map offset <= 1 m) of the final best particle's path, of the final densest particle's
+path (``[filter] estimate = "mode"``: after a revisit's resampling the weights are nearly equal,
+and the best particle can be one of the few that missed the start while most of the weight is
 near the truth; ``--verdict mode`` summarises by it) and of the VO-only path.
 
 Each run also records the cloud just before the sensor can first see the start's map
 (``approach_*``: the particle nearest the truth, and how many are within 1, 2, 3 and 5 m of
 it): where none is within the closure's 1 m, no weighting at the revisit can close the loop,
-and more particles are what it needs.
+and more particles are what it needs. The summary splits each (proposal, J)'s closures by
+that cloud.
 
 Prints one line per run, then per (proposal, J) the closure rate at each length and the
 longest loop closed in >= 80 % of the seeds; with --progress also a line on stderr per chunk of

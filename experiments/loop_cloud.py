@@ -84,7 +84,7 @@ def add_loop_arguments(ap: argparse.ArgumentParser) -> None:
     """The loop, world and filter settings shared by the loop tools (``simulated_loop``)."""
     ap.add_argument("--circle", type=float, default=800.0, help="circle perimeter, m")
     ap.add_argument("--kitti", type=Path, help="a KITTI pose file to cut the loop from instead "
-                    "(``loop_paths.kitti_loops``: the first return nearest --length)")
+                    "(``loop_paths.kitti_loops``: the simple loop nearest --length)")
     ap.add_argument("--length", type=float, default=800.0, help="KITTI loop length wanted, m")
     ap.add_argument("--radius", type=float, default=2.0, help="revisit radius of a KITTI cut, m")
     ap.add_argument("--seed", type=int, default=0, help="simulation and filter seed")

@@ -1,6 +1,6 @@
 """The loops the loop experiments drive, as trajectory files for ``gslam run --course-path``
 (``datasets.sim_path``): circles of a given perimeter, and cuts of KITTI pose files between a
-pose and its first return.
+pose and its first return that hold no shorter loop.
 
 The revisit the experiments score is the frame ``START_M`` metres into the loop and its return
 one loop later (``loops.find_revisit``); a KITTI cut therefore starts that far before its pose a.
@@ -61,23 +61,40 @@ def _kitti_xy(file: Path) -> np.ndarray:
     return np.stack([m[:, 0, 3], m[:, 2, 3]], axis=1)
 
 
-def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5
-               ) -> list[tuple[int, int, float]]:
-    """(a, b, loop length) per requested length: the first return b of a pose a to within
-    ``radius`` after leaving it by more than twice that, the pair whose loop is nearest the
-    length; a runs over every ``every``-th pose."""
-    xy = _kitti_xy(file)
-    arc = loops.arc_length(xy)
-    found = []
-    for a in range(0, len(xy), every):
+def first_returns(xy: np.ndarray, radius: float) -> np.ndarray:
+    """Per pose a of a path [N, 2]: the first later pose within ``radius`` of it after the path
+    has left it by more than twice that (N where it never returns)."""
+    n = len(xy)
+    out = np.full(n, n)
+    for a in range(n):
         d = np.hypot(*(xy[a:] - xy[a]).T)
         away = np.flatnonzero(d > 2 * radius)
-        if away.size == 0:
-            continue
-        back = np.flatnonzero((d <= radius) & (np.arange(len(d)) > away[0]))
-        if back.size:
-            b = a + int(back[0])
-            found.append((a, b, float(arc[b] - arc[a])))
+        if away.size:
+            back = np.flatnonzero(d[away[0]:] <= radius)
+            if back.size:
+                out[a] = a + away[0] + back[0]
+    return out
+
+
+def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5,
+               lead_m: float = 20.0) -> list[tuple[int, int, float]]:
+    """(a, b, loop length) per requested length: the first return b of a pose a
+    (``first_returns``), the pair whose loop is nearest the length; a runs over every
+    ``every``-th pose. Only simple loops count: a cut is skipped where a pose inside it returns
+    more than ``lead_m`` of travel before b (KITTI 08's 598 m loop holds its 478 m one, which
+    the filter meets and closes first; returns just before b are the same revisit, met from
+    the other side)."""
+    xy = _kitti_xy(file)
+    arc = loops.arc_length(xy)
+    back = first_returns(xy, radius)
+    found = []
+    for a in range(0, len(xy), every):
+        b = int(back[a])
+        if b < len(xy):
+            inside = back[a:b]
+            early = inside[inside < b]
+            if early.size == 0 or arc[early.min()] >= arc[b] - lead_m:
+                found.append((a, b, float(arc[b] - arc[a])))
     out = []
     for want in lengths:
         if not found:

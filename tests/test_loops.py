@@ -302,3 +302,26 @@ def test_approach_cloud_reads_its_frame_of_a_hand_made_cloud() -> None:
     assert cloud.within == {"approach_within_1m": 1, "approach_within_2m": 2,
                             "approach_within_3m": 3, "approach_within_5m": 3}
     assert cloud.nearest_heading_deg == pytest.approx(math.degrees(0.03))
+
+
+def test_kitti_cuts_skip_a_loop_that_holds_a_shorter_one(tmp_path) -> None:
+    """A path 60 m east, round a 200 m circle back to its start, then 65 m west over the spur
+    again (a KITTI pose file): pose 0's first return closes a 320 m loop, but the filter meets
+    the spur again at the circle's end and closes the 200 m loop first. The cut asked for at
+    320 m is the circle; without the check (a lead of any length) it is the outer loop."""
+    from experiments.loop_paths import kitti_cuts
+
+    step, r = 0.5, 200.0 / (2 * np.pi)
+    phi = np.arange(0.0, 2 * np.pi, step / r)
+    x = np.concatenate([np.arange(0.0, 60.0, step), 60 + r * np.sin(phi),
+                        np.arange(60.0, -5.0, -step)])
+    y = np.concatenate([np.zeros(120), r * (1 - np.cos(phi)), np.zeros(130)])
+    rows = np.zeros((len(x), 12))
+    rows[:, [0, 5, 10]] = 1.0
+    rows[:, 3], rows[:, 11] = x, y  # KITTI camera frame: the ground plane is (x, z)
+    file = tmp_path / "loop.txt"
+    np.savetxt(file, rows)
+    (a, b, length), = kitti_cuts(file, [320.0], radius=2.0, every=1)
+    assert 195.0 <= length <= 205.0  # the circle, from where its end meets the spur
+    (a, b, length), = kitti_cuts(file, [320.0], radius=2.0, every=1, lead_m=1e9)
+    assert a == 0 and 316.0 <= length <= 320.0  # back within 2 m of x = 0 at x = 2
