@@ -11,10 +11,10 @@ Q (offset uniform up to the course's size, any heading), so B's map lives in an 
 the true pose of B's frame in A's is then T = g0 (+) Q^-1 (g0: the true start, A's start pose).
 Both maps carry their own SLAM errors, so a second reference is the pose that best lays the
 path of B's map on A's frame by frame (they drive the same true poses): the best any rigid
-alignment of these two maps can do. Each map is its run's final best particle's, so the path
-is that particle's (``SlamResult.best_path``), not the reported one (``[filter] estimate``,
-by default the smoothed mean over every particle), which can lie half a metre from it where
-the weights are flat. Each trial reports the alignment's error against both,
+alignment of these two maps can do. Each map is one particle's (``rbpf.map_particle``), so
+the path is that particle's (``SlamResult.map_path``), not the reported one (``[filter]
+estimate``, by default the mean steps over every particle), which can lie half a metre from
+it where the weights are flat. Each trial reports the alignment's error against both,
 its standard deviation, z and runner-up, whether ``align_maps`` would refuse it, and the
 error of the GPS-only alignment (each run's path aligned to its own simulated WAAS-like
 receiver, paper appendix, then composed); with ``--self-check``, whether B's map passes its
@@ -140,7 +140,7 @@ def _run_maps(course: str, noise_seed: int | None, start: np.ndarray | None, con
     g0 = np.asarray(run.ground_truth[0], np.float64)
     return {"k": grid.k, "S": grid.S, "origin": np.asarray(grid.origin),
             "resolution": grid.resolution, "heading": grid.heading, "g0": g0, "path": result.path,
-            "map_path": result.best_path,
+            "map_path": result.map_path,
             "size": np.max(np.abs(run.ground_truth[:, :2] - g0[:2])),
             "gps_frame": _gps_frame(run, result, gps_seed),
             **({} if start is not None else {

@@ -300,8 +300,11 @@ class Online:
                          np.exp(np.asarray(log_w, np.float64)))
 
     def map(self) -> GridMap:
-        """The highest-weight particle's map now (k, S float64 on the live extent)."""
-        k, S = rbpf.particle_map(self.state, self.state.best, self.cfg)
+        """The map the batch run would report after this frame (k, S float64 on the live
+        extent): the particle's of ``rbpf.map_particle`` for ``[filter] estimate``."""
+        slot = rbpf.map_particle(self.config.filter.estimate, self.state.pose, self.state.log_w,
+                                 self.state.best)
+        k, S = rbpf.particle_map(self.state, slot, self.cfg)
         return GridMap(np.asarray(k, np.float64), np.asarray(S, np.float64),
                        tuple(self.cfg.map_origin), float(self.cfg.resolution), self.heading)
 

@@ -206,7 +206,7 @@ class SlamResult(NamedTuple):
     updated: np.ndarray        # [T] bool
     log_lik: np.ndarray        # [T] log mean weight increments
     exponent: np.ndarray       # [T] tempering exponent of each update (1: the paper's beta)
-    kmap: np.ndarray           # [H, W] best particle's map
+    kmap: np.ndarray           # [H, W] the map of ``map_path``'s particle (``rbpf.map_particle``)
     smap: np.ndarray           # [H, W]
     map_origin: tuple[float, float]  # in the lattice's axes (``GridMap``)
     resolution: float
@@ -222,6 +222,8 @@ class SlamResult(NamedTuple):
     map_heading: float = 0.0   # radians: the map lattice's axes in the run's frame ([map] axes)
     steps_path: np.ndarray | None = None  # [T, 3] the smoother's mean steps, composed
     mode_path: np.ndarray | None = None   # [T, 3] the final densest particle's ancestral path
+    map_path: np.ndarray | None = None    # [T, 3] the path of the particle whose map kmap is:
+    #   mode_path under estimate "mode", else best_path
 
     @property
     def path(self) -> np.ndarray:
@@ -232,7 +234,8 @@ class SlamResult(NamedTuple):
 
     @property
     def grid(self) -> GridMap:
-        """The best particle's map as a ``GridMap`` (float64), e.g. for ``align_maps``."""
+        """The run's map (``kmap``, ``smap``: ``map_path``'s particle's) as a ``GridMap``
+        (float64), e.g. for ``align_maps``."""
         return GridMap(np.asarray(self.kmap, np.float64), np.asarray(self.smap, np.float64),
                        tuple(self.map_origin), float(self.resolution), float(self.map_heading))
 
@@ -333,10 +336,11 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     infos = jax.tree.map(lambda *xs: np.concatenate(xs)[:T], *[o[0] for o in outputs])
     best = np.concatenate([o[1] for o in outputs])[:T]
     mean = np.concatenate([o[2] for o in outputs])[:T]
-    final_best = int(state.best)
-    kmap, smap = rbpf.particle_map(state, final_best, cfg)
     poses, ancestry = jnp.asarray(infos.pose), jnp.asarray(infos.ancestors)
-    path = np.asarray(rbpf.backtrack_path(poses, ancestry, jnp.int32(final_best)))
+    map_slot = rbpf.map_particle(config.filter.estimate, poses[-1], state.log_w, state.best)
+    kmap, smap = rbpf.particle_map(state, map_slot, cfg)
+    path = np.asarray(rbpf.backtrack_path(poses, ancestry, state.best))
+    map_path = np.asarray(rbpf.backtrack_path(poses, ancestry, map_slot))
     smoothed = np.asarray(rbpf.smoothed_mean_path(poses, ancestry, state.log_w))
     steps = np.asarray(rbpf.smoothed_step_path(poses, ancestry, state.log_w))
     mode = np.asarray(rbpf.ancestry_path("mode", poses, ancestry, state.log_w, state.best))
@@ -362,4 +366,5 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         compile_seconds=compile_s, compile_frames=min(chunk, T), store=cfg.store,
         map_bytes=maps.map_bytes(cfg),
         map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate,
-        map_heading=heading, steps_path=back(steps), mode_path=back(mode))
+        map_heading=heading, steps_path=back(steps), mode_path=back(mode),
+        map_path=back(map_path))

@@ -1,13 +1,17 @@
 """The ``mode`` estimate: ``rbpf.densest_particle`` against a brute-force count over every
-pair, and the path it reports against following the ancestry by hand."""
+pair, the path it reports against following the ancestry by hand, and the map a run reports
+with it: the local maps placed along the mode's path (NumPy's ``metrics.pose_map``)."""
 
 from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from cached_runs import FRAMES, shared_run
 
-from gslam_jax import rbpf
+from gslam_jax import choices, rbpf, slam
+from gslam_jax.config import Config, apply_overrides
+from gslam_jax.metrics import pose_map
 from gslam_jax.rbpf.paths import MODE_RADIUS_M
 
 
@@ -67,3 +71,34 @@ def test_mode_path_follows_the_densest_particles_ancestry():
         want[t] = poses[t, j]
         j = ancestors[t, j]
     np.testing.assert_array_equal(path, want)
+
+
+@pytest.mark.parametrize("estimate", choices.ESTIMATES)
+def test_the_map_goes_with_the_mode_and_otherwise_with_the_best_particle(estimate):
+    """``map_particle``: the densest particle under "mode" (the brute-force count), the best
+    slot under every other estimate, here a slot that is not the densest."""
+    rng = np.random.default_rng(7)
+    pose = np.concatenate([rng.normal(0, 0.3, (30, 2)), np.zeros((30, 1))], 1)
+    pose[0, :2] = 9.0
+    log_w = rng.normal(0, 0.1, 30)
+    log_w[0] = 3.0  # the heaviest particle stands alone
+    pose, log_w = pose.astype(np.float32), log_w.astype(np.float32)
+    densest = _brute_force(pose, log_w, MODE_RADIUS_M)
+    assert densest != 0
+    got = int(rbpf.map_particle(estimate, jnp.asarray(pose), jnp.asarray(log_w), jnp.int32(0)))
+    assert got == (densest if estimate == "mode" else 0)
+
+
+def test_a_mode_run_reports_the_map_laid_along_the_modes_path():
+    """``run_slam`` with ``estimate = "mode"`` on a run whose final densest and best particles
+    differ: ``map_path`` is the mode's path, and the local maps placed along it (NumPy, eq.
+    14's sums) give the reported map's counts in every cell, which the best particle's path
+    does not."""
+    run = shared_run(FRAMES)
+    config = apply_overrides(Config(), ["filter.particles=16", "filter.seed=3",
+                                        "filter.estimate=mode", "map.margin=1.0"])
+    res = slam.run_slam(run, config)
+    assert np.abs(res.mode_path - res.best_path).max() > 0.05  # the case this test is about
+    np.testing.assert_array_equal(res.map_path, res.mode_path)
+    np.testing.assert_array_equal(pose_map(run, res.map_path, lattice=res.grid).k, res.kmap)
+    assert (pose_map(run, res.best_path, lattice=res.grid).k != res.kmap).any()

@@ -187,7 +187,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
         np.savetxt(out / "trajectory_kitti.txt", cams[:, :3, :].reshape(-1, 12), fmt="%.9e")
     write_tum(out / "vo_tum.txt", run.timestamps, result.vo_path, origin_ns=origin)
     # the path of the particle whose map map.npz holds (the reported path is [filter] estimate's)
-    write_tum(out / "map_path_tum.txt", run.timestamps, result.best_path, origin_ns=origin)
+    write_tum(out / "map_path_tum.txt", run.timestamps, result.map_path, origin_ns=origin)
     if run.ground_truth is not None:
         gt = np.asarray(run.ground_truth, np.float64)
         known = np.isfinite(gt).all(axis=1)

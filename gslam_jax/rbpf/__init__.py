@@ -17,7 +17,8 @@ Modules, one idea each:
   uniforms), so that the tiled reference can be driven with the same ones;
 * ``kernel``: ``init``, ``predict``, ``update`` (weigh, write, normalise), ``resample``
   (ESS-gated), ``step`` (one frame), ``scan_frames`` and ``run_filter``;
-* ``paths``: trajectory estimates (the best particle's path, the smoother's mean path).
+* ``paths``: trajectory estimates (the best particle's path, the mode's, the smoother's mean
+  path and mean steps) and which particle's map goes with each.
 
 This package exports what a user of the filter calls; the rest is imported from its module.
 """
@@ -26,7 +27,7 @@ from gslam_jax.rbpf.draws import frame_keys, motion_noise, standard_normals, upd
 from gslam_jax.rbpf.kernel import (Proposal, Resampler, init, observe, predict, resample,
                                    run_filter, scan_frames, step, update)
 from gslam_jax.rbpf.maps import particle_map
-from gslam_jax.rbpf.paths import (ancestry_path, backtrack_path, densest_particle,
+from gslam_jax.rbpf.paths import (ancestry_path, backtrack_path, densest_particle, map_particle,
                                   smoothed_mean_path, smoothed_step_path)
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, RunOutput, StepInfo,
                                   UpdateInfo, UpdateNoise)
@@ -40,5 +41,5 @@ __all__ = [
     "observe", "step", "scan_frames", "frame_keys", "run_filter",
     # results
     "backtrack_path", "densest_particle", "smoothed_mean_path", "smoothed_step_path",
-    "ancestry_path", "particle_map",
+    "ancestry_path", "map_particle", "particle_map",
 ]

@@ -1,7 +1,7 @@
 """Trajectory estimates from the particles' per-frame poses and resampling ancestry: each
 frame's weighted mean pose, the best particle's path through its ancestry (the paper's
 estimate), the path of the final cloud's densest particle, the particle smoother's mean path
-and the path of its mean steps."""
+and the path of its mean steps; and which particle's map goes with an estimate."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from jax import Array, lax
 from gslam_jax.rbpf.motion import control_between, world_step
 
 __all__ = ["weighted_mean_pose", "backtrack_path", "densest_particle", "MODE_RADIUS_M",
-           "smoothed_mean_path", "smoothed_step_path", "ancestry_path"]
+           "smoothed_mean_path", "smoothed_step_path", "ancestry_path", "map_particle"]
 
 # The neighbourhood ``densest_particle`` sums the weight over: a loop closure's tolerance
 # (``loops.TOLERANCE``), so the mode is where most of the weight agrees to that precision.
@@ -123,10 +123,21 @@ def ancestry_path(estimate: str, poses: Array, ancestors: Array, log_w: Array,
     if estimate == "best":
         return backtrack_path(poses, ancestors, best)
     if estimate == "mode":
-        return backtrack_path(poses, ancestors, densest_particle(poses[-1], log_w))
+        return backtrack_path(poses, ancestors, map_particle("mode", poses[-1], log_w, best))
     if estimate == "smoothed":
         return smoothed_mean_path(poses, ancestors, log_w)
     if estimate == "steps":
         return smoothed_step_path(poses, ancestors, log_w)
     raise ValueError(f"no ancestry path for the estimate {estimate!r}: one of best, mode, "
                      "smoothed, steps")
+
+
+def map_particle(estimate: str, pose: Array, log_w: Array, best: Array | int) -> Array:
+    """The slot [] whose map a run reports beside ``estimate``'s path, from the cloud [J, 3],
+    its log weights [J] and its best slot: the ``densest_particle`` under "mode", so that the
+    map is the one laid along the mode's path (after a revisit the best particle may be one
+    that missed the old map and doubled it); else ``best``, the paper's map (the averaged
+    estimates are no one particle's path, so no map is theirs)."""
+    if estimate == "mode":
+        return densest_particle(pose, log_w)
+    return jnp.asarray(best, jnp.int32)
