@@ -174,7 +174,8 @@ def test_closure_verdict_on_a_simulated_loop(noisy_loop) -> None:
 
 def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     """experiments/loop_closure.py end to end at CI size: one seed, J = 8, the motion proposal."""
-    from experiments.loop_closure import Loop, run_loop, summary
+    from experiments.loop_closure import Loop, run_loop
+    from experiments.loop_summary import summary
 
     file, vo, run = noisy_loop
     rows = run_loop(Loop("circle-30", "circle", 30.0, file), 1, SMALL, [8], ["motion"],
@@ -245,6 +246,27 @@ def test_runs_made_apart_are_summarised_together(tmp_path, capsys) -> None:
     assert "closed with a particle within 1 m before the revisit: 2/2; with none: 1/2" in out
     with pytest.raises(SystemExit, match=r"circle-400 seed 0 motion J=200: no mode verdict"):
         main(["--from-json", str(a), "--verdict", "mode"])
+
+
+def test_the_plot_draws_circles_and_real_paths_apart(tmp_path) -> None:
+    """--plot: one curve per (proposal, J) and family, so a real path's cut of 478 m closed
+    less often than one of 559 m is not joined to the circles' curve."""
+    import matplotlib.image as mpimg
+
+    from experiments.loop_closure import main
+    from experiments.loop_summary import curves, family, read_rows
+
+    cut = dict(_row(0, 200, 478.4, False), loop="kitti08-795-1417", kind="kitti")
+    assert (family(_row(0, 200, 400.0, True)), family(cut)) == ("circles", "real paths")
+    a = _rows_file(tmp_path, "a.json", [_row(s, 200, 400.0, s != 1) for s in range(5)]
+                   + [dict(cut, seed=s, closed=s == 0) for s in range(5)])
+    png = tmp_path / "loops.png"
+    assert main(["--from-json", str(a), "--plot", str(png)]) == 0
+    assert mpimg.imread(png).shape[:2] == (378, 630)  # figsize 7 x 4.2 at 90 dpi
+    assert curves(read_rows([a])) == {("motion J=200", "circles"): ([400.0], [0.8]),
+                                      ("VO only", "circles"): ([400.0], [0.0]),
+                                      ("motion J=200", "real paths"): ([478.4], [0.2]),
+                                      ("VO only", "real paths"): ([478.4], [0.0])}
 
 
 def test_resume_runs_only_the_runs_missing_from_the_file(tmp_path, monkeypatch, capsys) -> None:
