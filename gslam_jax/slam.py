@@ -197,6 +197,9 @@ class SlamResult(NamedTuple):
     """Host-side (NumPy) outputs of one Gamma-SLAM run."""
 
     best_path: np.ndarray      # [T, 3] the final best particle's path through its ancestry
+    map_path: np.ndarray       # [T, 3] the path of the particle whose map kmap is
+    #                            (``rbpf.map_particle``): mode_path under estimate "mode",
+    #                            else best_path
     smoothed_path: np.ndarray  # [T, 3] final-weighted mean of every final particle's ancestry
     best_pose: np.ndarray      # [T, 3] highest-weight particle per frame
     mean_pose: np.ndarray      # [T, 3] weighted mean per frame
@@ -222,8 +225,6 @@ class SlamResult(NamedTuple):
     map_heading: float = 0.0   # radians: the map lattice's axes in the run's frame ([map] axes)
     steps_path: np.ndarray | None = None  # [T, 3] the smoother's mean steps, composed
     mode_path: np.ndarray | None = None   # [T, 3] the final densest particle's ancestral path
-    map_path: np.ndarray | None = None    # [T, 3] the path of the particle whose map kmap is:
-    #   mode_path under estimate "mode", else best_path
 
     @property
     def path(self) -> np.ndarray:
@@ -357,7 +358,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         return turn_poses(poses, heading)
 
     return SlamResult(
-        best_path=back(path), smoothed_path=back(smoothed), best_pose=back(best),
+        best_path=back(path), map_path=back(map_path), smoothed_path=back(smoothed),
+        best_pose=back(best),
         mean_pose=back(mean), vo_path=given.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
         exponent=infos.exponent, kmap=np.asarray(kmap), smap=np.asarray(smap),
@@ -366,5 +368,4 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         compile_seconds=compile_s, compile_frames=min(chunk, T), store=cfg.store,
         map_bytes=maps.map_bytes(cfg),
         map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate,
-        map_heading=heading, steps_path=back(steps), mode_path=back(mode),
-        map_path=back(map_path))
+        map_heading=heading, steps_path=back(steps), mode_path=back(mode))
