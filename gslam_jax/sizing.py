@@ -25,7 +25,7 @@ from gslam_jax.run_checks import coordinate_limit, float32_spacing
 
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "map_memory",
            "filter_config", "extent_filter_config", "resolve_ess_target",
-           "resolve_proposal_draws", "filter_params", "fallback_frames"]
+           "resolve_proposal_draws", "motion_params", "filter_params", "fallback_frames"]
 
 
 class MapExtent(NamedTuple):
@@ -222,13 +222,20 @@ def _check_steps(run: Run, memory: str) -> None:
                        f"{memory.split(';')[0]}; check the Run's controls (units?)")
 
 
+def motion_params(config: Config) -> MotionParams:
+    """``[motion]`` as the filter's ``MotionParams`` (float32 scalars)."""
+    m = config.motion
+    return MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
+                        jnp.float32(m.alpha_theta), jnp.float32(m.alpha_cross),
+                        jnp.float32(m.fallback_scale))
+
+
 def filter_params(config: Config, run: Run | None = None,
                   range_noise: np.ndarray | None = None) -> rbpf.FilterParams:
     """The filter's continuous parameters: ``[motion]``, ``[filter]`` beta_prev / beta_new,
     and with ``[filter] range_noise = "profile"`` the measurement variance per local cell:
     ``range_noise`` [L * L] when given (``online.Online``'s running estimate), else estimated
     from ``run`` (``observations.run_range_noise``; ConfigError with neither)."""
-    m = config.motion
     noise = None
     if config.filter.range_noise == "profile":
         if range_noise is not None:
@@ -239,9 +246,7 @@ def filter_params(config: Config, run: Run | None = None,
         else:
             noise = jnp.asarray(run_range_noise(run, config))
     return rbpf.FilterParams(
-        motion=MotionParams(jnp.float32(m.alpha_d), jnp.float32(m.alpha_theta_d),
-                            jnp.float32(m.alpha_theta), jnp.float32(m.alpha_cross),
-                            jnp.float32(m.fallback_scale)),
+        motion=motion_params(config),
         beta_prev=jnp.float32(config.filter.beta_prev),
         beta_new=jnp.float32(config.filter.beta_new), range_noise=noise)
 

@@ -28,7 +28,7 @@ import numpy as np
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.datasets.kitti import KittiParams, read_table
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source
-from gslam_jax.datasets.sim import ProgressFn, SimInfo, drive_course, sense_run
+from gslam_jax.datasets.sim import Odometry, ProgressFn, SimInfo, drive_course, sense_run
 from gslam_jax.errors import DatasetError
 from gslam_jax.run import Run
 from gslam_jax.sim.corridor import make_corridor_world
@@ -40,7 +40,7 @@ from gslam_jax.sim.vonoise import VO_PROFILES, VONoiseParams
 from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pose_to_2d
 from gslam_jax.vo.localmap import LocalMapParams, localmap_params
 
-__all__ = ["PlanarPath", "read_path", "world_kind", "simulate_path"]
+__all__ = ["PlanarPath", "read_path", "world_kind", "drive_path", "simulate_path"]
 
 _KIND_COURSE = {"mars-yard": "mars-yard-a", "arroyo": "arroyo-a", "maze": "maze"}
 _FORMATS = {8: "TUM", 12: "KITTI", 13: "KITTI"}
@@ -115,6 +115,23 @@ def world_kind(course: str) -> tuple[str, VONoiseParams]:
                       f"({', '.join(WORLD_KINDS)}) or a course ({', '.join(COURSES)})")
 
 
+def drive_path(path: str | Path, seed: int = 0, course: str = "mars-yard", *,
+               drive_params: DriveParams | None = None, vo_noise: VONoiseParams | None = None,
+               max_frames: int | None = None) -> Odometry:
+    """The odometry half of ``simulate_path`` (the same arguments, the same numbers): the
+    ground truth at the frame rate and the VO increments drawn with ``vo_noise`` (default:
+    the profile of ``course``), without the world and the sensor."""
+    kind, profile = world_kind(course)
+    planar = read_path(path)
+    try:
+        crs = course_from_path(planar.poses[:, :2], f"path {Path(path).name}", kind,
+                               f"{planar.format} trajectory {path}", seed)
+    except ValueError as e:
+        raise DatasetError(f"{path}: {e}") from None
+    return drive_course(crs, seed, vo_noise or profile, drive_params=drive_params,
+                        max_frames=max_frames)
+
+
 def simulate_path(path: str | Path, seed: int = 0, course: str = "mars-yard",
                   params: LocalMapParams | None = None, *, sensor: SensorParams | None = None,
                   drive_params: DriveParams | None = None, vo_noise: VONoiseParams | None = None,
@@ -129,19 +146,12 @@ def simulate_path(path: str | Path, seed: int = 0, course: str = "mars-yard",
     """
     params = params or LocalMapParams()
     sensor = sensor or SensorParams(max_range=params.max_range)
-    kind, profile = world_kind(course)
     t0 = time.perf_counter()
-    planar = read_path(path)
-    try:
-        crs = course_from_path(planar.poses[:, :2], f"path {Path(path).name}", kind,
-                               f"{planar.format} trajectory {path}", seed)
-    except ValueError as e:
-        raise DatasetError(f"{path}: {e}") from None
-    odo = drive_course(crs, seed, vo_noise or profile, drive_params=drive_params,
-                       max_frames=max_frames)
+    odo = drive_path(path, seed, course, drive_params=drive_params, vo_noise=vo_noise,
+                     max_frames=max_frames)
     width = sensor.max_range + 2.0 if half_width is None else half_width
-    world = make_corridor_world(kind, seed, crs.path, driven=odo.trajectory.poses[:, :2],
-                                half_width=width)
+    world = make_corridor_world(world_kind(course)[0], seed, odo.course.path,
+                                driven=odo.trajectory.poses[:, :2], half_width=width)
     timings = {"world_s": time.perf_counter() - t0}
     return sense_run(odo, world, seed, params, sensor, progress=progress, timings=timings,
                      t0=t0)

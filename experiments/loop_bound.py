@@ -1,0 +1,197 @@
+"""How many particles a loop needs when the weights are flat round it: the sample-size bound
+on ``experiments.loop_closure``'s closures.
+
+Until the sensor first meets the map made at the loop's start, the particles have met only
+their own maps, and on these loops their weights stay nearly flat (docs/results.md, "A
+kilometre"): the cloud at the approach is then J draws of the motion model (eqs. 1-3) along
+the VO. A loop closes only where one of them is within the closure's 1 m of the truth there
+(``loop_closure``'s summary splits its closures by that). This experiment draws N such paths
+without maps, on the truth and VO a ``loop_closure`` run of the same loop, seed and course
+sees (``datasets.sim_path.drive_path``), with the config's motion noise (the fallback frames'
+scaled as the filter scales them), and reports per seed the share p of draws within 1 m of
+the truth at the approach frame (``loop_closure.approach_frame``), the expected number there
+among J particles (J p) and the chance that at least one is (1 - (1 - p)^J): the closure rate
+J particles can reach with flat weights. Per loop it gives the mean of that chance over the
+seeds at each J, and the J at which it reaches 80 %.
+
+    python -m experiments.loop_bound --course arroyo-a --config configs/table1.toml \\
+        --circles 400 800 1000 --kitti ../shared/data/kitti-poses/00.txt \\
+        --kitti-lengths 1000 --seeds 0 1 2 3 4 --particles 200 2000 --from-json runs.json
+
+--from-json: ``loop_closure`` --json files whose runs (same loop and seed) are printed beside
+the prediction: the particles the filter had within 1 m at the approach, and whether it
+closed. --vo-scale F draws the VO with the course's noise times F (a better or worse VO), and
+--noise-scale F multiplies the motion model's alphas.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from functools import partial
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array, lax
+
+from experiments.loop_closure import approach_frame
+from experiments.loop_paths import START_M, circle_loop, kitti_loops
+from experiments.loop_summary import read_rows
+from gslam_jax import loops
+from gslam_jax.config import layered_config
+from gslam_jax.datasets.sim_path import drive_path, world_kind
+from gslam_jax.machine import environment
+from gslam_jax.rbpf.motion import MotionParams, apply_motion, scaled
+from gslam_jax.sizing import motion_params
+from gslam_jax.vo.localmap import localmap_params
+
+SHARE = 0.8  # the closure rate the J of the summary reaches
+
+
+@partial(jax.jit, static_argnames="draws")
+def motion_draws(key: Array, start: Array, controls: Array, fallback: Array,
+                 params: MotionParams, draws: int) -> Array:
+    """[draws, 3] poses after every control of ``controls`` [T, 3] from ``start`` [3], each
+    draw its own path of the motion model (eq. 1 with eqs. 2-3's noise, the filter's
+    ``apply_motion``); a frame with ``fallback`` [T] set has its stds times
+    ``params.fallback_scale``, as ``rbpf.step`` scales them. Frame t's normals come from
+    ``fold_in(key, t)``."""
+
+    def frame(pose: Array, xs: tuple[Array, Array, Array]) -> tuple[Array, None]:
+        t, u, failed = xs
+        p = scaled(params, jnp.where(failed, params.fallback_scale, 1.0))
+        eps = jax.random.normal(jax.random.fold_in(key, t), pose.shape, pose.dtype)
+        return apply_motion(pose, u, eps, p), None
+
+    pose = jnp.broadcast_to(jnp.asarray(start, jnp.float32), (draws, 3))
+    T = controls.shape[0]
+    pose, _ = lax.scan(frame, pose, (jnp.arange(T), jnp.asarray(controls, jnp.float32),
+                                     jnp.asarray(fallback, bool)))
+    return pose
+
+
+def chance_of_one(p: np.ndarray | float, J: float) -> np.ndarray:
+    """1 - (1 - p)^J: the chance that at least one of J independent particles, each within
+    the tolerance with probability p, is within it."""
+    return -np.expm1(J * np.log1p(-np.minimum(p, 1.0 - 1e-16)))
+
+
+def particles_for(p: np.ndarray, share: float = SHARE) -> float:
+    """The J (real, >= 1) at which the mean over seeds of ``chance_of_one(p, J)`` reaches
+    ``share``; inf where no finite J does (at least 1 - share of the seeds with p = 0)."""
+    p = np.asarray(p, np.float64)
+    if np.mean(p > 0) <= share:
+        return float("inf")
+    lo, hi = 0.0, 1.0
+    while np.mean(chance_of_one(p, hi)) < share:
+        lo, hi = hi, hi * 2.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.mean(chance_of_one(p, mid)) < share else (lo, mid)
+    return max(hi, 1.0)
+
+
+def loop_bound(file: Path, length_m: float, seed: int, config, course: str, draws: int,
+               vo_scale: float = 1.0, noise_scale: float = 1.0) -> dict:
+    """One loop at one seed: the approach frame, the share of ``draws`` motion-model paths
+    within ``loops.TOLERANCE`` of the truth there, and the nearest draw."""
+    noise = world_kind(course)[1].scaled(vo_scale)
+    odo = drive_path(file, seed, course, vo_noise=noise)
+    truth = np.asarray(odo.trajectory.poses, np.float64)
+    revisit = loops.find_revisit(truth, START_M, 0.5 * length_m)
+    if revisit is None:
+        return {"note": "no revisit within the radius in the driven path"}
+    frame = approach_frame(truth, revisit, localmap_params(config).max_range)
+    params = scaled(motion_params(config), noise_scale)
+    pose = motion_draws(jax.random.key(seed), truth[0], odo.controls[:frame + 1],
+                        odo.vo_draw.vo_failed[:frame + 1], params, draws)
+    d = np.hypot(*(np.asarray(pose[:, :2], np.float64) - truth[frame, :2]).T)
+    vo = odo.vo_poses()[frame]
+    return {"approach_frame": frame, "p_within": float(np.mean(d <= loops.TOLERANCE)),
+            "nearest_m": float(d.min()), "draws": draws,
+            "vo_miss_m": float(np.hypot(*(vo[:2] - truth[frame, :2])))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--circles", type=float, nargs="*", default=[400, 800, 1000],
+                    help="circle perimeters, m")
+    ap.add_argument("--kitti", type=Path, nargs="*", default=[], help="KITTI pose files")
+    ap.add_argument("--kitti-lengths", type=float, nargs="*", default=[1000],
+                    help="loop lengths to cut from each KITTI file, m (the nearest found)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--draws", type=int, default=20000, help="motion-model paths per seed")
+    ap.add_argument("--particles", type=int, nargs="+", default=[200, 2000],
+                    help="the J to give the expected count and the chance of one for")
+    ap.add_argument("--course", default="arroyo-a", help="world kind and VO noise")
+    ap.add_argument("--config", type=Path, help="TOML config (configs/table1.toml: the "
+                    "course's calibrated motion noise)")
+    ap.add_argument("--set", action="append", default=[])
+    ap.add_argument("--vo-scale", type=float, default=1.0, help="the VO's noise times this")
+    ap.add_argument("--noise-scale", type=float, default=1.0,
+                    help="the motion model's alphas times this")
+    ap.add_argument("--overlap", type=float, default=20.0, help="metres driven past the loop")
+    ap.add_argument("--radius", type=float, default=2.0, help="revisit radius of KITTI cuts, m")
+    ap.add_argument("--from-json", type=Path, nargs="*", default=[],
+                    help="loop_closure --json files: their runs beside the prediction")
+    ap.add_argument("--json", type=Path, help="write settings and every row here")
+    args = ap.parse_args(argv)
+    env = environment()
+    print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
+    config = layered_config(args.config, args.course, args.set)
+    runs = {}
+    for r in read_rows(args.from_json):
+        if r.get("closed") is not None and "approach_within_1m" in r:
+            runs.setdefault((r["loop"], r["seed"]), []).append(r)
+    rows, summary = [], {}
+    with tempfile.TemporaryDirectory() as tmp:
+        todo = [circle_loop(Path(tmp), x, args.overlap) for x in args.circles]
+        for file in args.kitti:
+            todo += kitti_loops(Path(tmp), file, args.kitti_lengths, args.radius, args.overlap)
+        for loop in todo:
+            mine = []
+            for seed in args.seeds:
+                row = {"loop": loop.name, "length_m": loop.length_m, "seed": seed,
+                       **loop_bound(loop.file, loop.length_m, seed, config, args.course,
+                                    args.draws, args.vo_scale, args.noise_scale)}
+                rows.append(row)
+                if "p_within" not in row:
+                    print(f"{loop.name:>18} seed {seed}: {row['note']}", flush=True)
+                    continue
+                mine.append(row["p_within"])
+                expect = ", ".join(f"J={J}: {J * row['p_within']:.2f} "
+                                   f"({chance_of_one(row['p_within'], J):.0%})"
+                                   for J in args.particles)
+                seen = "; ".join(f"{r['proposal']} J={r['particles']}: "
+                                 f"{r['approach_within_1m']} "
+                                 f"{'closed' if r['closed'] else 'open'}"
+                                 for r in runs.get((loop.name, seed), []))
+                print(f"{loop.name:>18} seed {seed}: VO misses by {row['vo_miss_m']:6.2f} m, "
+                      f"nearest of {args.draws} draws {row['nearest_m']:.2f} m; within 1 m "
+                      f"expected (chance of one): {expect}"
+                      + (f" | the filter's: {seen}" if seen else ""), flush=True)
+            if mine:
+                p = np.asarray(mine)
+                summary[loop.name] = {
+                    "length_m": loop.length_m, "seeds": len(p),
+                    "chance": {J: float(np.mean(chance_of_one(p, J))) for J in args.particles},
+                    "particles_for_share": particles_for(p)}
+                s = summary[loop.name]
+                print(f"  {loop.name}: mean chance of a particle within 1 m at the approach "
+                      + ", ".join(f"J={J} {c:.0%}" for J, c in s["chance"].items())
+                      + f"; J for {SHARE:.0%}: {s['particles_for_share']:.0f}", flush=True)
+    if args.json:
+        settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+        settings["kitti"] = [str(p) for p in args.kitti]
+        settings["from_json"] = [str(p) for p in args.from_json]
+        args.json.write_text(json.dumps({"settings": settings, "environment": env,
+                                         "rows": rows, "summary": summary}, indent=1,
+                                        default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,83 @@
+"""``experiments.loop_bound``: the motion model's draws against the closed form on a straight
+drive, the chance of one particle within the tolerance and the J that reaches a share, and the
+experiment end to end at CI size."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gslam_jax.rbpf.motion import MotionParams
+
+
+def test_draws_along_a_straight_drive_have_the_closed_form_spread() -> None:
+    """Only along-track noise (eq. 2, alpha_d) on a straight drive along x: the end's x is
+    Gaussian with mean the sum of the steps and variance alpha_d^2 sum(s_t^2 d_t^2), s_t the
+    fallback scale on the flagged frames and 1 elsewhere; y and the heading do not move."""
+    from experiments.loop_bound import motion_draws
+
+    rng = np.random.default_rng(0)
+    T = 300
+    steps = rng.uniform(0.05, 0.3, T)
+    controls = np.stack([steps, np.zeros(T), np.zeros(T)], 1)
+    fallback = rng.random(T) < 0.2
+    params = MotionParams(0.05, 0.0, 0.0, 0.0, 3.0)
+    N = 40000
+    pose = np.asarray(motion_draws(jax.random.key(1), jnp.array([1.0, -2.0, 0.0]), controls,
+                                   fallback, params, N), np.float64)
+    var = 0.05 ** 2 * np.sum(np.where(fallback, 3.0, 1.0) ** 2 * steps ** 2)
+    assert np.mean(pose[:, 0]) == pytest.approx(1.0 + steps.sum(), abs=4 * np.sqrt(var / N))
+    # the sample variance of N Gaussians: relative standard error sqrt(2 / N)
+    assert np.var(pose[:, 0]) == pytest.approx(var, rel=4 * np.sqrt(2.0 / N))
+    np.testing.assert_allclose(pose[:, 1:], np.broadcast_to([-2.0, 0.0], (N, 2)), atol=1e-5)
+    # without the flags the variance is the VO's alone
+    pose = np.asarray(motion_draws(jax.random.key(1), jnp.zeros(3), controls, np.zeros(T, bool),
+                                   params, N), np.float64)
+    assert np.var(pose[:, 0]) == pytest.approx(0.05 ** 2 * np.sum(steps ** 2),
+                                               rel=4 * np.sqrt(2.0 / N))
+
+
+def test_the_chance_of_one_and_the_particles_a_share_needs() -> None:
+    from experiments.loop_bound import chance_of_one, particles_for
+
+    p = np.array([0.02, 0.001, 0.3, 0.0, 0.05])
+    J = 37
+    brute = [1.0 - np.prod(np.full(J, 1.0 - x)) for x in p]
+    np.testing.assert_allclose(chance_of_one(p, J), brute, rtol=1e-12, atol=1e-15)
+    assert particles_for(p, 0.8) == float("inf")  # a seed in five with p = 0: J -> inf
+    assert particles_for(p, 0.7) < float("inf")
+    p = p[p > 0]
+    J80 = particles_for(p, 0.8)
+    assert np.mean(chance_of_one(p, J80)) == pytest.approx(0.8, abs=1e-9)
+    assert np.mean(chance_of_one(p, 0.99 * J80)) < 0.8
+    assert particles_for(np.array([1.0, 1.0]), 0.8) == 1.0
+
+
+def test_the_bound_end_to_end_on_a_small_circle(tmp_path, capsys) -> None:
+    """A 40 m circle, one seed: the approach frame is loop_closure's, and the share within
+    1 m is a probability; the summary names the J that reaches 80 %."""
+    from experiments.loop_bound import main
+    from experiments.loop_closure import approach_frame
+    from experiments.loop_paths import START_M, circle_loop
+    from gslam_jax import loops
+    from gslam_jax.config import Config
+    from gslam_jax.datasets.sim_path import drive_path
+    from gslam_jax.vo.localmap import localmap_params
+
+    out = tmp_path / "bound.json"
+    assert main(["--circles", "40", "--seeds", "0", "--draws", "500", "--particles", "20",
+                 "--course", "mars-yard-a", "--json", str(out)]) == 0
+    assert "circle-40: mean chance of a particle within 1 m at the approach J=20" \
+        in capsys.readouterr().out
+    got = json.loads(out.read_text())
+    (row,) = got["rows"]
+    assert 0.0 <= row["p_within"] <= 1.0 and row["draws"] == 500
+    truth = drive_path(circle_loop(tmp_path, 40.0, 20.0).file, 0, "mars-yard-a").trajectory.poses
+    revisit = loops.find_revisit(truth, START_M, 20.0)
+    reach = localmap_params(Config()).max_range
+    assert row["approach_frame"] == approach_frame(truth, revisit, reach)
+    assert got["summary"]["circle-40"]["seeds"] == 1
