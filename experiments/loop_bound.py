@@ -94,6 +94,24 @@ def particles_for(p: np.ndarray, share: float = SHARE) -> float:
     return max(hi, 1.0)
 
 
+def against_runs(bounds: list[dict], runs: list[dict]) -> dict:
+    """Per "proposal J=..", over the ``loop_closure`` runs of a (loop, seed) that ``bounds``
+    has: the runs, the mean predicted chance of a particle within 1 m at the approach and the
+    share of runs that had one, the mean predicted count there (J p) and the runs' mean."""
+    p = {(b["loop"], b["seed"]): b["p_within"] for b in bounds if "p_within" in b}
+    got = {}
+    for r in runs:
+        if (r["loop"], r["seed"]) in p and r.get("closed") is not None \
+                and "approach_within_1m" in r:
+            pr, J = p[(r["loop"], r["seed"])], r["particles"]
+            got.setdefault(f"{r['proposal']} J={J}", []).append(
+                (chance_of_one(pr, J), r["approach_within_1m"] > 0, J * pr,
+                 r["approach_within_1m"]))
+    return {name: dict(zip(("chance", "had_one", "expected", "count"),
+                           np.mean(np.asarray(v, np.float64), axis=0).tolist()), runs=len(v))
+            for name, v in sorted(got.items())}
+
+
 def loop_bound(file: Path, length_m: float, seed: int, config, course: str, draws: int,
                vo_scale: float = 1.0, noise_scale: float = 1.0) -> dict:
     """One loop at one seed: the approach frame, the share of ``draws`` motion-model paths
@@ -142,8 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     env = environment()
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
     config = layered_config(args.config, args.course, args.set)
-    runs = {}
-    for r in read_rows(args.from_json):
+    filtered, runs = read_rows(args.from_json), {}
+    for r in filtered:
         if r.get("closed") is not None and "approach_within_1m" in r:
             runs.setdefault((r["loop"], r["seed"]), []).append(r)
     rows, summary = [], {}
@@ -183,12 +201,18 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  {loop.name}: mean chance of a particle within 1 m at the approach "
                       + ", ".join(f"J={J} {c:.0%}" for J, c in s["chance"].items())
                       + f"; J for {SHARE:.0%}: {s['particles_for_share']:.0f}", flush=True)
+    seen = against_runs(rows, filtered)
+    for name, c in seen.items():
+        print(f"  the filter's runs, {name} ({c['runs']}): predicted chance of a particle within "
+              f"1 m at the approach {c['chance']:.0%}, had one {c['had_one']:.0%}; within 1 m "
+              f"{c['expected']:.1f} predicted, {c['count']:.1f} had (means)", flush=True)
     if args.json:
         settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
         settings["kitti"] = [str(p) for p in args.kitti]
         settings["from_json"] = [str(p) for p in args.from_json]
         args.json.write_text(json.dumps({"settings": settings, "environment": env,
-                                         "rows": rows, "summary": summary}, indent=1,
+                                         "rows": rows, "summary": summary,
+                                         "against_runs": seen}, indent=1,
                                         default=float))
     return 0
 

@@ -81,3 +81,23 @@ def test_the_bound_end_to_end_on_a_small_circle(tmp_path, capsys) -> None:
     reach = localmap_params(Config()).max_range
     assert row["approach_frame"] == approach_frame(truth, revisit, reach)
     assert got["summary"]["circle-40"]["seeds"] == 1
+
+
+def test_the_prediction_is_set_beside_the_filters_runs() -> None:
+    """``against_runs``: per (proposal, J) the mean predicted chance and count against the
+    share of runs with a particle within 1 m and their mean count, by hand; runs of a loop or
+    seed without a bound, and runs that recorded no cloud, are left out."""
+    from experiments.loop_bound import against_runs, chance_of_one
+
+    bounds = [{"loop": "a", "seed": 0, "p_within": 0.01}, {"loop": "a", "seed": 1,
+              "p_within": 0.0}, {"loop": "b", "seed": 0, "note": "no revisit"}]
+    run = {"loop": "a", "proposal": "motion", "particles": 200, "closed": True}
+    runs = [dict(run, seed=0, approach_within_1m=3), dict(run, seed=1, approach_within_1m=0),
+            dict(run, seed=2, approach_within_1m=5), dict(run, seed=0, loop="b",
+            approach_within_1m=1), dict(run, seed=0, particles=20)]
+    got = against_runs(bounds, runs)
+    assert list(got) == ["motion J=200"]
+    c = got["motion J=200"]
+    assert c["runs"] == 2 and c["had_one"] == 0.5 and c["count"] == 1.5
+    assert c["chance"] == pytest.approx(chance_of_one(0.01, 200) / 2)
+    assert c["expected"] == pytest.approx(1.0)
