@@ -78,7 +78,7 @@ def first_returns(xy: np.ndarray, radius: float) -> np.ndarray:
 
 def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5,
                lead_m: float = 20.0) -> list[tuple[int, int, float]]:
-    """(a, b, loop length) per requested length: the first return b of a pose a
+    """(a, b, loop length) per requested length, each cut once: the first return b of a pose a
     (``first_returns``), the pair whose loop is nearest the length; a runs over every
     ``every``-th pose. Only simple loops count: a cut is skipped where a pose inside it returns
     more than ``lead_m`` of travel before b (KITTI 08's 598 m loop holds its 478 m one, which
@@ -99,7 +99,9 @@ def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5,
     for want in lengths:
         if not found:
             break
-        out.append(min(found, key=lambda f: abs(f[2] - want)))
+        cut = min(found, key=lambda f: abs(f[2] - want))
+        if cut not in out:  # two lengths nearest one cut drive it once
+            out.append(cut)
     return out
 
 

@@ -347,3 +347,6 @@ def test_kitti_cuts_skip_a_loop_that_holds_a_shorter_one(tmp_path) -> None:
     assert 195.0 <= length <= 205.0  # the circle, from where its end meets the spur
     (a, b, length), = kitti_cuts(file, [320.0], radius=2.0, every=1, lead_m=1e9)
     assert a == 0 and 316.0 <= length <= 320.0  # back within 2 m of x = 0 at x = 2
+    # two lengths nearest the same cut give it once, so it is not driven twice
+    assert kitti_cuts(file, [250.0, 320.0], radius=2.0, every=1) == \
+        kitti_cuts(file, [320.0], radius=2.0, every=1)
