@@ -78,12 +78,14 @@ def first_returns(xy: np.ndarray, radius: float) -> np.ndarray:
 
 def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5,
                lead_m: float = 20.0) -> list[tuple[int, int, float]]:
-    """(a, b, loop length) per requested length, each cut once: the first return b of a pose a
-    (``first_returns``), the pair whose loop is nearest the length; a runs over every
+    """(a, b, loop length) per requested length, each loop once: the first return b of a pose
+    a (``first_returns``), the pair whose loop is nearest the length; a runs over every
     ``every``-th pose. Only simple loops count: a cut is skipped where a pose inside it returns
     more than ``lead_m`` of travel before b (KITTI 08's 598 m loop holds its 478 m one, which
     the filter meets and closes first; returns just before b are the same revisit, met from
-    the other side)."""
+    the other side). A cut whose start and end both lie within ``lead_m`` of travel of an
+    earlier one's is that loop again and is not given twice (KITTI 05's cuts nearest 850 m and
+    1000 m are its 854 m loop from pose 1560 and its 855 m loop from pose 1555)."""
     xy = _kitti_xy(file)
     arc = loops.arc_length(xy)
     back = first_returns(xy, radius)
@@ -95,12 +97,13 @@ def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5,
             early = inside[inside < b]
             if early.size == 0 or arc[early.min()] >= arc[b] - lead_m:
                 found.append((a, b, float(arc[b] - arc[a])))
-    out = []
+    out: list[tuple[int, int, float]] = []
     for want in lengths:
         if not found:
             break
         cut = min(found, key=lambda f: abs(f[2] - want))
-        if cut not in out:  # two lengths nearest one cut drive it once
+        if not any(abs(arc[cut[0]] - arc[a]) <= lead_m and abs(arc[cut[1]] - arc[b]) <= lead_m
+                   for a, b, _ in out):  # two lengths nearest one loop drive it once
             out.append(cut)
     return out
 

@@ -350,3 +350,7 @@ def test_kitti_cuts_skip_a_loop_that_holds_a_shorter_one(tmp_path) -> None:
     # two lengths nearest the same cut give it once, so it is not driven twice
     assert kitti_cuts(file, [250.0, 320.0], radius=2.0, every=1) == \
         kitti_cuts(file, [320.0], radius=2.0, every=1)
+    # nor a near copy: 198 m from pose 101 (x = 50.5) back to pose 499 is the circle from pose
+    # 122 (x = 61) again, entered and left within 20 m of travel of it
+    cuts = kitti_cuts(file, [196.0, 199.0], radius=2.0, every=1)
+    assert len(cuts) == 1 and 195.0 <= cuts[0][2] <= 205.0
