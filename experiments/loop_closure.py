@@ -17,6 +17,8 @@ error and map offset <= 1 m) of the final best particle's path, of the final den
 path (``[filter] estimate = "mode"``: after a revisit's resampling the weights are nearly equal,
 and the best particle can be one of the few that missed the start while most of the weight is
 near the truth; ``--verdict mode`` summarises by it) and of the VO-only path.
+--vo-scale F drives the loops with every std of the course's VO noise times F (a better or
+worse VO), and --noise-scale F multiplies the filter's alphas, as in ``experiments.loop_bound``.
 
 Each run also records the cloud just before the sensor can first see the start's map
 (``approach_*``: the particle nearest the truth, and how many are within 1, 2, 3 and 5 m of
@@ -44,11 +46,12 @@ from typing import Collection
 
 import numpy as np
 
+from experiments.common import scaled_alphas
 from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops
 from experiments.loop_summary import VERDICTS, plot, print_summary, read_rows
 from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
-from gslam_jax.datasets.sim_path import simulate_path
+from gslam_jax.datasets.sim_path import simulate_path, world_kind
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
@@ -177,8 +180,11 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
     return rows
 
 
-# The settings that decide what a run computes: a resumed file must have the same.
-RUN_SETTINGS = ("config", "set", "store", "course", "overlap", "margin_per_m", "radius")
+# The settings that decide what a run computes: a resumed file must have the same (a file
+# written before a setting existed was made at its value in RUN_SETTING_BEFORE).
+RUN_SETTINGS = ("config", "set", "store", "course", "overlap", "margin_per_m", "radius",
+                "vo_scale", "noise_scale")
+RUN_SETTING_BEFORE = {"vo_scale": 1.0, "noise_scale": 1.0}
 
 
 def resumed_rows(file: Path | None, settings: dict) -> list[dict]:
@@ -191,10 +197,10 @@ def resumed_rows(file: Path | None, settings: dict) -> list[dict]:
     rows = read_rows([file])
     before = json.loads(Path(file).read_text()).get("settings", {})
     for name in RUN_SETTINGS:
-        if before.get(name) != settings[name]:
+        made = before.get(name, RUN_SETTING_BEFORE.get(name))
+        if made != settings[name]:
             raise SystemExit(f"{file}: --resume with --{name.replace('_', '-')} "
-                             f"{settings[name]!r}, but its runs were made with "
-                             f"{before.get(name)!r}")
+                             f"{settings[name]!r}, but its runs were made with {made!r}")
     return rows
 
 
@@ -222,6 +228,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--store", default="auto", choices=["dense", "shared", "auto"])
     ap.add_argument("--course", default="mars-yard-a", help="world kind and VO noise")
+    ap.add_argument("--vo-scale", type=float, default=1.0,
+                    help="the VO's noise (every std of the course's profile) times this")
+    ap.add_argument("--noise-scale", type=float, default=1.0,
+                    help="the filter's motion noise (the config's alphas) times this")
     ap.add_argument("--overlap", type=float, default=20.0, help="metres driven past the loop")
     ap.add_argument("--margin-per-m", type=float, default=0.1,
                     help="map margin (m) per metre of loop, at least [map] margin")
@@ -253,7 +263,10 @@ def main(argv: list[str] | None = None) -> int:
             plot(rows, args.plot, args.verdict)
         return 0
     env = environment()
-    config = layered_config(args.config, args.course, args.set + [f"map.store={args.store}"])
+    config = scaled_alphas(layered_config(args.config, args.course,
+                                          args.set + [f"map.store={args.store}"]),
+                           args.noise_scale)
+    vo_noise = world_kind(args.course)[1].scaled(args.vo_scale)
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
     settings["kitti"] = [str(p) for p in args.kitti]
@@ -290,7 +303,7 @@ def main(argv: list[str] | None = None) -> int:
                         if (r["loop"], r["seed"]) == (loop.name, seed)}
                 run_loop(loop, seed, config, args.particles, args.proposals,
                          args.informed_max_length, args.informed_particles, course=args.course,
-                         margin_per_m=args.margin_per_m, on_row=on_row,
+                         margin_per_m=args.margin_per_m, vo_noise=vo_noise, on_row=on_row,
                          progress=args.progress, skip=done)
     summ = print_summary(rows, args.verdict)
     settings["summary"] = {k: {"rates": {str(x): v for x, v in s["rates"].items()},

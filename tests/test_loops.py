@@ -296,6 +296,37 @@ def test_resume_runs_only_the_runs_missing_from_the_file(tmp_path, monkeypatch, 
         lc.main(args + ["--seeds", "1", "2"])
     with pytest.raises(SystemExit, match=r"runs\.json: --resume with --course 'arroyo-a'"):
         lc.main(args + ["--seeds", "1", "--course", "arroyo-a"])
+    # a file written before --vo-scale existed was made with the VO's own noise
+    with pytest.raises(SystemExit, match=r"--resume with --vo-scale 0\.3, but its runs were "
+                                         r"made with 1\.0"):
+        lc.main(args + ["--seeds", "1", "--vo-scale", "0.3"])
+
+
+def test_the_vo_and_noise_scales_reach_the_simulation_and_the_filter(monkeypatch) -> None:
+    """--vo-scale multiplies every std of the course's VO profile the loop is driven with,
+    --noise-scale the alphas of the filter's motion model."""
+    import experiments.loop_closure as lc
+    from gslam_jax.config import layered_config
+    from gslam_jax.sim.vonoise import VO_PROFILES
+
+    seen = {}
+
+    class Simulated(Exception):
+        pass
+
+    def simulate(file_, length, seed, config, course, max_frames, margin, vo_noise):
+        seen.update(motion=config.motion, vo=vo_noise)
+        raise Simulated
+
+    monkeypatch.setattr(lc, "simulate_loop", simulate)
+    with pytest.raises(Simulated):
+        lc.main(["--circles", "30", "--particles", "8", "--proposals", "motion", "--seeds", "1",
+                 "--course", "arroyo-a", "--vo-scale", "0.3", "--noise-scale", "2"])
+    given, profile = layered_config(None, "arroyo-a", []).motion, VO_PROFILES["arroyo-a"]
+    assert seen["vo"] == profile.scaled(0.3)
+    assert seen["vo"].heading_bias_std == pytest.approx(0.3 * profile.heading_bias_std)
+    for name in ("alpha_d", "alpha_theta_d", "alpha_theta"):
+        assert getattr(seen["motion"], name) == pytest.approx(2 * getattr(given, name))
 
 
 def test_approach_cloud_reads_its_frame_of_a_hand_made_cloud() -> None:
