@@ -101,3 +101,46 @@ def test_the_prediction_is_set_beside_the_filters_runs() -> None:
     assert c["runs"] == 2 and c["had_one"] == 0.5 and c["count"] == 1.5
     assert c["chance"] == pytest.approx(chance_of_one(0.01, 200) / 2)
     assert c["expected"] == pytest.approx(1.0)
+
+
+def test_the_gaussian_fit_gives_the_mass_within_the_radius() -> None:
+    """``gaussian_within`` on points drawn from a Gaussian: centred or not, the mass of the
+    disc against the noncentral chi-square law (isotropic) and against SciPy's quadrature of
+    the density over the disc (an elongated, turned cloud)."""
+    from scipy import integrate, stats
+
+    from experiments.loop_bound import gaussian_within
+
+    rng = np.random.default_rng(0)
+    for sigma, offset in [(0.5, 0.0), (0.5, 0.7), (3.0, 2.0), (20.0, 30.0)]:
+        xy = rng.normal(0.0, sigma, (200000, 2))
+        exact = stats.ncx2.cdf(1.0 / sigma ** 2, df=2, nc=offset ** 2 / sigma ** 2)
+        assert gaussian_within(xy, np.array([offset, 0.0]), 1.0) == pytest.approx(exact, rel=0.02)
+    cov = np.array([[4.0, 1.5], [1.5, 1.0]])
+    xy = rng.multivariate_normal([1.0, -1.0], cov, 400000)
+    law = stats.multivariate_normal(xy.mean(0), np.cov(xy.T))
+    target = np.array([2.0, 0.5])
+    exact, _ = integrate.dblquad(
+        lambda r, a: law.pdf(target + r * np.array([np.cos(a), np.sin(a)])) * r,
+        0.0, 2.0 * np.pi, 0.0, 1.5)
+    assert gaussian_within(xy, target, 1.5) == pytest.approx(exact, rel=1e-3)
+
+
+def test_the_cloud_round_a_loop_grows_as_its_length_to_the_three_halves() -> None:
+    """Heading noise alone (eq. 3's per-metre term) round circles of 200 m and 400 m walked in
+    the same steps: the heading's variance grows as the length L, and every step's heading
+    error moves the end by its lever arm (of order L), so the end's position covariance grows
+    as L^3 and the area of the cloud (sqrt det) eightfold. The chance of a particle within
+    1 m then falls as L^-3, and the particles a loop needs grow as L^3."""
+    from experiments.loop_bound import motion_draws
+
+    def cloud(length: float, step: float = 0.5, draws: int = 8000) -> float:
+        T = int(round(length / step))
+        controls = np.tile([step, 0.0, 2 * np.pi / T], (T, 1))
+        pose = np.asarray(motion_draws(jax.random.key(3), jnp.zeros(3), controls,
+                                       np.zeros(T, bool), MotionParams(0.0, 0.01, 0.0), draws),
+                          np.float64)
+        return float(np.sqrt(np.linalg.det(np.cov(pose[:, :2].T))))
+
+    # the sample covariance's determinant of 8000 draws: a few per cent
+    assert cloud(400.0) / cloud(200.0) == pytest.approx(8.0, rel=0.08)
