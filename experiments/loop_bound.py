@@ -12,9 +12,14 @@ scaled as the filter scales them), and reports per seed the share p of draws wit
 the truth at the approach frame (``loop_closure.approach_frame``), the expected number there
 among J particles (J p) and the chance that at least one is (1 - (1 - p)^J): the closure rate
 J particles can reach with flat weights. Per loop it gives the mean of that chance over the
-seeds at each J, and the J at which it reaches 80 %. The filter's clouds at J = 200 match it;
-at J = 2000 they left it both ways, the resampling keeping hypotheses that flat draws do not
-(docs/results.md, "Which loops J particles can close").
+seeds at each J, and the J at which it reaches 80 %. p is given twice: counted among the draws
+(``p_within``: 0 where it is under 1 / N) and as the mass within 1 m of a Gaussian fitted to
+them (``p_gauss``, ``gaussian_within``), with the cloud's spread (``spread_m``: the geometric
+mean of its two standard deviations). Heading noise makes that spread grow as L^(3/2) round a
+loop of length L, so where the truth lies inside the cloud p falls as L^-3 and the J a loop
+needs grows as L^3 (docs/results.md, "How far the cloud reaches"). The filter's clouds at
+J = 200 match the bound; at J = 2000 they left it both ways, the resampling keeping hypotheses
+that flat draws do not (docs/results.md, "Which loops J particles can close").
 
     python -m experiments.loop_bound --course arroyo-a --config configs/table1.toml \\
         --circles 400 800 1000 --kitti ../shared/data/kitti-poses/00.txt \\
@@ -22,8 +27,9 @@ at J = 2000 they left it both ways, the resampling keeping hypotheses that flat 
 
 --from-json: ``loop_closure`` --json files whose runs (same loop and seed) are printed beside
 the prediction: the particles the filter had within 1 m at the approach, and whether it
-closed. --vo-scale F draws the VO with the course's noise times F (a better or worse VO), and
---noise-scale F multiplies the motion model's alphas.
+closed. --vo-scale F draws the VO with the course's noise times F (a better or worse VO),
+--vo-failures F its failures' rate times F (0: none), and --noise-scale F multiplies the motion
+model's alphas.
 """
 
 from __future__ import annotations
@@ -40,11 +46,11 @@ import numpy as np
 from jax import Array, lax
 
 from experiments.loop_closure import approach_frame
-from experiments.loop_paths import START_M, circle_loop, kitti_loops
+from experiments.loop_paths import START_M, circle_loop, kitti_loops, vo_noise
 from experiments.loop_summary import read_rows
 from gslam_jax import loops
 from gslam_jax.config import layered_config
-from gslam_jax.datasets.sim_path import drive_path, world_kind
+from gslam_jax.datasets.sim_path import drive_path
 from gslam_jax.machine import environment
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, scaled
 from gslam_jax.sizing import motion_params
@@ -134,11 +140,11 @@ def against_runs(bounds: list[dict], runs: list[dict]) -> dict:
 
 
 def loop_bound(file: Path, length_m: float, seed: int, config, course: str, draws: int,
-               vo_scale: float = 1.0, noise_scale: float = 1.0) -> dict:
+               vo_scale: float = 1.0, noise_scale: float = 1.0, vo_failures: float = 1.0
+               ) -> dict:
     """One loop at one seed: the approach frame, the share of ``draws`` motion-model paths
     within ``loops.TOLERANCE`` of the truth there, and the nearest draw."""
-    noise = world_kind(course)[1].scaled(vo_scale)
-    odo = drive_path(file, seed, course, vo_noise=noise)
+    odo = drive_path(file, seed, course, vo_noise=vo_noise(course, vo_scale, vo_failures))
     truth = np.asarray(odo.trajectory.poses, np.float64)
     revisit = loops.find_revisit(truth, START_M, 0.5 * length_m)
     if revisit is None:
@@ -175,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vo-scale", type=float, default=1.0, help="the VO's noise times this")
     ap.add_argument("--noise-scale", type=float, default=1.0,
                     help="the motion model's alphas times this")
+    ap.add_argument("--vo-failures", type=float, default=1.0,
+                    help="the rate of VO failures (wheel-odometry bursts) times this")
     ap.add_argument("--overlap", type=float, default=20.0, help="metres driven past the loop")
     ap.add_argument("--radius", type=float, default=2.0, help="revisit radius of KITTI cuts, m")
     ap.add_argument("--from-json", type=Path, nargs="*", default=[],
@@ -198,7 +206,8 @@ def main(argv: list[str] | None = None) -> int:
             for seed in args.seeds:
                 row = {"loop": loop.name, "length_m": loop.length_m, "seed": seed,
                        **loop_bound(loop.file, loop.length_m, seed, config, args.course,
-                                    args.draws, args.vo_scale, args.noise_scale)}
+                                    args.draws, args.vo_scale, args.noise_scale,
+                                    args.vo_failures)}
                 rows.append(row)
                 if "p_within" not in row:
                     print(f"{loop.name:>18} seed {seed}: {row['note']}", flush=True)

@@ -18,7 +18,8 @@ path (``[filter] estimate = "mode"``: after a revisit's resampling the weights a
 and the best particle can be one of the few that missed the start while most of the weight is
 near the truth; ``--verdict mode`` summarises by it) and of the VO-only path.
 --vo-scale F drives the loops with every std of the course's VO noise times F (a better or
-worse VO), and --noise-scale F multiplies the filter's alphas, as in ``experiments.loop_bound``.
+worse VO), --vo-failures F with its failures' rate times F (0: a VO that never fails), and
+--noise-scale F multiplies the filter's alphas, as in ``experiments.loop_bound``.
 
 Each run also records the cloud just before the sensor can first see the start's map
 (``approach_*``: the particle nearest the truth, and how many are within 1, 2, 3 and 5 m of
@@ -47,11 +48,11 @@ from typing import Collection
 import numpy as np
 
 from experiments.common import scaled_alphas
-from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops
+from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops, vo_noise
 from experiments.loop_summary import VERDICTS, plot, print_summary, read_rows
 from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
-from gslam_jax.datasets.sim_path import simulate_path, world_kind
+from gslam_jax.datasets.sim_path import simulate_path
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
@@ -183,8 +184,8 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
 # The settings that decide what a run computes: a resumed file must have the same (a file
 # written before a setting existed was made at its value in RUN_SETTING_BEFORE).
 RUN_SETTINGS = ("config", "set", "store", "course", "overlap", "margin_per_m", "radius",
-                "vo_scale", "noise_scale")
-RUN_SETTING_BEFORE = {"vo_scale": 1.0, "noise_scale": 1.0}
+                "vo_scale", "vo_failures", "noise_scale")
+RUN_SETTING_BEFORE = {"vo_scale": 1.0, "vo_failures": 1.0, "noise_scale": 1.0}
 
 
 def resumed_rows(file: Path | None, settings: dict) -> list[dict]:
@@ -230,6 +231,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--course", default="mars-yard-a", help="world kind and VO noise")
     ap.add_argument("--vo-scale", type=float, default=1.0,
                     help="the VO's noise (every std of the course's profile) times this")
+    ap.add_argument("--vo-failures", type=float, default=1.0,
+                    help="the rate of VO failures (wheel-odometry bursts) times this")
     ap.add_argument("--noise-scale", type=float, default=1.0,
                     help="the filter's motion noise (the config's alphas) times this")
     ap.add_argument("--overlap", type=float, default=20.0, help="metres driven past the loop")
@@ -266,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     config = scaled_alphas(layered_config(args.config, args.course,
                                           args.set + [f"map.store={args.store}"]),
                            args.noise_scale)
-    vo_noise = world_kind(args.course)[1].scaled(args.vo_scale)
+    noise = vo_noise(args.course, args.vo_scale, args.vo_failures)
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
     settings["kitti"] = [str(p) for p in args.kitti]
@@ -303,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
                         if (r["loop"], r["seed"]) == (loop.name, seed)}
                 run_loop(loop, seed, config, args.particles, args.proposals,
                          args.informed_max_length, args.informed_particles, course=args.course,
-                         margin_per_m=args.margin_per_m, vo_noise=vo_noise, on_row=on_row,
+                         margin_per_m=args.margin_per_m, vo_noise=noise, on_row=on_row,
                          progress=args.progress, skip=done)
     summ = print_summary(rows, args.verdict)
     settings["summary"] = {k: {"rates": {str(x): v for x, v in s["rates"].items()},

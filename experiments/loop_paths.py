@@ -8,14 +8,26 @@ one loop later (``loops.find_revisit``); a KITTI cut therefore starts that far b
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from gslam_jax import loops
+from gslam_jax.datasets.sim_path import world_kind
+from gslam_jax.sim.vonoise import VONoiseParams
 
 START_M = 10.0  # the revisit's first frame: this far along the loop
+
+
+def vo_noise(course: str, scale: float = 1.0, failures: float = 1.0) -> VONoiseParams:
+    """The VO noise the loops of ``course`` are driven with: its profile (``world_kind``)
+    with every std times ``scale`` (white noise and slow biases, ``VONoiseParams.scaled``) and
+    the rate of VO-failure bursts (frames on wheel odometry, whose noise is the wheels')
+    times ``failures`` (0: a VO that never fails)."""
+    noise = world_kind(course)[1].scaled(scale)
+    return dataclasses.replace(noise, failure_rate=noise.failure_rate * failures)
 
 
 class Loop(NamedTuple):

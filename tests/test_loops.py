@@ -304,7 +304,8 @@ def test_resume_runs_only_the_runs_missing_from_the_file(tmp_path, monkeypatch, 
 
 def test_the_vo_and_noise_scales_reach_the_simulation_and_the_filter(monkeypatch) -> None:
     """--vo-scale multiplies every std of the course's VO profile the loop is driven with,
-    --noise-scale the alphas of the filter's motion model."""
+    --vo-failures its rate of failures, --noise-scale the alphas of the filter's motion
+    model."""
     import experiments.loop_closure as lc
     from gslam_jax.config import layered_config
     from gslam_jax.sim.vonoise import VO_PROFILES
@@ -321,10 +322,13 @@ def test_the_vo_and_noise_scales_reach_the_simulation_and_the_filter(monkeypatch
     monkeypatch.setattr(lc, "simulate_loop", simulate)
     with pytest.raises(Simulated):
         lc.main(["--circles", "30", "--particles", "8", "--proposals", "motion", "--seeds", "1",
-                 "--course", "arroyo-a", "--vo-scale", "0.3", "--noise-scale", "2"])
+                 "--course", "arroyo-a", "--vo-scale", "0.3", "--noise-scale", "2",
+                 "--vo-failures", "0.5"])
     given, profile = layered_config(None, "arroyo-a", []).motion, VO_PROFILES["arroyo-a"]
-    assert seen["vo"] == profile.scaled(0.3)
     assert seen["vo"].heading_bias_std == pytest.approx(0.3 * profile.heading_bias_std)
+    assert seen["vo"].alpha_theta_d == pytest.approx(0.3 * profile.alpha_theta_d)
+    assert seen["vo"].failure_rate == pytest.approx(0.5 * profile.failure_rate)
+    assert seen["vo"].wheel_alpha_theta_d == profile.wheel_alpha_theta_d
     for name in ("alpha_d", "alpha_theta_d", "alpha_theta"):
         assert getattr(seen["motion"], name) == pytest.approx(2 * getattr(given, name))
 
