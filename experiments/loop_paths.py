@@ -96,8 +96,8 @@ def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5,
     more than ``lead_m`` of travel before b (KITTI 08's 598 m loop holds its 478 m one, which
     the filter meets and closes first; returns just before b are the same revisit, met from
     the other side). A cut whose start and end both lie within ``lead_m`` of travel of an
-    earlier one's is that loop again and is not given twice (KITTI 05's cuts nearest 850 m and
-    1000 m are its 854 m loop from pose 1560 and its 855 m loop from pose 1555)."""
+    earlier one's is that loop again and is not given twice (KITTI 05's nearest 850 m and
+    1000 m would be its 854 m loop from pose 1560 and its 855 m loop from pose 1555: one loop)."""
     xy = _kitti_xy(file)
     arc = loops.arc_length(xy)
     back = first_returns(xy, radius)
