@@ -163,6 +163,22 @@ def loop_bound(file: Path, length_m: float, seed: int, config, course: str, draw
             "vo_miss_m": float(np.hypot(*(vo[:2] - truth[frame, :2])))}
 
 
+def summarise(rows: list[dict], particles: list[int]) -> dict:
+    """One loop's seeds (``loop_bound`` rows): the mean chance over them that one of J
+    particles is within 1 m at the approach and the J at which it reaches ``SHARE``, from the
+    count (``chance``) and from the Gaussian fit (``chance_gauss``); the medians of the cloud's
+    spread and of the VO's miss there."""
+    p = np.asarray([r["p_within"] for r in rows])
+    pg = np.asarray([r["p_gauss"] for r in rows])
+    return {"length_m": rows[0]["length_m"], "seeds": len(rows),
+            "chance": {J: float(np.mean(chance_of_one(p, J))) for J in particles},
+            "particles_for_share": particles_for(p),
+            "chance_gauss": {J: float(np.mean(chance_of_one(pg, J))) for J in particles},
+            "particles_for_share_gauss": particles_for(pg),
+            "spread_m": float(np.median([r["spread_m"] for r in rows])),
+            "vo_miss_median_m": float(np.median([r["vo_miss_m"] for r in rows]))}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--circles", type=float, nargs="*", default=[400, 800, 1000],
@@ -212,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
                 if "p_within" not in row:
                     print(f"{loop.name:>18} seed {seed}: {row['note']}", flush=True)
                     continue
-                mine.append((row["p_within"], row["p_gauss"]))
+                mine.append(row)
                 expect = ", ".join(f"J={J}: {J * row['p_within']:.2f} "
                                    f"({chance_of_one(row['p_within'], J):.0%})"
                                    for J in args.particles)
@@ -225,16 +241,10 @@ def main(argv: list[str] | None = None) -> int:
                       f"expected (chance of one): {expect}"
                       + (f" | the filter's: {seen}" if seen else ""), flush=True)
             if mine:
-                p, pg = np.asarray(mine).T
-                summary[loop.name] = {
-                    "length_m": loop.length_m, "seeds": len(p),
-                    "chance": {J: float(np.mean(chance_of_one(p, J))) for J in args.particles},
-                    "particles_for_share": particles_for(p),
-                    "chance_gauss": {J: float(np.mean(chance_of_one(pg, J)))
-                                     for J in args.particles},
-                    "particles_for_share_gauss": particles_for(pg)}
-                s = summary[loop.name]
-                print(f"  {loop.name}: mean chance of a particle within 1 m at the approach "
+                summary[loop.name] = s = summarise(mine, args.particles)
+                print(f"  {loop.name}: the cloud's spread {s['spread_m']:.2f} m, the VO's miss "
+                      f"{s['vo_miss_median_m']:.1f} m (medians); mean chance of a particle "
+                      "within 1 m at the approach "
                       + ", ".join(f"J={J} {c:.0%}" for J, c in s["chance"].items())
                       + f"; J for {SHARE:.0%}: {s['particles_for_share']:.0f} (the draws "
                       f"counted); from the Gaussian fit "

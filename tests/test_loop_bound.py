@@ -71,7 +71,7 @@ def test_the_bound_end_to_end_on_a_small_circle(tmp_path, capsys) -> None:
     out = tmp_path / "bound.json"
     assert main(["--circles", "40", "--seeds", "0", "--draws", "500", "--particles", "20",
                  "--course", "mars-yard-a", "--json", str(out)]) == 0
-    assert "circle-40: mean chance of a particle within 1 m at the approach J=20" \
+    assert "mean chance of a particle within 1 m at the approach J=20" \
         in capsys.readouterr().out
     got = json.loads(out.read_text())
     (row,) = got["rows"]
@@ -80,7 +80,9 @@ def test_the_bound_end_to_end_on_a_small_circle(tmp_path, capsys) -> None:
     revisit = loops.find_revisit(truth, START_M, 20.0)
     reach = localmap_params(Config()).max_range
     assert row["approach_frame"] == approach_frame(truth, revisit, reach)
-    assert got["summary"]["circle-40"]["seeds"] == 1
+    s = got["summary"]["circle-40"]
+    assert s["seeds"] == 1 and s["vo_miss_median_m"] == row["vo_miss_m"]
+    assert s["spread_m"] == row["spread_m"] > 0.0 and 0.0 <= row["p_gauss"] <= 1.0
 
 
 def test_the_prediction_is_set_beside_the_filters_runs() -> None:
@@ -144,3 +146,20 @@ def test_the_cloud_round_a_loop_grows_as_its_length_to_the_three_halves() -> Non
 
     # the sample covariance's determinant of 8000 draws: a few per cent
     assert cloud(400.0) / cloud(200.0) == pytest.approx(8.0, rel=0.08)
+
+
+def test_a_loops_summary_over_its_seeds_by_hand() -> None:
+    from experiments.loop_bound import chance_of_one, summarise
+
+    rows = [{"length_m": 800.0, "p_within": p, "p_gauss": g, "spread_m": sp, "vo_miss_m": m}
+            for p, g, sp, m in [(0.01, 0.012, 7.0, 5.0), (0.0, 1e-5, 8.0, 30.0),
+                                (0.002, 0.003, 6.0, 9.0)]]
+    s = summarise(rows, [200])
+    assert (s["length_m"], s["seeds"], s["spread_m"], s["vo_miss_median_m"]) == (800.0, 3, 7.0,
+                                                                                   9.0)
+    assert s["chance"][200] == pytest.approx(np.mean([chance_of_one(p, 200)
+                                                      for p in (0.01, 0.0, 0.002)]))
+    assert s["chance_gauss"][200] == pytest.approx(np.mean([chance_of_one(g, 200)
+                                                            for g in (0.012, 1e-5, 0.003)]))
+    assert s["particles_for_share"] == float("inf")  # a seed in three with p = 0
+    assert s["particles_for_share_gauss"] < float("inf")
