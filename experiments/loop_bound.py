@@ -102,16 +102,15 @@ def particles_for(p: np.ndarray, share: float = SHARE) -> float:
     return max(hi, 1.0)
 
 
-def gaussian_within(xy: np.ndarray, target: np.ndarray, radius: float, rings: int = 24,
-                    angles: int = 48) -> float:
-    """The mass within ``radius`` of ``target`` [2] of the Gaussian fitted to the points ``xy``
-    [N, 2] (their mean and covariance), by the midpoint rule on a polar grid over the disc.
+def gaussian_within(mean: np.ndarray, cov: np.ndarray, target: np.ndarray, radius: float,
+                    rings: int = 24, angles: int = 48) -> float:
+    """The mass within ``radius`` of ``target`` [2] of the Gaussian N(``mean``, ``cov``) (2-D),
+    by the midpoint rule on a polar grid over the disc.
 
-    Where few of N draws fall within the radius (a long loop: p below 1 / N), the count says
-    only "under 1 / N"; the fit resolves it from the spread of all N draws, on the assumption
-    that the cloud is Gaussian (a sum of many small steps' noise)."""
-    xy = np.asarray(xy, np.float64)
-    mean, cov = xy.mean(0), np.cov(xy.T)
+    ``loop_bound`` fits it to the draws (their mean and covariance): where few of N draws fall
+    within the radius (a long loop: p below 1 / N), the count says only "under 1 / N", and the
+    fit resolves it from the spread of all N draws, on the assumption that the cloud is
+    Gaussian (a sum of many small steps' noise)."""
     inv, det = np.linalg.inv(cov), np.linalg.det(cov)
     r = (np.arange(rings) + 0.5) * (radius / rings)
     a = (np.arange(angles) + 0.5) * (2.0 * np.pi / angles)
@@ -155,10 +154,11 @@ def loop_bound(file: Path, length_m: float, seed: int, config, course: str, draw
                         odo.vo_draw.vo_failed[:frame + 1], params, draws)
     xy = np.asarray(pose[:, :2], np.float64)
     d = np.hypot(*(xy - truth[frame, :2]).T)
+    mean, cov = xy.mean(0), np.cov(xy.T)  # the Gaussian fitted to the cloud
     vo = odo.vo_poses()[frame]
     return {"approach_frame": frame, "p_within": float(np.mean(d <= loops.TOLERANCE)),
-            "p_gauss": gaussian_within(xy, truth[frame, :2], loops.TOLERANCE),
-            "spread_m": float(np.sqrt(np.sqrt(np.linalg.det(np.cov(xy.T))))),
+            "p_gauss": gaussian_within(mean, cov, truth[frame, :2], loops.TOLERANCE),
+            "spread_m": float(np.linalg.det(cov) ** 0.25),
             "nearest_m": float(d.min()), "draws": draws,
             "vo_miss_m": float(np.hypot(*(vo[:2] - truth[frame, :2])))}
 

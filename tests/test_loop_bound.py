@@ -106,8 +106,8 @@ def test_the_prediction_is_set_beside_the_filters_runs() -> None:
 
 
 def test_the_gaussian_fit_gives_the_mass_within_the_radius() -> None:
-    """``gaussian_within`` on points drawn from a Gaussian: centred or not, the mass of the
-    disc against the noncentral chi-square law (isotropic) and against SciPy's quadrature of
+    """``gaussian_within`` fitted to points drawn from a Gaussian: centred or not, the mass of
+    the disc against the noncentral chi-square law (isotropic) and against SciPy's quadrature of
     the density over the disc (an elongated, turned cloud)."""
     from scipy import integrate, stats
 
@@ -117,7 +117,8 @@ def test_the_gaussian_fit_gives_the_mass_within_the_radius() -> None:
     for sigma, offset in [(0.5, 0.0), (0.5, 0.7), (3.0, 2.0), (20.0, 30.0)]:
         xy = rng.normal(0.0, sigma, (200000, 2))
         exact = stats.ncx2.cdf(1.0 / sigma ** 2, df=2, nc=offset ** 2 / sigma ** 2)
-        assert gaussian_within(xy, np.array([offset, 0.0]), 1.0) == pytest.approx(exact, rel=0.02)
+        got = gaussian_within(xy.mean(0), np.cov(xy.T), np.array([offset, 0.0]), 1.0)
+        assert got == pytest.approx(exact, rel=0.02)
     cov = np.array([[4.0, 1.5], [1.5, 1.0]])
     xy = rng.multivariate_normal([1.0, -1.0], cov, 400000)
     law = stats.multivariate_normal(xy.mean(0), np.cov(xy.T))
@@ -125,7 +126,8 @@ def test_the_gaussian_fit_gives_the_mass_within_the_radius() -> None:
     exact, _ = integrate.dblquad(
         lambda r, a: law.pdf(target + r * np.array([np.cos(a), np.sin(a)])) * r,
         0.0, 2.0 * np.pi, 0.0, 1.5)
-    assert gaussian_within(xy, target, 1.5) == pytest.approx(exact, rel=1e-3)
+    assert gaussian_within(xy.mean(0), np.cov(xy.T), target, 1.5) == pytest.approx(exact,
+                                                                                   rel=1e-3)
 
 
 def test_the_cloud_round_a_loop_grows_as_its_length_to_the_three_halves() -> None:
