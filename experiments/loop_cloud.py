@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.common import scaled_alphas
 from experiments.loop_closure import approach_frame, simulate_loop
-from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops
+from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops, vo_noise
 from gslam_jax import loops, slam
 from gslam_jax.config import Config, layered_config
 from gslam_jax.gridmap import turn_poses
@@ -92,14 +93,23 @@ def add_loop_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--config", type=Path)
     ap.add_argument("--set", action="append", default=[])
     ap.add_argument("--max-frames", type=int)
+    ap.add_argument("--vo-scale", type=float, default=1.0,
+                    help="the VO's noise stds times this (loop_closure's --vo-scale)")
+    ap.add_argument("--vo-failures", type=float, default=1.0,
+                    help="the VO's failure-burst rate times this (0: it never fails)")
+    ap.add_argument("--noise-scale", type=float, default=1.0,
+                    help="the filter's motion noise alphas times this")
 
 
 def simulated_loop(args: argparse.Namespace) -> tuple[Loop, Run, Config]:
     """The loop of ``add_loop_arguments``' settings, its simulated Run and the config to filter
     it with, as ``loop_closure`` drives it: ``--set`` comes last, so that e.g.
-    ``map.store=shared`` repeats a ``loop_closure`` run exactly."""
-    config = layered_config(args.config, args.course,
-                            ["map.store=auto", f"filter.seed={args.seed}"] + args.set)
+    ``map.store=shared`` repeats a ``loop_closure`` run exactly, at the same ``--vo-scale``,
+    ``--vo-failures`` and ``--noise-scale``."""
+    config = scaled_alphas(layered_config(args.config, args.course,
+                                          ["map.store=auto", f"filter.seed={args.seed}"]
+                                          + args.set), args.noise_scale)
+    noise = vo_noise(args.course, args.vo_scale, args.vo_failures)
     with tempfile.TemporaryDirectory() as tmp:
         if args.kitti is None:
             loop = circle_loop(Path(tmp), args.circle, 20.0)
@@ -111,7 +121,7 @@ def simulated_loop(args: argparse.Namespace) -> tuple[Loop, Run, Config]:
             loop = cuts[0]
             print(f"{args.kitti}: {loop.name}, a {loop.length_m:.1f} m loop")
         run, config = simulate_loop(loop.file, loop.length_m, args.seed, config, args.course,
-                                    args.max_frames)
+                                    args.max_frames, vo_noise=noise)
     return loop, run, config
 
 

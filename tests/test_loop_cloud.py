@@ -67,3 +67,41 @@ def test_cloud_rows_zoom_in_from_the_approach_and_count_the_near_weight():
     assert [(r["resampled"], r["updates"]) for r in rows[2:]] == [(2, 4), (0, 2), (0, 2), (0, 2)]
     assert np.isnan(cloud_rows(truth, truth, truth, poses, np.full(T, 3.5), resampled,
                                np.ones(T, bool), every_m=10.0)[0]["weight_within_1m"])
+
+
+def test_simulated_loop_takes_the_vo_and_noise_scales_as_loop_closure_does(monkeypatch) -> None:
+    """--vo-scale, --vo-failures and --noise-scale reach the simulation and the filter's config
+    as in ``loop_closure``, so that ``loop_cloud`` and ``revisit_terms`` repeat its runs."""
+    import argparse
+
+    import pytest
+
+    import experiments.loop_closure as lc
+    from experiments import loop_cloud
+
+    seen = {}
+
+    class Simulated(Exception):
+        pass
+
+    def simulate(who):
+        def record(file_, length, seed, config, course, max_frames, *rest, vo_noise=None):
+            seen[who] = (config.motion, rest[-1] if rest else vo_noise)
+            raise Simulated
+        return record
+
+    flags = ["--course", "arroyo-a", "--vo-scale", "0.3", "--noise-scale", "2",
+             "--vo-failures", "0.5"]
+    monkeypatch.setattr(lc, "simulate_loop", simulate("loop_closure"))
+    with pytest.raises(Simulated):
+        lc.main(["--circles", "30", "--particles", "8", "--proposals", "motion", "--seeds", "1"]
+                + flags)
+    monkeypatch.setattr(loop_cloud, "simulate_loop", simulate("loop_cloud"))
+    ap = argparse.ArgumentParser()
+    loop_cloud.add_loop_arguments(ap)
+    with pytest.raises(Simulated):
+        loop_cloud.simulated_loop(ap.parse_args(["--circle", "30", "--seed", "1"] + flags))
+    assert seen["loop_cloud"] == seen["loop_closure"]
+    motion, noise = seen["loop_cloud"]
+    assert noise.failure_rate > 0 and noise.alpha_theta_d > 0
+    assert motion != lc.layered_config(None, "arroyo-a", []).motion
