@@ -16,7 +16,9 @@ m of travel and its return one loop later; the verdict is ``gslam_jax.loops.clos
 error and map offset <= 1 m) of the final best particle's path, of the final densest particle's
 path (``[filter] estimate = "mode"``: after a revisit's resampling the weights are nearly equal,
 and the best particle can be one of the few that missed the start while most of the weight is
-near the truth; ``--verdict mode`` summarises by it) and of the VO-only path.
+near the truth; ``--verdict mode`` summarises by it), of the smoother's mean over the final
+particles within 1 m of that one (``"mode_mean"``, that component's posterior mean; ``--verdict
+mode_mean``) and of the VO-only path.
 --vo-scale F drives the loops with every std of the course's VO noise times F (a better or
 worse VO), --vo-failures F with its failures' rate times F (0: a VO that never fails), and
 --noise-scale F multiplies the filter's alphas, as in ``experiments.loop_bound``.
@@ -61,14 +63,18 @@ APPROACH_M = 2.0  # the cloud is read this far before the sensor first reaches t
 
 def score(run, res, revisit: loops.Revisit) -> dict:
     """The closure figures of one filter run: its best particle's path, the path of its final
-    densest particle (``[filter] estimate = "mode"``, ``mode_*``) and the VO path."""
+    densest particle (``[filter] estimate = "mode"``, ``mode_*``), the smoother's mean over
+    that particle's 1 m neighbourhood (``"mode_mean"``, ``mode_mean_*``) and the VO path."""
     slam_c = loops.closure(run, res.best_path, revisit)
     mode_c = loops.closure(run, res.mode_path, revisit)
+    mean_c = loops.closure(run, res.mode_mean_path, revisit)
     vo_c = loops.closure(run, res.vo_path, revisit)
     return {"closed": slam_c.closed, "error_m": slam_c.error_m,
             "map_offset_m": slam_c.map_offset_m, "map_corr": slam_c.map_corr,
             "mode_closed": mode_c.closed, "mode_error_m": mode_c.error_m,
             "mode_map_offset_m": mode_c.map_offset_m,
+            "mode_mean_closed": mean_c.closed, "mode_mean_error_m": mean_c.error_m,
+            "mode_mean_map_offset_m": mean_c.map_offset_m,
             "smoothed_error_m": loops.revisit_error(run.ground_truth, res.smoothed_path,
                                                     revisit.i, revisit.j),
             "vo_closed": vo_c.closed, "vo_error_m": vo_c.error_m,
@@ -251,8 +257,9 @@ def main(argv: list[str] | None = None) -> int:
                     "settings that decide a run must be the file's)")
     ap.add_argument("--verdict", choices=sorted(VERDICTS), default="best",
                     help="the path the summary and plot judge: the final best particle's (the "
-                    "paper's) or its densest particle's ([filter] estimate = \"mode\"); each "
-                    "run's line gives both")
+                    "paper's), its densest particle's ([filter] estimate = \"mode\") or the "
+                    "mean over that one's 1 m neighbourhood (\"mode_mean\"); each run's line "
+                    "gives all three")
     ap.add_argument("--from-json", type=Path, nargs="+",
                     help="run nothing: summarise (and --plot) the rows of these --json files")
     args = ap.parse_args(argv)
@@ -289,7 +296,10 @@ def main(argv: list[str] | None = None) -> int:
                   f"error {r['error_m']:6.2f} m offset {r['map_offset_m']:5.2f} m "
                   f"{'CLOSED' if r['closed'] else 'open  '} | mode {r['mode_error_m']:6.2f} m "
                   f"offset {r['mode_map_offset_m']:5.2f} m "
-                  f"{'CLOSED' if r['mode_closed'] else 'open  '} | VO {r['vo_error_m']:6.2f} m "
+                  f"{'CLOSED' if r['mode_closed'] else 'open  '} | mode mean "
+                  f"{r['mode_mean_error_m']:6.2f} m offset {r['mode_mean_map_offset_m']:5.2f} m "
+                  f"{'CLOSED' if r['mode_mean_closed'] else 'open  '} | "
+                  f"VO {r['vo_error_m']:6.2f} m "
                   f"{'closed' if r['vo_closed'] else 'open'} | nearest particle before the "
                   f"revisit {r['approach_nearest_m']:.2f} m ({r['approach_within_1m']} within "
                   f"1 m) | {r['wall_seconds']:.0f} s", flush=True)

@@ -13,13 +13,15 @@ import numpy as np
 __all__ = ["VERDICTS", "summary", "print_summary", "family", "curves", "plot",
            "read_rows"]
 
-VERDICTS = {"best": "closed", "mode": "mode_closed"}  # --verdict: the path a verdict is of
+# --verdict: the path a verdict is of
+VERDICTS = {"best": "closed", "mode": "mode_closed", "mode_mean": "mode_mean_closed"}
 
 
 def summary(rows: list[dict], share: float = 0.8, verdict: str = "best") -> dict:
     """Per "proposal J=..": the closure rate at each length and the longest length closed in
     at least ``share`` of its runs (None when none is), by the verdict on the best particle's
-    path or (``verdict = "mode"``) on the densest particle's; and "approach": [closed, runs]
+    path, (``verdict = "mode"``) on the densest particle's or (``"mode_mean"``) on the mean
+    over its 1 m neighbourhood; and "approach": [closed, runs]
     of the runs that had a particle within 1 m of the truth before the revisit ("near") and
     of those that had none ("none"), over the runs that recorded their cloud."""
     field, out = VERDICTS[verdict], {}

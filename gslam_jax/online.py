@@ -313,7 +313,9 @@ class Online:
         ``estimate`` one of ``choices.ESTIMATES`` (None: the config's ``[filter] estimate``),
         "best" the best particle's path through its ancestry (``SlamResult.best_path``), "mean"
         each frame's weighted mean (``Online.mean``), "smoothed" and "steps" the particle
-        smoother's mean path and mean-step path over the ancestry with the weights now."""
+        smoother's mean path and mean-step path over the ancestry with the weights now, "mode"
+        and "mode_mean" the densest particle's path and the smoother's mean over its 1 m
+        neighbourhood."""
         estimate = self.config.filter.estimate if estimate is None else estimate
         if estimate not in choices.ESTIMATES:
             raise ConfigError(f"Online.path: estimate must be one of "

@@ -198,8 +198,8 @@ class SlamResult(NamedTuple):
 
     best_path: np.ndarray      # [T, 3] the final best particle's path through its ancestry
     map_path: np.ndarray       # [T, 3] the path of the particle whose map kmap is
-    #                            (``rbpf.map_particle``): mode_path under estimate "mode",
-    #                            else best_path
+    #                            (``rbpf.map_particle``): mode_path under estimate "mode"
+    #                            or "mode_mean", else best_path
     smoothed_path: np.ndarray  # [T, 3] final-weighted mean of every final particle's ancestry
     best_pose: np.ndarray      # [T, 3] highest-weight particle per frame
     mean_pose: np.ndarray      # [T, 3] weighted mean per frame
@@ -225,13 +225,16 @@ class SlamResult(NamedTuple):
     map_heading: float = 0.0   # radians: the map lattice's axes in the run's frame ([map] axes)
     steps_path: np.ndarray | None = None  # [T, 3] the smoother's mean steps, composed
     mode_path: np.ndarray | None = None   # [T, 3] the final densest particle's ancestral path
+    mode_mean_path: np.ndarray | None = None  # [T, 3] the smoother's mean over its 1 m
+    #                                           neighbourhood (``rbpf.mode_mean_path``)
 
     @property
     def path(self) -> np.ndarray:
         """[T, 3] the reported trajectory ([filter] estimate): ``best_path``, ``mean_pose``,
-        ``smoothed_path``, ``steps_path`` or ``mode_path``."""
+        ``smoothed_path``, ``steps_path``, ``mode_path`` or ``mode_mean_path``."""
         return {"best": self.best_path, "mean": self.mean_pose, "smoothed": self.smoothed_path,
-                "steps": self.steps_path, "mode": self.mode_path}[self.estimate]
+                "steps": self.steps_path, "mode": self.mode_path,
+                "mode_mean": self.mode_mean_path}[self.estimate]
 
     @property
     def grid(self) -> GridMap:
@@ -345,6 +348,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     smoothed = np.asarray(rbpf.smoothed_mean_path(poses, ancestry, state.log_w))
     steps = np.asarray(rbpf.smoothed_step_path(poses, ancestry, state.log_w))
     mode = np.asarray(rbpf.ancestry_path("mode", poses, ancestry, state.log_w, state.best))
+    mode_mean = np.asarray(rbpf.mode_mean_path(poses, ancestry, state.log_w))
     dropped = int(np.sum(infos.dropped_cells))
     if dropped:  # observed_cells(run) sizes M so that this cannot happen
         raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "
@@ -368,4 +372,5 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         compile_seconds=compile_s, compile_frames=min(chunk, T), store=cfg.store,
         map_bytes=maps.map_bytes(cfg),
         map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate,
-        map_heading=heading, steps_path=back(steps), mode_path=back(mode))
+        map_heading=heading, steps_path=back(steps), mode_path=back(mode),
+        mode_mean_path=back(mode_mean))

@@ -1,6 +1,7 @@
-"""The ``mode`` estimate: ``rbpf.densest_particle`` against a brute-force count over every
-pair, the path it reports against following the ancestry by hand, and the map a run reports
-with it: the local maps placed along the mode's path (NumPy's ``metrics.pose_map``)."""
+"""The ``mode`` and ``mode_mean`` estimates: ``rbpf.densest_particle`` against a brute-force
+count over every pair, the paths they report against following the ancestry by hand, and the
+map a run reports with them: the local maps placed along the mode's path (NumPy's
+``metrics.pose_map``)."""
 
 from __future__ import annotations
 
@@ -73,10 +74,74 @@ def test_mode_path_follows_the_densest_particles_ancestry():
     np.testing.assert_array_equal(path, want)
 
 
+def _ancestral_paths(poses: np.ndarray, ancestors: np.ndarray) -> np.ndarray:
+    """Every final particle's path through the ancestry, by hand: [T, J, 3] -> [J, T, 3]."""
+    T, J, _ = poses.shape
+    out = np.empty((J, T, 3), np.float64)
+    for j0 in range(J):
+        j = j0
+        for t in range(T - 1, -1, -1):
+            out[j0, t] = poses[t, j]
+            j = ancestors[t, j]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_mode_mean_path_is_the_weighted_mean_of_the_modes_neighbours_paths(seed):
+    """``ancestry_path("mode_mean")``: the final particles within 1 m of the brute-force
+    densest one, each one's ancestral path traced by hand, averaged with their final weights
+    renormalised (headings by circular mean). Two clusters 6 m apart at the end, the
+    heavier in total weight not holding the heaviest particle."""
+    rng = np.random.default_rng(seed)
+    T, J = 10, 48
+    poses = rng.normal(0, 2.0, (T, J, 3))
+    poses[-1, :, :2] = rng.normal(0, 0.3, (J, 2))
+    poses[-1, :12, 0] += 6.0  # a second cluster
+    ancestors = rng.integers(0, J, (T, J)).astype(np.int32)
+    log_w = rng.normal(0, 0.5, J)
+    log_w[0] = 2.5  # the heaviest particle, in the lighter cluster
+    poses, log_w = poses.astype(np.float32), log_w.astype(np.float32)
+    got = np.asarray(rbpf.ancestry_path("mode_mean", jnp.asarray(poses),
+                                        jnp.asarray(ancestors), jnp.asarray(log_w),
+                                        jnp.int32(0)))
+    centre = poses[-1, _brute_force(poses[-1], log_w, MODE_RADIUS_M), :2]
+    near = np.hypot(*(poses[-1, :, :2] - centre).T) <= MODE_RADIUS_M
+    assert 1 < near.sum() < J and not near[0]
+    w = np.exp(log_w.astype(np.float64)) * near
+    w /= w.sum()
+    paths = _ancestral_paths(poses, ancestors)
+    want_xy = np.einsum("j,jta->ta", w, paths[:, :, :2])
+    want_th = np.arctan2(w @ np.sin(paths[:, :, 2]), w @ np.cos(paths[:, :, 2]))
+    np.testing.assert_allclose(got[:, :2], want_xy, atol=1e-4)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (got[:, 2] - want_th))), 0.0, atol=1e-4)
+
+
+def test_mode_mean_path_of_a_lone_mode_is_its_path_and_of_one_cluster_the_smoothed_path():
+    """With every final particle within 1 m of each other the mode's component is the whole
+    cloud (the smoother's mean path); with one particle holding nearly all the weight far from
+    the rest it is that particle's ancestral path."""
+    rng = np.random.default_rng(11)
+    T, J = 8, 20
+    poses = rng.normal(0, 2.0, (T, J, 3)).astype(np.float32)
+    poses[-1, :, :2] = rng.normal(0, 0.05, (J, 2))
+    ancestors = rng.integers(0, J, (T, J)).astype(np.int32)
+    log_w = rng.normal(0, 0.5, J).astype(np.float32)
+    args = jnp.asarray(poses), jnp.asarray(ancestors), jnp.asarray(log_w)
+    np.testing.assert_allclose(np.asarray(rbpf.mode_mean_path(*args)),
+                               np.asarray(rbpf.smoothed_mean_path(*args)), atol=1e-6)
+    poses[-1, 3, :2] = 30.0
+    log_w[3] = 20.0
+    args = jnp.asarray(poses), jnp.asarray(ancestors), jnp.asarray(log_w)
+    got, want = np.asarray(rbpf.mode_mean_path(*args)), _ancestral_paths(poses, ancestors)[3]
+    np.testing.assert_allclose(got[:, :2], want[:, :2], atol=1e-5)
+    # a circular mean gives the heading in (-pi, pi]
+    np.testing.assert_allclose(np.angle(np.exp(1j * (got[:, 2] - want[:, 2]))), 0.0, atol=1e-5)
+
+
 @pytest.mark.parametrize("estimate", choices.ESTIMATES)
 def test_the_map_goes_with_the_mode_and_otherwise_with_the_best_particle(estimate):
-    """``map_particle``: the densest particle under "mode" (the brute-force count), the best
-    slot under every other estimate, here a slot that is not the densest."""
+    """``map_particle``: the densest particle under "mode" and "mode_mean" (the brute-force
+    count), the best slot under every other estimate, here a slot that is not the densest."""
     rng = np.random.default_rng(7)
     pose = np.concatenate([rng.normal(0, 0.3, (30, 2)), np.zeros((30, 1))], 1)
     pose[0, :2] = 9.0
@@ -86,7 +151,7 @@ def test_the_map_goes_with_the_mode_and_otherwise_with_the_best_particle(estimat
     densest = _brute_force(pose, log_w, MODE_RADIUS_M)
     assert densest != 0
     got = int(rbpf.map_particle(estimate, jnp.asarray(pose), jnp.asarray(log_w), jnp.int32(0)))
-    assert got == (densest if estimate == "mode" else 0)
+    assert got == (densest if estimate in ("mode", "mode_mean") else 0)
 
 
 def test_a_mode_run_reports_the_map_laid_along_the_modes_path():

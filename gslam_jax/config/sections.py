@@ -54,7 +54,9 @@ class FilterSection:
     # (rbpf.smoothed_step_path): the same on the simulator's Table I (within 0.3 mm), but where
     # the particles' headings spread under stereo's flat weights the smoothed path comes out
     # shorter than any particle's, a scale error that made most of the KITTI clip's gain over
-    # VO-only (docs/real-data.md, "What the gain over VO is made of")
+    # VO-only (docs/real-data.md, "What the gain over VO is made of"); "mode", the ancestral
+    # path of the final particle with the most weight within 1 m; "mode_mean", the smoother's
+    # mean over the final particles within 1 m of that one (rbpf.mode_mean_path)
     estimate: str = "steps"
     # "motion": each particle's pose drawn from the motion model alone (eq. 24, the paper);
     # "informed": at a local map, drawn from a Gaussian fitted to its map score times its
@@ -238,8 +240,9 @@ class Config:
              "must be in [0, 1] (0: automatic by the run's sensor)"),
             (f.estimate in choices.ESTIMATES, "filter", "estimate",
              f"must be one of {', '.join(choices.ESTIMATES)} (final best particle's path, "
-             "each frame's weighted mean pose, the smoother's mean path or mean steps, or "
-             "the path of the final cloud's densest particle)"),
+             "each frame's weighted mean pose, the smoother's mean path or mean steps, the "
+             "path of the final cloud's densest particle, or the smoother's mean over its "
+             "1 m neighbourhood)"),
             (f.proposal in choices.PROPOSALS, "filter", "proposal",
              f"must be one of {', '.join(choices.PROPOSALS)} (the motion model alone, or "
              "informed by the local map)"),

@@ -28,7 +28,7 @@ from gslam_jax.rbpf.kernel import (Proposal, Resampler, init, observe, predict, 
                                    run_filter, scan_frames, step, update)
 from gslam_jax.rbpf.maps import particle_map
 from gslam_jax.rbpf.paths import (ancestry_path, backtrack_path, densest_particle, map_particle,
-                                  smoothed_mean_path, smoothed_step_path)
+                                  mode_mean_path, smoothed_mean_path, smoothed_step_path)
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, RunOutput, StepInfo,
                                   UpdateInfo, UpdateNoise)
 
@@ -40,6 +40,6 @@ __all__ = [
     "init", "standard_normals", "motion_noise", "update_noise", "predict", "update", "resample",
     "observe", "step", "scan_frames", "frame_keys", "run_filter",
     # results
-    "backtrack_path", "densest_particle", "smoothed_mean_path", "smoothed_step_path",
-    "ancestry_path", "map_particle", "particle_map",
+    "backtrack_path", "densest_particle", "smoothed_mean_path", "mode_mean_path",
+    "smoothed_step_path", "ancestry_path", "map_particle", "particle_map",
 ]

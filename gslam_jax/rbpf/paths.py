@@ -1,7 +1,8 @@
 """Trajectory estimates from the particles' per-frame poses and resampling ancestry: each
 frame's weighted mean pose, the best particle's path through its ancestry (the paper's
 estimate), the path of the final cloud's densest particle, the particle smoother's mean path
-and the path of its mean steps; and which particle's map goes with an estimate."""
+over every final particle or over the densest particle's neighbourhood alone, and the path of
+its mean steps; and which particle's map goes with an estimate."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ from jax import Array, lax
 from gslam_jax.rbpf.motion import control_between, world_step
 
 __all__ = ["weighted_mean_pose", "backtrack_path", "densest_particle", "MODE_RADIUS_M",
-           "smoothed_mean_path", "smoothed_step_path", "ancestry_path", "map_particle"]
+           "mode_weights", "smoothed_mean_path", "mode_mean_path", "smoothed_step_path",
+           "ancestry_path", "map_particle"]
 
 # The neighbourhood ``densest_particle`` sums the weight over: a loop closure's tolerance
 # (``loops.TOLERANCE``), so the mode is where most of the weight agrees to that precision.
@@ -58,6 +60,15 @@ def densest_particle(pose: Array, log_w: Array, radius: float = MODE_RADIUS_M) -
     return jnp.argmax(jnp.where(m >= jnp.max(m), w, -1.0)).astype(jnp.int32)
 
 
+def mode_weights(pose: Array, log_w: Array, radius: float = MODE_RADIUS_M) -> Array:
+    """The log weights [J] restricted to the mode's component: ``log_w`` where a particle of
+    the cloud [J, 3] lies within ``radius`` metres of the ``densest_particle``, -inf
+    elsewhere (not normalised)."""
+    centre = pose[densest_particle(pose, log_w, radius), :2]
+    near = jnp.sum((pose[:, :2] - centre) ** 2, axis=-1) <= radius * radius
+    return jnp.where(near, log_w, -jnp.inf)
+
+
 @jax.jit
 def smoothed_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     """The particle smoother's posterior mean trajectory (Kitagawa 1996; Doucet and Johansen
@@ -77,6 +88,19 @@ def smoothed_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     _, path = lax.scan(back, jnp.exp(log_w - jax.nn.logsumexp(log_w)), (poses, ancestors),
                        reverse=True)
     return path
+
+
+@jax.jit
+def mode_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
+    """The particle smoother's mean path over the mode's component alone: the final
+    particles within ``MODE_RADIUS_M`` of the ``densest_particle``, their ancestral paths
+    averaged with their final weights renormalised (``smoothed_mean_path`` under
+    ``mode_weights``): [T, J, 3] -> [T, 3]. The posterior mean given the dominant mode, as
+    AMCL reports the mean of its heaviest cluster. After a loop's revisit the posterior is
+    split between particles that met the start's map and a few that missed it: the mean over
+    all of them lies between the two, the densest particle's path is one sample of its
+    component, and this is that component's mean."""
+    return smoothed_mean_path(poses, ancestors, mode_weights(poses[-1], log_w))
 
 
 @jax.jit
@@ -124,20 +148,23 @@ def ancestry_path(estimate: str, poses: Array, ancestors: Array, log_w: Array,
         return backtrack_path(poses, ancestors, best)
     if estimate == "mode":
         return backtrack_path(poses, ancestors, map_particle("mode", poses[-1], log_w, best))
+    if estimate == "mode_mean":
+        return mode_mean_path(poses, ancestors, log_w)
     if estimate == "smoothed":
         return smoothed_mean_path(poses, ancestors, log_w)
     if estimate == "steps":
         return smoothed_step_path(poses, ancestors, log_w)
     raise ValueError(f"no ancestry path for the estimate {estimate!r}: one of best, mode, "
-                     "smoothed, steps")
+                     "mode_mean, smoothed, steps")
 
 
 def map_particle(estimate: str, pose: Array, log_w: Array, best: Array | int) -> Array:
     """The slot [] whose map a run reports beside ``estimate``'s path, from the cloud [J, 3],
-    its log weights [J] and its best slot: the ``densest_particle`` under "mode", so that the
-    map is the one laid along the mode's path (after a revisit the best particle may be one
-    that missed the old map and doubled it); else ``best``, the paper's map (the averaged
-    estimates are no one particle's path, so no map is theirs)."""
-    if estimate == "mode":
+    its log weights [J] and its best slot: the ``densest_particle`` under "mode" and
+    "mode_mean", so that the map is the one laid along (or at the centre of) the mode's path
+    (after a revisit the best particle may be one that missed the old map and doubled it);
+    else ``best``, the paper's map (the other averaged estimates are no one particle's path,
+    so no map is theirs)."""
+    if estimate in ("mode", "mode_mean"):
         return densest_particle(pose, log_w)
     return jnp.asarray(best, jnp.int32)
