@@ -202,6 +202,12 @@ def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     assert row["mode_closed"] == (row["mode_error_m"] <= 1.0 and row["mode_map_offset_m"] <= 1.0)
     s = summary(rows, verdict="mode")["motion J=8"]
     assert s["rates"][30.0] == (float(row["mode_closed"]), 1)
+    # and the mean over its 1 m neighbourhood
+    assert math.isfinite(row["mode_mean_error_m"])
+    assert row["mode_mean_closed"] == (row["mode_mean_error_m"] <= 1.0
+                                       and row["mode_mean_map_offset_m"] <= 1.0)
+    s = summary(rows, verdict="mode_mean")["motion J=8"]
+    assert s["rates"][30.0] == (float(row["mode_mean_closed"]), 1)
 
 
 def _rows_file(folder, name: str, rows: list[dict]):
