@@ -46,7 +46,7 @@ import numpy as np
 from jax import Array, lax
 
 from experiments.loop_closure import approach_frame
-from experiments.loop_paths import START_M, circle_loop, kitti_loops, vo_noise
+from experiments.loop_paths import START_M, add_vo_arguments, circle_loop, kitti_loops, vo_noise
 from experiments.loop_summary import read_rows
 from gslam_jax import loops
 from gslam_jax.config import layered_config
@@ -194,11 +194,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", type=Path, help="TOML config (configs/table1.toml: the "
                     "course's calibrated motion noise)")
     ap.add_argument("--set", action="append", default=[])
-    ap.add_argument("--vo-scale", type=float, default=1.0, help="the VO's noise times this")
-    ap.add_argument("--noise-scale", type=float, default=1.0,
-                    help="the motion model's alphas times this")
-    ap.add_argument("--vo-failures", type=float, default=1.0,
-                    help="the rate of VO failures (wheel-odometry bursts) times this")
+    add_vo_arguments(ap)
     ap.add_argument("--overlap", type=float, default=20.0, help="metres driven past the loop")
     ap.add_argument("--radius", type=float, default=2.0, help="revisit radius of KITTI cuts, m")
     ap.add_argument("--from-json", type=Path, nargs="*", default=[],

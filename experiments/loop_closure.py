@@ -50,7 +50,8 @@ from typing import Collection
 import numpy as np
 
 from experiments.common import scaled_alphas
-from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops, vo_noise
+from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop, kitti_loops,
+                                   vo_noise)
 from experiments.loop_summary import VERDICTS, plot, print_summary, read_rows
 from gslam_jax import loops, metrics, slam
 from gslam_jax.config import apply_overrides, layered_config
@@ -235,12 +236,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--store", default="auto", choices=["dense", "shared", "auto"])
     ap.add_argument("--course", default="mars-yard-a", help="world kind and VO noise")
-    ap.add_argument("--vo-scale", type=float, default=1.0,
-                    help="the VO's noise (every std of the course's profile) times this")
-    ap.add_argument("--vo-failures", type=float, default=1.0,
-                    help="the rate of VO failures (wheel-odometry bursts) times this")
-    ap.add_argument("--noise-scale", type=float, default=1.0,
-                    help="the filter's motion noise (the config's alphas) times this")
+    add_vo_arguments(ap)
     ap.add_argument("--overlap", type=float, default=20.0, help="metres driven past the loop")
     ap.add_argument("--margin-per-m", type=float, default=0.1,
                     help="map margin (m) per metre of loop, at least [map] margin")

@@ -25,7 +25,8 @@ import numpy as np
 
 from experiments.common import scaled_alphas
 from experiments.loop_closure import approach_frame, simulate_loop
-from experiments.loop_paths import START_M, Loop, circle_loop, kitti_loops, vo_noise
+from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop, kitti_loops,
+                                   vo_noise)
 from gslam_jax import loops, slam
 from gslam_jax.config import Config, layered_config
 from gslam_jax.gridmap import turn_poses
@@ -93,12 +94,7 @@ def add_loop_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--config", type=Path)
     ap.add_argument("--set", action="append", default=[])
     ap.add_argument("--max-frames", type=int)
-    ap.add_argument("--vo-scale", type=float, default=1.0,
-                    help="the VO's noise stds times this (loop_closure's --vo-scale)")
-    ap.add_argument("--vo-failures", type=float, default=1.0,
-                    help="the VO's failure-burst rate times this (0: it never fails)")
-    ap.add_argument("--noise-scale", type=float, default=1.0,
-                    help="the filter's motion noise alphas times this")
+    add_vo_arguments(ap)
 
 
 def simulated_loop(args: argparse.Namespace) -> tuple[Loop, Run, Config]:

@@ -8,6 +8,7 @@ one loop later (``loops.find_revisit``); a KITTI cut therefore starts that far b
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 from pathlib import Path
 from typing import NamedTuple
@@ -28,6 +29,17 @@ def vo_noise(course: str, scale: float = 1.0, failures: float = 1.0) -> VONoiseP
     times ``failures`` (0: a VO that never fails)."""
     noise = world_kind(course)[1].scaled(scale)
     return dataclasses.replace(noise, failure_rate=noise.failure_rate * failures)
+
+
+def add_vo_arguments(ap: argparse.ArgumentParser) -> None:
+    """--vo-scale, --vo-failures and --noise-scale, the loop tools' VO and filter noise
+    (``vo_noise``, ``experiments.common.scaled_alphas``), declared once for all of them."""
+    ap.add_argument("--vo-scale", type=float, default=1.0,
+                    help="the VO's noise (every std of the course's profile) times this")
+    ap.add_argument("--vo-failures", type=float, default=1.0,
+                    help="the rate of VO failures (wheel-odometry bursts) times this (0: none)")
+    ap.add_argument("--noise-scale", type=float, default=1.0,
+                    help="the filter's motion noise (the config's alphas) times this")
 
 
 class Loop(NamedTuple):
