@@ -1,12 +1,16 @@
 """experiments.loop_cloud: the per-stretch figures of a particle cloud, on a hand-made cloud
-(no filter run)."""
+(no filter run), and its loop settings against ``loop_closure``'s."""
 
 from __future__ import annotations
 
+import argparse
 import math
 
 import numpy as np
+import pytest
 
+import experiments.loop_closure as lc
+from experiments import loop_cloud
 from experiments.loop_cloud import cloud_rows
 
 
@@ -72,13 +76,6 @@ def test_cloud_rows_zoom_in_from_the_approach_and_count_the_near_weight():
 def test_simulated_loop_takes_the_vo_and_noise_scales_as_loop_closure_does(monkeypatch) -> None:
     """--vo-scale, --vo-failures and --noise-scale reach the simulation and the filter's config
     as in ``loop_closure``, so that ``loop_cloud`` and ``revisit_terms`` repeat its runs."""
-    import argparse
-
-    import pytest
-
-    import experiments.loop_closure as lc
-    from experiments import loop_cloud
-
     seen = {}
 
     class Simulated(Exception):
