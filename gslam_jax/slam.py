@@ -347,8 +347,9 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     map_path = np.asarray(rbpf.backtrack_path(poses, ancestry, map_slot))
     smoothed = np.asarray(rbpf.smoothed_mean_path(poses, ancestry, state.log_w))
     steps = np.asarray(rbpf.smoothed_step_path(poses, ancestry, state.log_w))
-    mode = np.asarray(rbpf.ancestry_path("mode", poses, ancestry, state.log_w, state.best))
-    mode_mean = np.asarray(rbpf.mode_mean_path(poses, ancestry, state.log_w))
+    densest = rbpf.densest_particle(poses[-1], state.log_w)  # once for both mode estimates
+    mode = np.asarray(rbpf.backtrack_path(poses, ancestry, densest))
+    mode_mean = np.asarray(rbpf.mode_mean_path(poses, ancestry, state.log_w, densest))
     dropped = int(np.sum(infos.dropped_cells))
     if dropped:  # observed_cells(run) sizes M so that this cannot happen
         raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "

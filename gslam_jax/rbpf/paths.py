@@ -60,12 +60,12 @@ def densest_particle(pose: Array, log_w: Array, radius: float = MODE_RADIUS_M) -
     return jnp.argmax(jnp.where(m >= jnp.max(m), w, -1.0)).astype(jnp.int32)
 
 
-def mode_weights(pose: Array, log_w: Array, radius: float = MODE_RADIUS_M) -> Array:
+def mode_weights(pose: Array, log_w: Array, densest: Array) -> Array:
     """The log weights [J] restricted to the mode's component: ``log_w`` where a particle of
-    the cloud [J, 3] lies within ``radius`` metres of the ``densest_particle``, -inf
-    elsewhere (not normalised)."""
-    centre = pose[densest_particle(pose, log_w, radius), :2]
-    near = jnp.sum((pose[:, :2] - centre) ** 2, axis=-1) <= radius * radius
+    the cloud [J, 3] lies within ``MODE_RADIUS_M`` of particle ``densest`` (the
+    ``densest_particle``), -inf elsewhere (not normalised)."""
+    centre = pose[densest, :2]
+    near = jnp.sum((pose[:, :2] - centre) ** 2, axis=-1) <= MODE_RADIUS_M * MODE_RADIUS_M
     return jnp.where(near, log_w, -jnp.inf)
 
 
@@ -91,7 +91,8 @@ def smoothed_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
 
 
 @jax.jit
-def mode_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
+def mode_mean_path(poses: Array, ancestors: Array, log_w: Array,
+                   densest: Array | None = None) -> Array:
     """The particle smoother's mean path over the mode's component alone: the final
     particles within ``MODE_RADIUS_M`` of the ``densest_particle``, their ancestral paths
     averaged with their final weights renormalised (``smoothed_mean_path`` under
@@ -99,8 +100,11 @@ def mode_mean_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     AMCL reports the mean of its heaviest cluster. After a loop's revisit the posterior is
     split between particles that met the start's map and a few that missed it: the mean over
     all of them lies between the two, the densest particle's path is one sample of its
-    component, and this is that component's mean."""
-    return smoothed_mean_path(poses, ancestors, mode_weights(poses[-1], log_w))
+    component, and this is that component's mean. ``densest``: that particle's slot where
+    the caller has it already."""
+    if densest is None:
+        densest = densest_particle(poses[-1], log_w)
+    return smoothed_mean_path(poses, ancestors, mode_weights(poses[-1], log_w, densest))
 
 
 @jax.jit
