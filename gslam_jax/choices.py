@@ -40,9 +40,10 @@ SEARCH_DESIGNS = ("grid", "random", "halton", "sobol")  # ``gslam search --desig
 # ``[filter] estimate``: the trajectory a run reports, the final best particle's ancestral path
 # (the paper), the per-frame weighted posterior mean, the smoother's mean over every final
 # particle's ancestral path, the path of those paths' mean steps, the ancestral path of the
-# final particle with the most weight within 1 m (``rbpf.paths.densest_particle``), or the
-# smoother's mean over the final particles within 1 m of that one (``rbpf.mode_mean_path``)
-ESTIMATES = ("best", "mean", "smoothed", "steps", "mode", "mode_mean")
+# final particle with the most weight within 1 m (``rbpf.paths.densest_particle``), the
+# smoother's mean over the final particles within 1 m of that one (``rbpf.mode_mean_path``), or
+# the path of mean steps each weighed by the factors that bear on it (``rbpf.local_step_path``)
+ESTIMATES = ("best", "mean", "smoothed", "steps", "mode", "mode_mean", "local_steps")
 SCORE_PATHS = ESTIMATES  # ``gslam search --score-path`` (default: ``[filter] estimate``)
 # ``[localmap] lattice``: each local map binned on the robot's axes (the paper's) or on the
 # map's at its VO pose (``vo.localmap.LocalMapParams``); "auto" resolves by the sensor that

@@ -18,7 +18,7 @@ from gslam_jax.run_checks import describe_cells
 
 __all__ = ["local_observations", "raw_observations", "ObsSettings", "obs_settings",
            "refine_observations", "map_observations", "range_noise_profile", "run_range_noise",
-           "RunningRangeNoise"]
+           "RunningRangeNoise", "local_map_footprint", "local_map_footprints"]
 
 RING_M = 0.5          # width of the range rings of ``range_noise_profile``
 RING_MIN_CELLS = 200  # a ring with fewer observed cells takes the nearer ring's value
@@ -177,3 +177,32 @@ class RunningRangeNoise:
             self.profile = range_noise_profile(np.stack(self._kept), self._resolution)
             return True
         return False
+
+
+def local_map_footprint(stats: np.ndarray, resolution: float,
+                        lattice_heading: float = 0.0) -> np.ndarray:
+    """[3] where one local map's statistics [L, L, 3] saw: the centre x, y of its observed
+    cells (n > 0) in the robot frame, its lattice turned by ``lattice_heading``
+    (``Run.lattice_headings``), and the radius about that centre that holds every observed
+    cell whole (m); radius -1 where it saw nothing (``rbpf.factor_cover`` places them)."""
+    seen = np.asarray(stats)[:, :, 0] > 0
+    if not seen.any():
+        return np.array([0.0, 0.0, -1.0])
+    cx, cy = local_cell_centres(seen.shape[0], resolution)
+    c, s = np.cos(lattice_heading), np.sin(lattice_heading)
+    x, y = cx[seen], cy[seen]
+    px, py = c * x - s * y, s * x + c * y
+    centre = np.array([px.mean(), py.mean()])
+    radius = np.sqrt((px - centre[0]) ** 2 + (py - centre[1]) ** 2).max()
+    return np.array([centre[0], centre[1], radius + resolution / np.sqrt(2.0)])
+
+
+def local_map_footprints(run: Run) -> np.ndarray:
+    """[T, 3] each frame's ``local_map_footprint``; radius -1 for a frame without a local
+    map."""
+    out = np.tile([0.0, 0.0, -1.0], (run.num_frames, 1))
+    headings = run.lattice_heading_array()
+    for t in np.flatnonzero(run.obs_index >= 0):
+        m = run.obs_index[t]
+        out[t] = local_map_footprint(run.local_maps[m], run.resolution, float(headings[m]))
+    return out

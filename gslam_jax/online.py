@@ -175,6 +175,10 @@ class Online:
         self._vo_pose = self.start.copy()
         self._poses: list[np.ndarray] = []      # per frame [J, 3]
         self._ancestors: list[np.ndarray] = []  # per frame [J]
+        self._log_w: list[np.ndarray] = []      # per frame [J], after the frame
+        self._resampled: list[bool] = []
+        self._mean_on_axes: list[np.ndarray] = []  # per frame [3], the map lattice's axes
+        self._footprints: list[np.ndarray] = []    # per frame [3] (local_map_footprint)
         self._times: list[float] = []
         self._latency: list[float] = []
         self._updated: list[bool] = []
@@ -250,6 +254,7 @@ class Online:
             jnp.bool_(vo_failed),
             self.settings, self.params, self.cfg)
         info, best, mean = jax.device_get((info, best, mean))
+        self._mean_on_axes.append(np.asarray(mean, np.float64))
         best, mean = turn_poses(best, self.heading), turn_poses(mean, self.heading)
         seconds = time.perf_counter() - t0
         self._times.append(stamp)
@@ -257,6 +262,11 @@ class Online:
         self._updated.append(local_map is not None)
         self._poses.append(info.pose)
         self._ancestors.append(info.ancestors)
+        self._log_w.append(info.log_w)
+        self._resampled.append(bool(info.resampled))
+        self._footprints.append(np.array([0.0, 0.0, -1.0]) if local_map is None else
+                                observations.local_map_footprint(
+                                    local_map, self.cfg.resolution, lattice_heading))
         self.best.append(best)
         self.mean.append(mean)
         self._vo_pose = integrate_controls(u[None], self._vo_pose)[0]
@@ -315,7 +325,8 @@ class Online:
         each frame's weighted mean (``Online.mean``), "smoothed" and "steps" the particle
         smoother's mean path and mean-step path over the ancestry with the weights now, "mode"
         and "mode_mean" the densest particle's path and the smoother's mean over its 1 m
-        neighbourhood."""
+        neighbourhood, "local_steps" the mean steps each weighed by the factors that bear on
+        it so far."""
         estimate = self.config.filter.estimate if estimate is None else estimate
         if estimate not in choices.ESTIMATES:
             raise ConfigError(f"Online.path: estimate must be one of "
@@ -324,9 +335,13 @@ class Online:
             return np.zeros((0, 3))
         if estimate == "mean":
             return np.stack(self.mean)
+        history = rbpf.StepHistory(
+            jnp.asarray(np.stack(self._log_w)), jnp.asarray(self._resampled),
+            jnp.asarray(np.stack(self._mean_on_axes), jnp.float32),
+            jnp.asarray(np.stack(self._footprints), jnp.float32))
         path = rbpf.ancestry_path(estimate, jnp.asarray(np.stack(self._poses)),
                                   jnp.asarray(np.stack(self._ancestors)), self.state.log_w,
-                                  self.state.best)
+                                  self.state.best, history)
         return turn_poses(np.asarray(path, np.float64), self.heading)
 
     def stats(self) -> OnlineStats:

@@ -24,7 +24,8 @@ from gslam_jax.gridmap import GridMap, turn_poses
 from gslam_jax.map_axes import (LatticeWarning, check_local_lattices, local_lattice_axes,
                                 map_heading, on_map_axes)
 from gslam_jax.map_reuse import PriorMap, prior_state, rebase
-from gslam_jax.observations import ObsSettings, map_observations, obs_settings, raw_observations
+from gslam_jax.observations import (ObsSettings, local_map_footprints, map_observations,
+                                    obs_settings, raw_observations)
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.run import Run, known_positions
 from gslam_jax.sizing import fallback_frames, filter_config, filter_params, map_memory
@@ -56,6 +57,7 @@ class RunArrays(NamedTuple):
     start: jax.Array       # [3]
     obs: ObsSettings       # the config's settings for ``refine_observations``
     fallback: jax.Array | None = None  # [T] bool (``sizing.fallback_frames``; None: none)
+    footprints: jax.Array | None = None  # [T, 3] (``observations.local_map_footprints``)
 
 
 def ground_truth_mask(run: Run) -> np.ndarray:
@@ -102,7 +104,8 @@ def run_arrays(run: Run, config: Config, varied: Sequence[str] = (),
         mask=jnp.asarray(ground_truth_mask(run)),
         start=jnp.asarray(run.start_pose(), jnp.float32),
         obs=obs_settings(config),
-        fallback=None if fallback is None else jnp.asarray(fallback))
+        fallback=None if fallback is None else jnp.asarray(fallback),
+        footprints=jnp.asarray(local_map_footprints(run), jnp.float32))
     return arrays, filter_config(config, run)
 
 
@@ -227,14 +230,18 @@ class SlamResult(NamedTuple):
     mode_path: np.ndarray | None = None   # [T, 3] the final densest particle's ancestral path
     mode_mean_path: np.ndarray | None = None  # [T, 3] the smoother's mean over its 1 m
     #                                           neighbourhood (``rbpf.mode_mean_path``)
+    local_steps_path: np.ndarray | None = None  # [T, 3] mean steps, each weighed by the
+    #                                             factors that bear on it (``rbpf.local_step_path``)
 
     @property
     def path(self) -> np.ndarray:
         """[T, 3] the reported trajectory ([filter] estimate): ``best_path``, ``mean_pose``,
-        ``smoothed_path``, ``steps_path``, ``mode_path`` or ``mode_mean_path``."""
+        ``smoothed_path``, ``steps_path``, ``mode_path``, ``mode_mean_path`` or
+        ``local_steps_path``."""
         return {"best": self.best_path, "mean": self.mean_pose, "smoothed": self.smoothed_path,
                 "steps": self.steps_path, "mode": self.mode_path,
-                "mode_mean": self.mode_mean_path}[self.estimate]
+                "mode_mean": self.mode_mean_path,
+                "local_steps": self.local_steps_path}[self.estimate]
 
     @property
     def grid(self) -> GridMap:
@@ -350,6 +357,9 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     densest = rbpf.densest_particle(poses[-1], state.log_w)  # once for both mode estimates
     mode = np.asarray(rbpf.backtrack_path(poses, ancestry, densest))
     mode_mean = np.asarray(rbpf.mode_mean_path(poses, ancestry, state.log_w, densest))
+    local_steps = np.asarray(rbpf.ancestry_path(
+        "local_steps", poses, ancestry, state.log_w, state.best,
+        rbpf.step_history(infos, mean, local_map_footprints(run))))
     dropped = int(np.sum(infos.dropped_cells))
     if dropped:  # observed_cells(run) sizes M so that this cannot happen
         raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "
@@ -374,4 +384,4 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         map_bytes=maps.map_bytes(cfg),
         map_peak_bytes=maps.peak_bytes(state.maps, cfg), estimate=config.filter.estimate,
         map_heading=heading, steps_path=back(steps), mode_path=back(mode),
-        mode_mean_path=back(mode_mean))
+        mode_mean_path=back(mode_mean), local_steps_path=back(local_steps))

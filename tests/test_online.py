@@ -45,7 +45,8 @@ def batch(frames):
 def _check_paths(live: Online, res) -> None:
     """Online's path by every estimate, and by the config's, is the batch run's."""
     want = {"best": res.best_path, "mean": res.mean_pose, "smoothed": res.smoothed_path,
-            "steps": res.steps_path, "mode": res.mode_path}
+            "steps": res.steps_path, "mode": res.mode_path, "mode_mean": res.mode_mean_path,
+            "local_steps": res.local_steps_path}
     for estimate, path in want.items():
         np.testing.assert_allclose(live.path(estimate), path, rtol=0, atol=1e-9)
     np.testing.assert_allclose(live.path(), res.path, rtol=0, atol=1e-9)

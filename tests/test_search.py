@@ -349,3 +349,19 @@ def test_a_full_disk_is_a_named_error_and_publishes_nothing(small_run, tmp_path,
     err = capsys.readouterr().err
     assert f"--out {out}: cannot write the results (No space left on device)" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("path", ["steps", "local_steps"])
+def test_the_search_scores_the_path_the_run_reports(small_run, path):
+    """``--score-path``: the search's RMS at the config's own values is the RMS of the path
+    ``run_slam`` reports under that estimate (local_steps needs the run's local map
+    footprints, which the search's inputs carry)."""
+    from gslam_jax import slam
+    from gslam_jax.config import apply_overrides
+
+    space = SP.parse_space({"alpha_d": [0.01, 0.1]})
+    values = np.array([[CONFIG.motion.alpha_d]])
+    got = S.search(small_run, CONFIG, space, values=values, objective="rms", path=path)
+    res = slam.run_slam(small_run, apply_overrides(CONFIG, [f"filter.estimate={path}"]))
+    want = metrics.rms_after_fit(res.path, small_run.ground_truth)
+    np.testing.assert_allclose(got.objective[0], want, rtol=1e-4)

@@ -109,7 +109,8 @@ def test_spread_headings_shorten_the_mean_path_and_not_the_mean_steps():
                                atol=1e-5)
 
 
-@pytest.mark.parametrize("estimate", ["best", "mean", "smoothed", "steps", "mode"])
+@pytest.mark.parametrize("estimate", ["best", "mean", "smoothed", "steps", "mode",
+                                      "local_steps"])
 def test_each_estimate_ends_where_its_definition_says(estimate):
     """At the final frame the best particle's path is at the best particle, and the smoother's
     mean is the filtering mean (both are averages of the same final particles); the reported
@@ -121,5 +122,5 @@ def test_each_estimate_ends_where_its_definition_says(estimate):
     np.testing.assert_allclose(res.smoothed_path[-1], res.mean_pose[-1], atol=1e-5)
     np.testing.assert_allclose(res.steps_path[0], res.smoothed_path[0], atol=1e-5)
     want = {"best": res.best_path, "mean": res.mean_pose, "smoothed": res.smoothed_path,
-            "steps": res.steps_path, "mode": res.mode_path}
+            "steps": res.steps_path, "mode": res.mode_path, "local_steps": res.local_steps_path}
     np.testing.assert_array_equal(res.path, want[estimate])

@@ -241,8 +241,8 @@ class Config:
             (f.estimate in choices.ESTIMATES, "filter", "estimate",
              f"must be one of {', '.join(choices.ESTIMATES)} (final best particle's path, "
              "each frame's weighted mean pose, the smoother's mean path or mean steps, the "
-             "path of the final cloud's densest particle, or the smoother's mean over its "
-             "1 m neighbourhood)"),
+             "path of the final cloud's densest particle, the smoother's mean over its "
+             "1 m neighbourhood, or mean steps each weighed by the factors that bear on it)"),
             (f.proposal in choices.PROPOSALS, "filter", "proposal",
              f"must be one of {', '.join(choices.PROPOSALS)} (the motion model alone, or "
              "informed by the local map)"),

@@ -27,8 +27,9 @@ from gslam_jax.rbpf.draws import frame_keys, motion_noise, standard_normals, upd
 from gslam_jax.rbpf.kernel import (Proposal, Resampler, init, observe, predict, resample,
                                    run_filter, scan_frames, step, update)
 from gslam_jax.rbpf.maps import particle_map
-from gslam_jax.rbpf.paths import (ancestry_path, backtrack_path, densest_particle, map_particle,
-                                  mode_mean_path, smoothed_mean_path, smoothed_step_path)
+from gslam_jax.rbpf.paths import (StepHistory, ancestry_path, backtrack_path, densest_particle,
+                                  factor_cover, local_step_path, map_particle, mode_mean_path,
+                                  smoothed_mean_path, smoothed_step_path, step_history)
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, RunOutput, StepInfo,
                                   UpdateInfo, UpdateNoise)
 
@@ -41,5 +42,6 @@ __all__ = [
     "observe", "step", "scan_frames", "frame_keys", "run_filter",
     # results
     "backtrack_path", "densest_particle", "smoothed_mean_path", "mode_mean_path",
-    "smoothed_step_path", "ancestry_path", "map_particle", "particle_map",
+    "smoothed_step_path", "StepHistory", "step_history", "factor_cover", "local_step_path",
+    "ancestry_path", "map_particle", "particle_map",
 ]

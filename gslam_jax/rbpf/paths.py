@@ -7,6 +7,7 @@ its mean steps; and which particle's map goes with an estimate."""
 from __future__ import annotations
 
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -16,7 +17,8 @@ from gslam_jax.rbpf.motion import control_between, world_step
 
 __all__ = ["weighted_mean_pose", "backtrack_path", "densest_particle", "MODE_RADIUS_M",
            "mode_weights", "smoothed_mean_path", "mode_mean_path", "smoothed_step_path",
-           "ancestry_path", "map_particle"]
+           "compose_steps", "StepHistory", "step_history", "COVER_SPREADS", "factor_cover",
+           "local_step_path", "ancestry_path", "map_particle"]
 
 # The neighbourhood ``densest_particle`` sums the weight over: a loop closure's tolerance
 # (``loops.TOLERANCE``), so the mode is where most of the weight agrees to that precision.
@@ -131,22 +133,125 @@ def smoothed_step_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     w_final = jnp.exp(log_w - jax.nn.logsumexp(log_w))
     w_first, steps = lax.scan(back, w_final, (poses[1:], ancestors[1:], poses[:-1]),
                               reverse=True)
-    start = weighted_mean_pose(w_first, poses[0])
+    return compose_steps(weighted_mean_pose(w_first, poses[0]), steps)
+
+
+def compose_steps(start: Array, steps: Array) -> Array:
+    """The path [T, 3] that leaves ``start`` [3] by ``steps`` [T - 1, 3] (each in the frame of
+    its own start, as ``control_between`` gives them; eq. 1 without noise). The heading is the
+    sum of the turns (not wrapped)."""
 
     def forward(pose, step):
-        nxt = pose + jnp.stack([*world_step(pose, step), step[2]])  # eq. 1 without noise
+        nxt = pose + jnp.stack([*world_step(pose, step), step[2]])
         return nxt, nxt
 
     _, path = lax.scan(forward, start, steps)
     return jnp.concatenate([start[None], path], axis=0)
 
 
+class StepHistory(NamedTuple):
+    """What ``local_step_path`` needs beside the poses and ancestry, per frame."""
+
+    log_w: Array      # [T, J] normalised log weights after each frame (``StepInfo.log_w``)
+    resampled: Array  # [T] bool
+    mean_pose: Array  # [T, 3] each frame's weighted mean pose, where its local map is placed
+    footprint: Array  # [T, 3] the frame's local map's observed cells: their centre x, y in the
+    #                   robot frame and the radius about it that holds them (m); radius < 0
+    #                   where the frame has no local map (``observations.local_map_footprints``)
+
+
+def step_history(infos, mean_pose: Array, footprint: Array) -> StepHistory:
+    """A run's ``StepHistory`` from its per-frame ``StepInfo`` [T, ...] (log weights and
+    resampling flags), weighted mean poses [T, 3] and local map footprints [T, 3]."""
+    return StepHistory(jnp.asarray(infos.log_w), jnp.asarray(infos.resampled),
+                       jnp.asarray(mean_pose, jnp.float32), jnp.asarray(footprint, jnp.float32))
+
+
+# How far two frames' local maps may lie from where the mean path places them, in the
+# position spread the cloud gained between the two: ``factor_cover`` widens their overlap by
+# it, so that a revisit the particles make while their mean path misses it still counts (a
+# wider cover only adds factors to a step), while neighbouring frames, whose relative poses
+# the cloud hardly spreads, keep their own footprints.
+COVER_SPREADS = 3.0
+
+
+@jax.jit
+def factor_cover(poses: Array, history: StepHistory) -> Array:
+    """The first step [T] each frame's importance factor bears on: one after the oldest frame
+    whose local map its own overlaps (``history.footprint`` placed at the mean poses, the
+    overlap widened by ``COVER_SPREADS`` times the position spread the cloud gained between
+    the two frames, sqrt(|s_u^2 - s_s^2|) of its spreads s about the mean); u + 1 (none) for a
+    frame u without a local map or one that overlaps no older one. An update scores its local
+    map against the cells the older overlapping maps wrote, so its factor depends on the steps
+    from there to itself and on no other (eq. 30; eq. 31 also on the map's known cells, which
+    this ignores). At a loop's revisit that is the whole loop."""
+    T = poses.shape[0]
+    th = history.mean_pose[:, 2]
+    off = history.footprint[:, :2]
+    centre = history.mean_pose[:, :2] + jnp.stack(
+        [jnp.cos(th) * off[:, 0] - jnp.sin(th) * off[:, 1],
+         jnp.sin(th) * off[:, 0] + jnp.cos(th) * off[:, 1]], axis=-1)
+    w = jax.nn.softmax(history.log_w, axis=-1)
+    spread = jnp.sqrt(jnp.sum(w * jnp.sum((poses[..., :2] - history.mean_pose[:, None, :2]) ** 2,
+                                          axis=-1), axis=-1))
+    has = history.footprint[:, 2] >= 0
+    radius = history.footprint[:, 2]
+    frames = jnp.arange(T)
+
+    def first(u: Array) -> Array:
+        d2 = jnp.sum((centre - centre[u]) ** 2, axis=-1)
+        gained = jnp.sqrt(jnp.abs(spread[u] ** 2 - spread ** 2))
+        reach = radius + radius[u] + COVER_SPREADS * gained
+        near = has & has[u] & (frames < u) & (d2 <= reach ** 2)
+        return jnp.min(jnp.where(near, frames, u)) + 1
+
+    return lax.map(first, frames, batch_size=256)
+
+
+@jax.jit
+def local_step_path(poses: Array, ancestors: Array, history: StepHistory,
+                    first: Array) -> Array:
+    """The path of mean steps, each weighed by the importance factors that bear on it alone:
+    at frame t the mean, over the final particles' ancestral paths, of their steps into t,
+    weighed by the factors of the frames u with ``first[u]`` <= t <= u (``factor_cover``),
+    composed from their start: [T, J, 3] -> [T, 3].
+
+    ``smoothed_step_path`` weighs every step by the final weights, the product of all the
+    factors. To first order in the factors (stereo's tempered, nearly flat weights) a step's
+    posterior mean moves only by the factors that depend on it; the others (made before it,
+    or by updates whose maps do not reach back to it) only add Monte Carlo error
+    (docs/real-data.md, "Where the seeds' spread comes from"). The factors before the last
+    resampling are already in which lineages survived it, and are not weighed again: without
+    a resampling after a frame's factors this is the final weights' split by cover; with the
+    cover of every factor all the steps before it, ``smoothed_step_path``."""
+    T, J = history.log_w.shape
+
+    def back(slots, anc_t):
+        return anc_t[slots], slots
+
+    _, lineage = lax.scan(back, jnp.arange(J), ancestors, reverse=True)   # [T, J] slots
+    frames = jnp.arange(T)
+    last = jnp.max(jnp.where(history.resampled, frames, 0))
+    change = jnp.diff(history.log_w, axis=0, prepend=history.log_w[:1])
+    factors = jnp.where((frames > last)[:, None], change, 0.0)  # slot j is final particle j
+    bounds = jnp.zeros((T + 1, J)).at[first].add(factors).at[frames + 1].add(-factors)
+    log_w = jnp.cumsum(bounds, axis=0)[:T]                    # [T, J]: the factors on step t
+    path_poses = jnp.take_along_axis(poses, lineage[..., None], axis=1)
+    if T == 1:
+        return weighted_mean_pose(jnp.full(J, 1.0 / J), path_poses[0])[None]
+    w = jax.nn.softmax(log_w[1:], axis=-1)
+    steps = control_between(path_poses[:-1], path_poses[1:])  # [T - 1, J, 3]
+    mean_steps = jnp.einsum("tj,tjk->tk", w, steps)
+    return compose_steps(weighted_mean_pose(w[0], path_poses[0]), mean_steps)
+
+
 def ancestry_path(estimate: str, poses: Array, ancestors: Array, log_w: Array,
-                  best: Array) -> Array:
+                  best: Array, history: StepHistory | None = None) -> Array:
     """The path [T, 3] by ``estimate`` from the particles' poses [T, J, 3], ancestry [T, J],
     final log weights [J] and final best slot: "best" (``backtrack_path``), "mode" (the
-    ``densest_particle``'s path through its ancestry), "smoothed" (``smoothed_mean_path``) or
-    "steps" (``smoothed_step_path``). ("mean", the other ``[filter] estimate``, is each
+    ``densest_particle``'s path through its ancestry), "smoothed" (``smoothed_mean_path``),
+    "steps" (``smoothed_step_path``) or "local_steps" (``local_step_path`` over
+    ``factor_cover``, from ``history``). ("mean", the other ``[filter] estimate``, is each
     frame's weighted mean, kept as the filter runs.)"""
     if estimate == "best":
         return backtrack_path(poses, ancestors, best)
@@ -158,8 +263,12 @@ def ancestry_path(estimate: str, poses: Array, ancestors: Array, log_w: Array,
         return smoothed_mean_path(poses, ancestors, log_w)
     if estimate == "steps":
         return smoothed_step_path(poses, ancestors, log_w)
+    if estimate == "local_steps":
+        if history is None:
+            raise ValueError("the estimate 'local_steps' needs the run's StepHistory")
+        return local_step_path(poses, ancestors, history, factor_cover(poses, history))
     raise ValueError(f"no ancestry path for the estimate {estimate!r}: one of best, mode, "
-                     "mode_mean, smoothed, steps")
+                     "mode_mean, smoothed, steps, local_steps")
 
 
 def map_particle(estimate: str, pose: Array, log_w: Array, best: Array | int) -> Array:

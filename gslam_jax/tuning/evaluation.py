@@ -68,7 +68,7 @@ def rigid_rms(estimate: Array, reference: Array, mask: Array) -> Array:
 
 
 def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask: Array,
-                    path: str = "mean") -> Array:
+                    path: str = "mean", footprints: Array | None = None) -> Array:
     """Scalar objective of one filter run (see the module docstring); NaN when the shared map
     store ran out of tiles (its maps, and so the run, are then not the filter's), and for
     "loglik" when a particle observed cells beyond the map's edge (they are neither weighed
@@ -79,8 +79,11 @@ def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask:
         value = jnp.where(jnp.sum(out.infos.extent_violations) > 0, jnp.nan, value)
     else:
         est = {"mean": lambda: out.mean_pose, "best": lambda: out.best_path}.get(
-            path, lambda: rbpf.ancestry_path(path, out.infos.pose, out.infos.ancestors,
-                                             out.final_state.log_w, out.final_state.best))()
+            path, lambda: rbpf.ancestry_path(
+                path, out.infos.pose, out.infos.ancestors, out.final_state.log_w,
+                out.final_state.best,
+                None if footprints is None else
+                rbpf.step_history(out.infos, out.mean_pose, footprints)))()
         value = rigid_rms(est, reference, mask)
     return jnp.where(jnp.max(out.infos.map_status) > 0, jnp.nan, value)
 
@@ -102,7 +105,8 @@ def _batch_fn(key: Array, inputs: _Inputs, base: rbpf.FilterParams, names: tuple
                if shared is None else shared)
         out = rbpf.run_filter(key, p, inputs.controls, inputs.obs_index, obs, cfg,
                               inputs.start, inputs.lattice_headings, inputs.fallback)
-        return objective_value(out, objective, inputs.reference, inputs.mask, path)
+        return objective_value(out, objective, inputs.reference, inputs.mask, path,
+                               inputs.footprints)
 
     def block(values: Array) -> Array:
         shared = None if per_set else observations.refine_observations(inputs.local_obs, inputs.obs)
