@@ -221,28 +221,33 @@ def local_step_path(poses: Array, ancestors: Array, history: StepHistory,
     posterior mean moves only by the factors that depend on it; the others (made before it,
     or by updates whose maps do not reach back to it) only add Monte Carlo error
     (docs/real-data.md, "Where the seeds' spread comes from"). The factors before the last
-    resampling are already in which lineages survived it, and are not weighed again: without
-    a resampling after a frame's factors this is the final weights' split by cover; with the
-    cover of every factor all the steps before it, ``smoothed_step_path``."""
+    resampling are already in which lineages survived it, and are not weighed again; with
+    one factor after it that covers every step this is ``smoothed_step_path``. The start:
+    the lineages' mean at frame 0 under the first step's weights. One backward pass, which
+    carries each lineage's slot and the sum of the factors covering the step (those a step
+    leaves behind are dropped by the first step they cover): O(J) memory besides the
+    inputs."""
     T, J = history.log_w.shape
-
-    def back(slots, anc_t):
-        return anc_t[slots], slots
-
-    _, lineage = lax.scan(back, jnp.arange(J), ancestors, reverse=True)   # [T, J] slots
     frames = jnp.arange(T)
     last = jnp.max(jnp.where(history.resampled, frames, 0))
     change = jnp.diff(history.log_w, axis=0, prepend=history.log_w[:1])
-    factors = jnp.where((frames > last)[:, None], change, 0.0)  # slot j is final particle j
-    bounds = jnp.zeros((T + 1, J)).at[first].add(factors).at[frames + 1].add(-factors)
-    log_w = jnp.cumsum(bounds, axis=0)[:T]                    # [T, J]: the factors on step t
-    path_poses = jnp.take_along_axis(poses, lineage[..., None], axis=1)
-    if T == 1:
-        return weighted_mean_pose(jnp.full(J, 1.0 / J), path_poses[0])[None]
-    w = jax.nn.softmax(log_w[1:], axis=-1)
-    steps = control_between(path_poses[:-1], path_poses[1:])  # [T - 1, J, 3]
-    mean_steps = jnp.einsum("tj,tjk->tk", w, steps)
-    return compose_steps(weighted_mean_pose(w[0], path_poses[0]), mean_steps)
+    covers = (frames > last) & (first <= frames)  # after it slot j is final particle j
+    factors = jnp.where(covers[:, None], change, 0.0)
+    # the factors by the first step they cover: leaving that step (backwards) drops them
+    ends = jax.ops.segment_sum(factors, first, num_segments=T + 1)
+
+    def back(carry, xs):
+        slots, log_w = carry
+        pose_t, anc_t, prev, factor_t, end_next = xs
+        log_w = log_w + factor_t - end_next          # the factors that cover step t
+        parents = anc_t[slots]
+        step = jax.nn.softmax(log_w) @ control_between(prev[parents], pose_t[slots])
+        return (parents, log_w), step
+
+    (slots0, log_w1), steps = lax.scan(
+        back, (jnp.arange(J), jnp.zeros(J)),
+        (poses[1:], ancestors[1:], poses[:-1], factors[1:], ends[2:]), reverse=True)
+    return compose_steps(weighted_mean_pose(jax.nn.softmax(log_w1), poses[0][slots0]), steps)
 
 
 def ancestry_path(estimate: str, poses: Array, ancestors: Array, log_w: Array,
