@@ -50,14 +50,19 @@ class FilterSection:
     # the reported trajectory (slam.SlamResult.path): "best", the final best particle's path
     # through its ancestry (the paper); "mean", each frame's weighted mean pose (filtering);
     # "smoothed", the final weights' mean over every final particle's ancestral path (the
-    # default until 2026-12-05); "steps" (default), the path of those paths' mean steps
-    # (rbpf.smoothed_step_path): the same on the simulator's Table I (within 0.3 mm), but where
-    # the particles' headings spread under stereo's flat weights the smoothed path comes out
-    # shorter than any particle's, a scale error that made most of the KITTI clip's gain over
-    # VO-only (docs/real-data.md, "What the gain over VO is made of"); "mode", the ancestral
-    # path of the final particle with the most weight within 1 m; "mode_mean", the smoother's
-    # mean over the final particles within 1 m of that one (rbpf.mode_mean_path)
-    estimate: str = "steps"
+    # default until 2026-12-05); "steps", the path of those paths' mean steps
+    # (rbpf.smoothed_step_path; the default until 2026-12-06): the same on the simulator's
+    # Table I (within 0.3 mm), but where the particles' headings spread under stereo's flat
+    # weights the smoothed path comes out shorter than any particle's, a scale error that made
+    # most of the KITTI clip's gain over VO-only (docs/real-data.md, "What the gain over VO is
+    # made of"); "mode", the ancestral path of the final particle with the most weight within
+    # 1 m; "mode_mean", the smoother's mean over the final particles within 1 m of that one
+    # (rbpf.mode_mean_path); "local_steps" (default), the mean steps each weighed only by the
+    # factors of the updates whose maps reach back to it (rbpf.local_step_path): "steps" to
+    # 0.1 mm on Table I, where resampling leaves few factors to split; on stereo's flat
+    # weights it drops the Monte Carlo error of the others (docs/real-data.md, "Where the
+    # seeds' spread comes from")
+    estimate: str = "local_steps"
     # "motion": each particle's pose drawn from the motion model alone (eq. 24, the paper);
     # "informed": at a local map, drawn from a Gaussian fitted to its map score times its
     # motion prior, with the exact importance weight (rbpf/proposal.py)
