@@ -2,7 +2,8 @@
 frame's weighted mean pose, the best particle's path through its ancestry (the paper's
 estimate), the path of the final cloud's densest particle, the particle smoother's mean path
 over every final particle or over the densest particle's neighbourhood alone, and the path of
-its mean steps; and which particle's map goes with an estimate."""
+its mean steps, weighed by the final weights or each by the factors that bear on it; and which
+particle's map goes with an estimate."""
 
 from __future__ import annotations
 
