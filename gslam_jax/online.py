@@ -335,10 +335,8 @@ class Online:
             return np.zeros((0, 3))
         if estimate == "mean":
             return np.stack(self.mean)
-        history = rbpf.StepHistory(
-            jnp.asarray(np.stack(self._log_w)), jnp.asarray(self._resampled),
-            jnp.asarray(np.stack(self._mean_on_axes), jnp.float32),
-            jnp.asarray(np.stack(self._footprints), jnp.float32))
+        history = rbpf.step_history(np.stack(self._log_w), np.asarray(self._resampled),
+                                    np.stack(self._mean_on_axes), np.stack(self._footprints))
         path = rbpf.ancestry_path(estimate, jnp.asarray(np.stack(self._poses)),
                                   jnp.asarray(np.stack(self._ancestors)), self.state.log_w,
                                   self.state.best, history)

@@ -359,7 +359,7 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     mode_mean = np.asarray(rbpf.mode_mean_path(poses, ancestry, state.log_w, densest))
     local_steps = np.asarray(rbpf.ancestry_path(
         "local_steps", poses, ancestry, state.log_w, state.best,
-        rbpf.step_history(infos, mean, local_map_footprints(run))))
+        rbpf.step_history(infos.log_w, infos.resampled, mean, local_map_footprints(run))))
     dropped = int(np.sum(infos.dropped_cells))
     if dropped:  # observed_cells(run) sizes M so that this cannot happen
         raise RuntimeError(f"{dropped} observed local cells did not fit the filter's "

@@ -161,10 +161,11 @@ class StepHistory(NamedTuple):
     #                   where the frame has no local map (``observations.local_map_footprints``)
 
 
-def step_history(infos, mean_pose: Array, footprint: Array) -> StepHistory:
-    """A run's ``StepHistory`` from its per-frame ``StepInfo`` [T, ...] (log weights and
-    resampling flags), weighted mean poses [T, 3] and local map footprints [T, 3]."""
-    return StepHistory(jnp.asarray(infos.log_w), jnp.asarray(infos.resampled),
+def step_history(log_w, resampled, mean_pose, footprint) -> StepHistory:
+    """A run's ``StepHistory`` (device arrays; poses and footprints float32) from its per-frame
+    log weights [T, J] and resampling flags [T] (``StepInfo``), weighted mean poses [T, 3] and
+    local map footprints [T, 3], host or device arrays."""
+    return StepHistory(jnp.asarray(log_w), jnp.asarray(resampled),
                        jnp.asarray(mean_pose, jnp.float32), jnp.asarray(footprint, jnp.float32))
 
 

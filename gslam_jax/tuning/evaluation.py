@@ -73,7 +73,9 @@ def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask:
     store ran out of tiles (its maps, and so the run, are then not the filter's), and for
     "loglik" when a particle observed cells beyond the map's edge (they are neither weighed
     nor mapped, so the evidence is not the whole log's: a noise wide enough to carry the
-    particles off the map would otherwise score by what it skips)."""
+    particles off the map would otherwise score by what it skips). ``footprints``: the run's
+    local map footprints [T, 3] (``RunArrays.footprints``), which the "local_steps" path
+    needs."""
     if objective == "loglik":
         value = jnp.sum(out.infos.log_lik)
         value = jnp.where(jnp.sum(out.infos.extent_violations) > 0, jnp.nan, value)
@@ -83,7 +85,8 @@ def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask:
                 path, out.infos.pose, out.infos.ancestors, out.final_state.log_w,
                 out.final_state.best,
                 None if footprints is None else
-                rbpf.step_history(out.infos, out.mean_pose, footprints)))()
+                rbpf.step_history(out.infos.log_w, out.infos.resampled, out.mean_pose,
+                                  footprints)))()
         value = rigid_rms(est, reference, mask)
     return jnp.where(jnp.max(out.infos.map_status) > 0, jnp.nan, value)
 
