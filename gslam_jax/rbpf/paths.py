@@ -188,11 +188,8 @@ def factor_cover(poses: Array, history: StepHistory) -> Array:
     from there to itself and on no other (eq. 30; eq. 31 also on the map's known cells, which
     this ignores). At a loop's revisit that is the whole loop."""
     T = poses.shape[0]
-    th = history.mean_pose[:, 2]
-    off = history.footprint[:, :2]
     centre = history.mean_pose[:, :2] + jnp.stack(
-        [jnp.cos(th) * off[:, 0] - jnp.sin(th) * off[:, 1],
-         jnp.sin(th) * off[:, 0] + jnp.cos(th) * off[:, 1]], axis=-1)
+        world_step(history.mean_pose, history.footprint), axis=-1)
     w = jax.nn.softmax(history.log_w, axis=-1)
     spread = jnp.sqrt(jnp.sum(w * jnp.sum((poses[..., :2] - history.mean_pose[:, None, :2]) ** 2,
                                           axis=-1), axis=-1))
