@@ -144,19 +144,31 @@ class LocalMapSection:
     lattice: str = "auto"
 
 
+def _given_keys(section: object) -> list[str]:
+    """A section's keys set to other than 0 or empty (the source's own), in declaration
+    order."""
+    return [f.name for f in dataclasses.fields(section) if getattr(section, f.name)]
+
+
 @dataclass(frozen=True)
 class StereoSection:
     """Dense stereo of the image sources (sim-stereo, kitti, euroc; vo.stereo.DenseStereoParams).
     0 or "" keeps the source's own setting (64 disparities, KITTI 128; block 5; stride 2;
-    "sgbm")."""
+    "sgbm"; every point, whatever its depth error; 0.25 px of disparity noise)."""
 
     num_disparities: int = 0
     block: int = 0
     stride: int = 0
     algorithm: str = ""
+    max_depth_error: float = 0.0
+    disparity_std: float = 0.0
 
     def is_default(self) -> bool:
         return self == StereoSection()
+
+    def given(self) -> list[str]:
+        """The keys set (not 0 or empty), in declaration order."""
+        return _given_keys(self)
 
 
 @dataclass(frozen=True)
@@ -182,7 +194,7 @@ class RigSection:
 
     def given(self) -> list[str]:
         """The keys set (not 0 or empty), in declaration order."""
-        return [f.name for f in dataclasses.fields(self) if getattr(self, f.name)]
+        return _given_keys(self)
 
     def check(self) -> tuple[str, str] | None:
         """(key, problem) of the first bad value, or None."""
@@ -294,6 +306,10 @@ class Config:
             (st.block == 0 or (st.block >= 1 and st.block % 2 == 1), "stereo", "block",
              "must be odd (0: the source's default)"),
             (st.stride >= 0, "stereo", "stride", "must be >= 0 (0: the source's default)"),
+            (st.max_depth_error >= 0, "stereo", "max_depth_error",
+             "must be >= 0 (0: the source's default)"),
+            (0 <= st.disparity_std <= 4, "stereo", "disparity_std",
+             "must be in [0, 4] px (0: the source's default; SGBM's is 0.1-1 px)"),
             (st.algorithm in ("", *choices.STEREO_ALGORITHMS), "stereo", "algorithm",
              f"must be one of {', '.join(choices.STEREO_ALGORITHMS)} (\"\": the source's "
              "default)"),

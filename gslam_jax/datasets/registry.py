@@ -201,8 +201,8 @@ def check_source(src: Source, config: Config | None = None, gps: str | None = No
                           "filter.seed=N)")
     images = ', '.join(s for s in source_names() if get_source(s).images)
     if config is not None and not config.stereo.is_default() and not spec.images:
-        raise ConfigError(f"[stereo] settings apply to stereo images (--source {images}); "
-                          f"{what} has none")
+        raise ConfigError(f"[stereo] {', '.join(config.stereo.given())}: settings apply to "
+                          f"stereo images (--source {images}); {what} has none")
     if config is not None and not config.rig.is_default() and not spec.images:
         raise ConfigError(f"[rig] {', '.join(config.rig.given())}: the camera mount applies to "
                           f"stereo images (--source {images}); {what} has none")
@@ -213,5 +213,7 @@ def stereo_settings(config: Config, default: Any) -> Any:
     settings (0 or "": the source's own)."""
     st = config.stereo
     changes = {k: v for k, v in (("num_disparities", st.num_disparities), ("block", st.block),
-                                 ("stride", st.stride), ("algorithm", st.algorithm)) if v}
+                                 ("stride", st.stride), ("algorithm", st.algorithm),
+                                 ("max_depth_error", st.max_depth_error),
+                                 ("disparity_std", st.disparity_std)) if v}
     return dataclasses.replace(default, **changes)

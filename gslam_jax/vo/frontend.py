@@ -23,8 +23,8 @@ from gslam_jax.vo.fallback import (correct_tilt, fallback_increment, level_rotat
                                    planar_transform, slip_ratio)
 from gslam_jax.vo.geometry import increments_2d, invert, pose_to_2d
 from gslam_jax.vo.odometry import StereoVO, VOParams, VOResult
-from gslam_jax.vo.stereo import (DenseStereoParams, dense_disparity, disparity_to_points,
-                                 to_robot_frame)
+from gslam_jax.vo.stereo import (DenseStereoParams, dense_disparity, depth_limit,
+                                 disparity_to_points, to_robot_frame)
 
 __all__ = ["FrontEndParams", "FrontEndSummary", "FrontEndResult", "SensorAids", "run_frontend"]
 
@@ -127,6 +127,7 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
                       "far points: raise stereo.num_disparities", stacklevel=2)
     vo = StereoVO(cam, params.vo)
     matcher = params.stereo.matcher() if params.dense else None
+    max_depth = min(params.local_map.max_range * 1.5, depth_limit(rig, params.stereo))
     m, m_inv = t_robot_cam, invert(t_robot_cam)
     start = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=np.float64)
     builder = LocalMapBuilder(params.local_map,
@@ -185,13 +186,12 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
         points = np.zeros((0, 3))
         if disp is not None:
             r_level = level_rotation(pose[:3, :3])
-            max_range = params.local_map.max_range * 1.5
-            cam_pts = disparity_to_points(disp, rig, params.stereo.stride, max_range=max_range)
+            cam_pts = disparity_to_points(disp, rig, params.stereo.stride, max_range=max_depth)
             parts = [to_robot_frame(cam_pts, m, r_level)]
             for left, right, mount in (extra_pairs(t) if extra_pairs is not None else []):
                 d2 = dense_disparity(left, right, params.stereo, matcher)
                 parts.append(to_robot_frame(
-                    disparity_to_points(d2, rig, params.stereo.stride, max_range=max_range),
+                    disparity_to_points(d2, rig, params.stereo.stride, max_range=max_depth),
                     mount, r_level))
             points = np.concatenate(parts)
         stats = builder.add(poses_2d[-1], points)
