@@ -23,8 +23,9 @@ from gslam_jax.vo.fallback import (correct_tilt, fallback_increment, level_rotat
                                    planar_transform, slip_ratio)
 from gslam_jax.vo.geometry import increments_2d, invert, pose_to_2d
 from gslam_jax.vo.odometry import StereoVO, VOParams, VOResult
-from gslam_jax.vo.stereo import (DenseStereoParams, dense_disparity, depth_limit,
-                                 disparity_to_points, to_robot_frame)
+from gslam_jax.vo.disparity_noise import DisparityNoise, depth_errors, temporal_residuals
+from gslam_jax.vo.stereo import (DenseStereoParams, dense_disparity, disparity_to_points,
+                                 to_robot_frame)
 
 __all__ = ["FrontEndParams", "FrontEndSummary", "FrontEndResult", "SensorAids", "run_frontend"]
 
@@ -78,6 +79,8 @@ class FrontEndSummary:
     sources: Counter = field(default_factory=Counter)
     tilt_corrections: int = 0
     dropped_points: int = 0
+    far_points: int = 0  # points over [stereo] max_depth_error, not made
+    disparity_noise: DisparityNoise | None = None
 
     @property
     def vo_failures(self) -> int:
@@ -88,6 +91,11 @@ class FrontEndSummary:
                  f"bad frames: {len(self.bad_frames)}, control sources: {dict(self.sources)}"]
         lines += [f"  VO failure '{k}': frames {v}" for k, v in sorted(self.failures.items())]
         lines += [f"  bad frame {t}: {msg}" for t, msg in self.bad_frames]
+        if self.disparity_noise is not None and self.disparity_noise.text():
+            lines.append(f"disparity noise measured (sigma by disparity, the last ~10 frames): "
+                         f"{self.disparity_noise.text()}")
+        if self.far_points:
+            lines.append(f"points over [stereo] max_depth_error, not made: {self.far_points}")
         return "\n".join(lines)
 
 
@@ -127,13 +135,25 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
                       "far points: raise stereo.num_disparities", stacklevel=2)
     vo = StereoVO(cam, params.vo)
     matcher = params.stereo.matcher() if params.dense else None
-    max_depth = min(params.local_map.max_range * 1.5, depth_limit(rig, params.stereo))
+    max_depth = params.local_map.max_range * 1.5
+    noise = DisparityNoise(prior_std=params.stereo.disparity_std)
+    summary = FrontEndSummary(frames=num_frames, disparity_noise=noise)
+    max_error = params.stereo.max_depth_error
+    prev_disp = None
+
+    def near(points_cam: np.ndarray) -> np.ndarray:
+        """The points whose depth error is within the limit (all where none is set)."""
+        if not np.isfinite(max_error):
+            return points_cam
+        keep = depth_errors(points_cam, rig, noise) <= max_error
+        summary.far_points += int((~keep).sum())
+        return points_cam[keep]
+
     m, m_inv = t_robot_cam, invert(t_robot_cam)
     start = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=np.float64)
     builder = LocalMapBuilder(params.local_map,
                               axes_heading=map_axes_heading(params.local_map.axes, start))
     pose = planar_transform(start)
-    summary = FrontEndSummary(frames=num_frames)
     poses, poses_2d, results, failed, maps, obs_index = [], [], [], [], [], []
     controls = np.zeros((num_frames, 3))
     every = max(num_frames // 100, 1)
@@ -153,6 +173,11 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
         res = vo.step(*pair, disparity=disp) if pair is not None else VOResult(
             False, np.eye(4), "bad frame", 0, 0, 0, np.nan, np.full((6, 6), np.nan))
         results.append(res)
+        if np.isfinite(max_error) and disp is not None and prev_disp is not None and res.ok:
+            noise.update(*temporal_residuals(prev_disp, disp, res.transform, rig,
+                                             params.stereo.stride,
+                                             params.stereo.num_disparities))
+        prev_disp = disp
         prev_2d = pose_to_2d(pose)
         if t == 0:
             failed.append(False)
@@ -187,11 +212,11 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
         if disp is not None:
             r_level = level_rotation(pose[:3, :3])
             cam_pts = disparity_to_points(disp, rig, params.stereo.stride, max_range=max_depth)
-            parts = [to_robot_frame(cam_pts, m, r_level)]
+            parts = [to_robot_frame(near(cam_pts), m, r_level)]
             for left, right, mount in (extra_pairs(t) if extra_pairs is not None else []):
                 d2 = dense_disparity(left, right, params.stereo, matcher)
                 parts.append(to_robot_frame(
-                    disparity_to_points(d2, rig, params.stereo.stride, max_range=max_depth),
+                    near(disparity_to_points(d2, rig, params.stereo.stride, max_range=max_depth)),
                     mount, r_level))
             points = np.concatenate(parts)
         stats = builder.add(poses_2d[-1], points)

@@ -13,8 +13,7 @@ import numpy as np
 
 from gslam_jax.vo.calib import RectifiedRig
 
-__all__ = ["DenseStereoParams", "dense_disparity", "disparity_to_points", "depth_limit",
-           "to_robot_frame"]
+__all__ = ["DenseStereoParams", "dense_disparity", "disparity_to_points", "to_robot_frame"]
 
 
 @dataclass(frozen=True)
@@ -24,9 +23,9 @@ class DenseStereoParams:
     num_disparities: search range in pixels (multiple of 16); block: matching window side;
     min_disparity_px: disparities below this (far points) are dropped; stride: keep every
     ``stride``-th pixel in each direction when making points.
-    max_depth_error: metres; points whose depth error, to first order in the disparity noise
-    ``disparity_std`` (px), would exceed it are not made (``depth_limit``); inf (the default)
-    keeps them all.
+    max_depth_error: metres; the front-end makes no point whose depth error, to first order in
+    the disparity noise it measures (``vo.disparity_noise``), would exceed it; inf keeps all.
+    disparity_std: the disparity noise (px) assumed until a disparity band has been measured.
     """
 
     algorithm: str = "sgbm"
@@ -81,21 +80,6 @@ def disparity_to_points(disparity: np.ndarray, rig: RectifiedRig, stride: int = 
     y = (v - rig.cy) * z / rig.fy
     pts = np.stack([x, y, z], axis=1)
     return pts[z <= max_range]
-
-
-def depth_limit(rig: RectifiedRig, params: DenseStereoParams) -> float:
-    """The depth (m) up to which a point's depth error stays within ``params.max_depth_error``.
-
-    Depth z = f b / d from a disparity d with noise sigma_d has, to first order, the error
-    sigma_z = z^2 sigma_d / (f b): it grows with the square of the depth and shrinks with the
-    rig's f b. So the limit is sqrt(max_depth_error * f b / sigma_d): for 0.2 m at 0.25 px,
-    6.0 m on the rendered rig (f b = 44 px m) and 17.6 m on KITTI's (388 px m); inf when
-    ``max_depth_error`` is inf.
-    """
-    if params.max_depth_error <= 0 or params.disparity_std <= 0:
-        raise ValueError("max_depth_error and disparity_std must be positive, got "
-                         f"{params.max_depth_error} and {params.disparity_std}")
-    return float(np.sqrt(params.max_depth_error * rig.fx * rig.baseline / params.disparity_std))
 
 
 def to_robot_frame(points_cam: np.ndarray, t_robot_cam: np.ndarray,
