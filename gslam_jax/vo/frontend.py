@@ -18,12 +18,12 @@ import numpy as np
 from gslam_jax.vo.localmap import LocalMapBuilder, LocalMapParams, map_axes_heading
 from gslam_jax.run import Run, validate_run
 from gslam_jax.vo.calib import ImageError, RectifiedRig
+from gslam_jax.vo.disparity_noise import DisparityNoise, depth_errors, temporal_residuals
 from gslam_jax.vo.estimate import Camera
 from gslam_jax.vo.fallback import (correct_tilt, fallback_increment, level_rotation,
                                    planar_transform, slip_ratio)
 from gslam_jax.vo.geometry import increments_2d, invert, pose_to_2d
 from gslam_jax.vo.odometry import StereoVO, VOParams, VOResult
-from gslam_jax.vo.disparity_noise import DisparityNoise, depth_errors, temporal_residuals
 from gslam_jax.vo.stereo import (DenseStereoParams, dense_disparity, disparity_to_points,
                                  to_robot_frame)
 
