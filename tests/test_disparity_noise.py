@@ -197,3 +197,27 @@ def test_measured_noise_against_the_closed_form_truth_on_rendered_ground():
         ratios.append(measured[b] / true_sigma)
     assert len(ratios) >= 6
     assert 0.25 < min(ratios) and max(ratios) < 1.5, np.round(ratios, 2)
+
+
+def test_disparity_truth_marches_rays_to_the_ground_and_a_wall():
+    """``experiments.disparity_truth``'s truth against the closed form: from 1 m over flat
+    ground (z = 0) a ray with downward component dz meets it at range 1 / dz, unless a 2 m wall
+    across x = 5 m stops it first, at range 5 / (its x component)."""
+    from experiments.disparity_truth import MARCH_STEP, true_ranges
+    from gslam_jax.sim.world import empty_world
+
+    world = empty_world("mars-yard", 0, (-5.0, 25.0, -15.0, 15.0))
+    wall_x = 5.0
+    ix = int(round((wall_x - world.origin[0]) / world.resolution))
+    world.height[ix:] = 2.0  # every cell whose centre lies beyond x = 5 m
+    rng = np.random.default_rng(2)
+    yaw = rng.uniform(-0.6, 0.6, 300)
+    down = rng.uniform(0.05, 0.8, 300)  # ground 1.25-20 m away
+    dirs = np.stack([np.cos(down) * np.cos(yaw), np.cos(down) * np.sin(yaw), -np.sin(down)], 1)
+    got = true_ranges(world, np.array([0.0, 0.0, 1.0]), dirs)
+    expected = np.minimum(1.0 / np.sin(down), wall_x / dirs[:, 0])
+    assert 30 < np.sum(wall_x / dirs[:, 0] < 1.0 / np.sin(down)) < 270  # both kinds of hit
+    # within a march step, and the bilinear ramp of the wall's edge (one raster cell)
+    slack = MARCH_STEP + world.resolution / dirs[:, 0]
+    assert np.all(got >= expected - slack) and np.all(got <= expected + slack)
+    assert np.isnan(true_ranges(world, np.array([0.0, 0.0, 3.0]), np.array([[0.0, 1.0, 0.0]])))[0]
