@@ -54,7 +54,7 @@ def test_options_a_source_does_not_take_are_refused():
         check_source(Source(source="kitti", path=Path("x"), seed=3))
     check_source(Source(source="kitti", path=Path("x"), seed=3), gps="sim")  # the GPS's seed
     stereo = apply_overrides(Config(), ["stereo.num_disparities=32"])
-    with pytest.raises(registry.ConfigError, match=r"\[stereo\] settings apply"):
+    with pytest.raises(registry.ConfigError, match=r"\[stereo\] num_disparities: settings apply"):
         check_source(Source(source="sim"), stereo)
     check_source(Source(source="sim-stereo"), stereo)
     with pytest.raises(registry.ConfigError, match="a Run file is used as it is; --max-frames"):
