@@ -221,3 +221,26 @@ def test_disparity_truth_marches_rays_to_the_ground_and_a_wall():
     slack = MARCH_STEP + world.resolution / dirs[:, 0]
     assert np.all(got >= expected - slack) and np.all(got <= expected + slack)
     assert np.isnan(true_ranges(world, np.array([0.0, 0.0, 3.0]), np.array([[0.0, 1.0, 0.0]])))[0]
+
+
+def test_depth_edges_against_a_loop_over_windows():
+    """``drop_depth_edges`` against the definition, pixel by pixel: the 5 x 5 window (clipped
+    at the image's border) spans at most ``ratio`` times the pixel's disparity and holds no
+    unmatched pixel."""
+    from gslam_jax.vo.stereo import drop_depth_edges
+
+    rng = np.random.default_rng(3)
+    disp = rng.uniform(4.0, 6.0, (30, 40)).astype(np.float32)
+    disp[:, 25:] *= 2.0  # a depth edge
+    disp[rng.random(disp.shape) < 0.02] = np.nan
+    out = drop_depth_edges(disp, 0.3)
+    zeroed = np.nan_to_num(disp, nan=0.0)
+    for i in range(disp.shape[0]):
+        for j in range(disp.shape[1]):
+            w = zeroed[max(0, i - 2):i + 3, max(0, j - 2):j + 3]
+            keep = zeroed[i, j] > 0 and w.max() - w.min() <= 0.3 * zeroed[i, j]
+            assert np.isfinite(out[i, j]) == keep, (i, j)
+            if keep:
+                assert out[i, j] == disp[i, j]
+    assert np.isnan(out[:, 23:27]).all()  # the edge's flying pixels
+    assert drop_depth_edges(disp, np.inf) is disp

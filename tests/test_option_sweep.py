@@ -135,6 +135,7 @@ CONFIG_VALID = {
     ("localmap", "max_height"): {"-1", "0"}, ("localmap", "cells"): {"0"},
     ("stereo", "num_disparities"): {"0"}, ("stereo", "block"): {"0"}, ("stereo", "stride"): {"0"},
     ("stereo", "max_depth_error"): {"0", "1e300"}, ("stereo", "disparity_std"): {"0"},
+    ("stereo", "edge_ratio"): {"0", "1e300"},
     **{("rig", k): {"0"} for k in ("height", "pitch", "roll", "yaw", "forward", "lateral")},
 }
 

@@ -154,7 +154,8 @@ def _given_keys(section: object) -> list[str]:
 class StereoSection:
     """Dense stereo of the image sources (sim-stereo, kitti, euroc; vo.stereo.DenseStereoParams).
     0 or "" keeps the source's own setting (64 disparities, KITTI 128; block 5; stride 2;
-    "sgbm"; every point, whatever its depth error; 0.25 px of disparity noise)."""
+    "sgbm"; every point, whatever its depth error; 0.25 px of disparity noise; points at depth
+    edges dropped where a 5 x 5 window spans over half the pixel's disparity)."""
 
     num_disparities: int = 0
     block: int = 0
@@ -162,6 +163,7 @@ class StereoSection:
     algorithm: str = ""
     max_depth_error: float = 0.0
     disparity_std: float = 0.0
+    edge_ratio: float = 0.0
 
     def is_default(self) -> bool:
         return self == StereoSection()
@@ -308,6 +310,7 @@ class Config:
             (st.stride >= 0, "stereo", "stride", "must be >= 0 (0: the source's default)"),
             (st.max_depth_error >= 0, "stereo", "max_depth_error",
              "must be >= 0 (0: the source's default)"),
+            (st.edge_ratio >= 0, "stereo", "edge_ratio", "must be >= 0 (0: the source's default)"),
             (0 <= st.disparity_std <= 4, "stereo", "disparity_std",
              "must be in [0, 4] px (0: the source's default; SGBM's is 0.1-1 px)"),
             (st.algorithm in ("", *choices.STEREO_ALGORITHMS), "stereo", "algorithm",

@@ -215,5 +215,6 @@ def stereo_settings(config: Config, default: Any) -> Any:
     changes = {k: v for k, v in (("num_disparities", st.num_disparities), ("block", st.block),
                                  ("stride", st.stride), ("algorithm", st.algorithm),
                                  ("max_depth_error", st.max_depth_error),
-                                 ("disparity_std", st.disparity_std)) if v}
+                                 ("disparity_std", st.disparity_std),
+                                 ("edge_ratio", st.edge_ratio)) if v}
     return dataclasses.replace(default, **changes)

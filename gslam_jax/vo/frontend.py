@@ -25,7 +25,7 @@ from gslam_jax.vo.fallback import (correct_tilt, fallback_increment, level_rotat
 from gslam_jax.vo.geometry import increments_2d, invert, pose_to_2d
 from gslam_jax.vo.odometry import StereoVO, VOParams, VOResult
 from gslam_jax.vo.stereo import (DenseStereoParams, dense_disparity, disparity_to_points,
-                                 to_robot_frame)
+                                 drop_depth_edges, to_robot_frame)
 
 __all__ = ["FrontEndParams", "FrontEndSummary", "FrontEndResult", "SensorAids", "run_frontend"]
 
@@ -211,12 +211,14 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
         points = np.zeros((0, 3))
         if disp is not None:
             r_level = level_rotation(pose[:3, :3])
-            cam_pts = disparity_to_points(disp, rig, params.stereo.stride, max_range=max_depth)
+            cam_pts = disparity_to_points(drop_depth_edges(disp, params.stereo.edge_ratio), rig,
+                                          params.stereo.stride, max_range=max_depth)
             parts = [to_robot_frame(near(cam_pts), m, r_level)]
             for left, right, mount in (extra_pairs(t) if extra_pairs is not None else []):
                 d2 = dense_disparity(left, right, params.stereo, matcher)
                 parts.append(to_robot_frame(
-                    near(disparity_to_points(d2, rig, params.stereo.stride, max_range=max_depth)),
+                    near(disparity_to_points(drop_depth_edges(d2, params.stereo.edge_ratio), rig,
+                                             params.stereo.stride, max_range=max_depth)),
                     mount, r_level))
             points = np.concatenate(parts)
         stats = builder.add(poses_2d[-1], points)

@@ -13,7 +13,8 @@ import numpy as np
 
 from gslam_jax.vo.calib import RectifiedRig
 
-__all__ = ["DenseStereoParams", "dense_disparity", "disparity_to_points", "to_robot_frame"]
+__all__ = ["DenseStereoParams", "dense_disparity", "drop_depth_edges", "disparity_to_points",
+           "to_robot_frame"]
 
 
 @dataclass(frozen=True)
@@ -26,6 +27,9 @@ class DenseStereoParams:
     max_depth_error: metres; the front-end makes no point whose depth error, to first order in
     the disparity noise it measures (``vo.disparity_noise``), would exceed it; inf keeps all.
     disparity_std: the disparity noise (px) assumed until a disparity band has been measured.
+    edge_ratio: the points of a pixel whose 5 x 5 neighbourhood spans more than this fraction of
+    its disparity, or holds an unmatched pixel, are not made (``drop_depth_edges``); inf keeps
+    them (the default before 2026-12-06).
     """
 
     algorithm: str = "sgbm"
@@ -38,6 +42,7 @@ class DenseStereoParams:
     stride: int = 2
     max_depth_error: float = float("inf")
     disparity_std: float = 0.25
+    edge_ratio: float = 0.5
 
     def matcher(self) -> cv2.StereoMatcher:
         if self.num_disparities % 16:
@@ -66,6 +71,23 @@ def dense_disparity(left: np.ndarray, right: np.ndarray,
     raw = m.compute(left, right).astype(np.float32) / 16.0  # OpenCV returns fixed-point x16
     raw[raw < max(params.min_disparity_px, 1e-3)] = np.nan
     return raw
+
+
+def drop_depth_edges(disparity: np.ndarray, ratio: float, window: int = 5) -> np.ndarray:
+    """``disparity`` with NaN where the ``window`` x ``window`` neighbourhood's disparities span
+    more than ``ratio`` times the pixel's own, or where it holds an unmatched (NaN) pixel.
+
+    A block matcher's window straddles a depth edge and reports disparities between the near
+    and the far surface there: points in the air between them (the "flying pixels" of depth
+    cameras), which a height-variance map takes for tall structure.
+    """
+    if not np.isfinite(ratio):
+        return disparity
+    d = np.nan_to_num(disparity, nan=0.0).astype(np.float32)
+    kernel = np.ones((window, window), np.uint8)
+    spread = cv2.dilate(d, kernel) - cv2.erode(d, kernel, borderType=cv2.BORDER_REPLICATE)
+    keep = (d > 0) & (spread <= ratio * d)
+    return np.where(keep, disparity, np.nan).astype(disparity.dtype)
 
 
 def disparity_to_points(disparity: np.ndarray, rig: RectifiedRig, stride: int = 1,
