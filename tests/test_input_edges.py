@@ -132,14 +132,17 @@ def test_stereo_settings_reach_the_front_end(tmp_path, capsys, monkeypatch, run_
     (tmp_path / "sequences" / "00").mkdir(parents=True)
     assert main(["run", "--source", "kitti", "--path", str(tmp_path), "--out",
                  str(tmp_path / "o"), "--set", "stereo.num_disparities=192",
-                 "--set", "stereo.stride=4", "--set", "stereo.max_depth_error=0.5"]) == 2
+                 "--set", "stereo.stride=4", "--set", "stereo.max_depth_error=0.5",
+                 "--set", "stereo.edge_ratio=0.3"]) == 2
     assert (seen["stereo"].num_disparities, seen["stereo"].stride) == (192, 4)
     assert (seen["stereo"].max_depth_error, seen["stereo"].disparity_std) == (0.5, 0.25)
+    assert seen["stereo"].edge_ratio == 0.3
     assert seen["stereo"].block == 5  # the source's own setting where none is given
     del seen["stereo"]
     assert main(["run", "--source", "kitti", "--path", str(tmp_path), "--out",
                  str(tmp_path / "o")]) == 2
     assert seen["stereo"].num_disparities == 128  # KITTI's default stays
+    assert seen["stereo"].edge_ratio == 0.5  # and the front-end's
     capsys.readouterr()
     assert main(["run", str(run_file), "--set", "stereo.num_disparities=128"]) == 2
     assert "[stereo] num_disparities: settings apply to stereo images" in capsys.readouterr().err
