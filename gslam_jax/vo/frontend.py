@@ -141,13 +141,16 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
     max_error = params.stereo.max_depth_error
     prev_disp = None
 
-    def near(points_cam: np.ndarray) -> np.ndarray:
-        """The points whose depth error is within the limit (all where none is set)."""
+    def points_of(disparity: np.ndarray) -> np.ndarray:
+        """Camera-frame points of a disparity map: none at depth edges, none deeper than
+        ``max_depth``, and none whose depth error is over ``[stereo] max_depth_error``."""
+        pts = disparity_to_points(drop_depth_edges(disparity, params.stereo.edge_ratio), rig,
+                                  params.stereo.stride, max_range=max_depth)
         if not np.isfinite(max_error):
-            return points_cam
-        keep = depth_errors(points_cam, rig, noise) <= max_error
+            return pts
+        keep = depth_errors(pts, rig, noise) <= max_error
         summary.far_points += int((~keep).sum())
-        return points_cam[keep]
+        return pts[keep]
 
     m, m_inv = t_robot_cam, invert(t_robot_cam)
     start = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=np.float64)
@@ -211,15 +214,10 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
         points = np.zeros((0, 3))
         if disp is not None:
             r_level = level_rotation(pose[:3, :3])
-            cam_pts = disparity_to_points(drop_depth_edges(disp, params.stereo.edge_ratio), rig,
-                                          params.stereo.stride, max_range=max_depth)
-            parts = [to_robot_frame(near(cam_pts), m, r_level)]
+            parts = [to_robot_frame(points_of(disp), m, r_level)]
             for left, right, mount in (extra_pairs(t) if extra_pairs is not None else []):
                 d2 = dense_disparity(left, right, params.stereo, matcher)
-                parts.append(to_robot_frame(
-                    near(disparity_to_points(drop_depth_edges(d2, params.stereo.edge_ratio), rig,
-                                             params.stereo.stride, max_range=max_depth)),
-                    mount, r_level))
+                parts.append(to_robot_frame(points_of(d2), mount, r_level))
             points = np.concatenate(parts)
         stats = builder.add(poses_2d[-1], points)
         if t == 0 and stats is None:
