@@ -64,3 +64,21 @@ def test_options_a_source_does_not_take_are_refused():
 def test_an_unknown_source_names_the_known_ones():
     with pytest.raises(registry.ConfigError, match="known sources: sim, sim-path, sim-stereo"):
         get_source("pcap")
+
+
+def test_every_stereo_key_reaches_the_dense_stereo_params():
+    """Each [stereo] key is the ``DenseStereoParams`` field of that name: set, it replaces the
+    source's value; 0 or "" keeps it."""
+    import dataclasses
+
+    from gslam_jax.config import StereoSection
+    from gslam_jax.datasets.registry import stereo_settings
+    from gslam_jax.vo.stereo import DenseStereoParams
+
+    given = {"num_disparities": 96, "block": 7, "stride": 3, "algorithm": "bm",
+             "max_depth_error": 0.3, "disparity_std": 0.4, "edge_ratio": 0.25}
+    assert set(given) == {f.name for f in dataclasses.fields(StereoSection)}
+    config = dataclasses.replace(Config(), stereo=StereoSection(**given))
+    got = stereo_settings(config, DenseStereoParams())
+    assert {k: getattr(got, k) for k in given} == given
+    assert stereo_settings(Config(), DenseStereoParams(stride=4)) == DenseStereoParams(stride=4)

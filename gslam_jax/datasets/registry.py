@@ -210,11 +210,6 @@ def check_source(src: Source, config: Config | None = None, gps: str | None = No
 
 def stereo_settings(config: Config, default: Any) -> Any:
     """The source's ``vo.stereo.DenseStereoParams`` ``default`` with the config's [stereo]
-    settings (0 or "": the source's own)."""
+    settings (0 or "": the source's own); each [stereo] key is the field of that name."""
     st = config.stereo
-    changes = {k: v for k, v in (("num_disparities", st.num_disparities), ("block", st.block),
-                                 ("stride", st.stride), ("algorithm", st.algorithm),
-                                 ("max_depth_error", st.max_depth_error),
-                                 ("disparity_std", st.disparity_std),
-                                 ("edge_ratio", st.edge_ratio)) if v}
-    return dataclasses.replace(default, **changes)
+    return dataclasses.replace(default, **{k: getattr(st, k) for k in st.given()})
