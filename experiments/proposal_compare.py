@@ -64,7 +64,9 @@ def case_row(name, run, config, scale, proposal, seed) -> dict:
             "vo_fit_turn_deg": turn["vo"], "slam_fit_turn_deg": turn["slam"],
             "vo_length_pct": length["vo"], "slam_length_pct": length["slam"],
             "filter_seconds": res.seconds, "wall_seconds": wall,
-            "resampling_events": int(res.resampled.sum())}
+            "resampling_events": int(res.resampled.sum()),
+            # the particles' factor on the given motion stds at the end ([motion] noise_spread)
+            "final_noise_scale": float(res.noise_scale[-1])}
 
 
 def main() -> int:
@@ -93,7 +95,7 @@ def main() -> int:
                           f"{row['vo_fit_turn_deg']:+.2f} "
                           f"SLAM {row['slam_fit_turn_deg']:+.2f} deg length VO "
                           f"{row['vo_length_pct']:+.2f} % SLAM {row['slam_length_pct']:+.2f} %  "
-                          f"{row['wall_seconds']:.1f} s",
+                          f"noise x{row['final_noise_scale']:.2f}  {row['wall_seconds']:.1f} s",
                           flush=True)
                     if out:
                         out.write(json.dumps(row) + "\n")

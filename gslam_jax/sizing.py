@@ -167,7 +167,8 @@ def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
         proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
         proposal_stages=f.proposal_stages, proposal_cell_stride=f.proposal_cell_stride,
         proposal_exponent=f.proposal_exponent,
-        proposal_draws=resolve_proposal_draws(f.proposal_draws, sensor))
+        proposal_draws=resolve_proposal_draws(f.proposal_draws, sensor),
+        noise_spread=config.motion.noise_spread)
     available, what = map_memory()
     cfg = maps.choose_store(cfg, available, what).validate()
     return cfg._replace(particle_block=cfg.update_block)

@@ -232,6 +232,9 @@ class SlamResult(NamedTuple):
     #                                           neighbourhood (``rbpf.mode_mean_path``)
     local_steps_path: np.ndarray | None = None  # [T, 3] mean steps, each weighed by the
     #                                             factors that bear on it (``rbpf.local_step_path``)
+    noise_scale: np.ndarray | None = None  # [T] the particles' factor on the motion stds after
+    #                                        each frame, weighted geometric mean (all 1 unless
+    #                                        [motion] noise_spread > 1)
 
     @property
     def path(self) -> np.ndarray:
@@ -377,7 +380,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         best_pose=back(best),
         mean_pose=back(mean), vo_path=given.vo_poses(),
         ess=infos.ess, resampled=infos.resampled, updated=infos.updated, log_lik=infos.log_lik,
-        exponent=infos.exponent, kmap=np.asarray(kmap), smap=np.asarray(smap),
+        exponent=infos.exponent, noise_scale=infos.noise_scale, kmap=np.asarray(kmap),
+        smap=np.asarray(smap),
         map_origin=cfg.map_origin, resolution=cfg.resolution, extent_violations=violations,
         empty_observations=int(np.sum(infos.empty_obs & infos.updated)), seconds=seconds,
         compile_seconds=compile_s, compile_frames=min(chunk, T), store=cfg.store,

@@ -32,7 +32,7 @@ def test_every_filter_setting_of_the_config_reaches_the_filter():
                               proposal_draws="antithetic"),
                "map": dict(store="shared", tile=16, pool_tiles=900),
                "motion": dict(alpha_d=0.11, alpha_theta_d=0.12, alpha_theta=0.13,
-                              alpha_cross=0.14, fallback_scale=2.5)}
+                              alpha_cross=0.14, fallback_scale=2.5, noise_spread=3.0)}
     config = dataclasses.replace(Config(), **{
         name: dataclasses.replace(getattr(Config(), name), **values)
         for name, values in changed.items()})
@@ -42,7 +42,7 @@ def test_every_filter_setting_of_the_config_reaches_the_filter():
     assert len(shared) == 11  # resampler .. ess_target, proposal_draws, store, tile, pool_tiles
     for name in shared:
         assert getattr(cfg, name) == {**changed["filter"], **changed["map"]}[name], name
-    assert cfg.num_particles == 9
+    assert cfg.num_particles == 9 and cfg.noise_spread == 3.0
     params = sizing.filter_params(config)
     np.testing.assert_allclose([float(v) for v in params.motion],
                                [0.11, 0.12, 0.13, 0.14, 2.5], rtol=1e-6)

@@ -242,6 +242,10 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
         raise ConfigError(f"[filter] range_noise = \"{config.filter.range_noise}\": the tiled "
                           f"reference implements eq. 26 as the paper has it; compare with "
                           f"range_noise = \"none\"")
+    if config.motion.noise_spread != 1:
+        raise ConfigError(f"[motion] noise_spread = {config.motion.noise_spread:g}: the tiled "
+                          f"reference moves every particle with the same motion noise, as the "
+                          f"paper does; compare with noise_spread = 1")
     run = run if run is not None else _default_run()
     # both implementations on the map lattice's axes, as ``gslam run`` filters ([map] axes)
     run = on_map_axes(run, map_heading(run, config))

@@ -117,6 +117,11 @@ def summarise(run, result, config: Config, description: str) -> dict:
         "vo_failures": int(np.sum(run.vo_failed)) if run.vo_failed is not None else 0,
         # those frames' motion noise as a multiple of the VO's ([motion] fallback_scale)
         "fallback_scale": config.motion.fallback_scale,
+        # each particle's own factor on the motion stds ([motion] noise_spread; 1: none) and
+        # the surviving particles' at the end, their weighted geometric mean
+        "noise_spread": config.motion.noise_spread,
+        "final_noise_scale": (float(result.noise_scale[-1]) if config.motion.noise_spread > 1
+                              and result.noise_scale is not None else None),
         "filter_seconds": result.seconds,
         "compile_seconds": result.compile_seconds,
         **_realtime(run, result),
@@ -197,7 +202,8 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     save_map(out / "map.npz", result.kmap, result.smap, result.map_origin, result.resolution,
              heading=result.map_heading)
     np.savez_compressed(out / "trace.npz", ess=result.ess, exponent=result.exponent,
-                        resampled=result.resampled,
+                        resampled=result.resampled, **({} if result.noise_scale is None else
+                                                       {"noise_scale": result.noise_scale}),
                         updated=result.updated, log_lik=result.log_lik,
                         best_pose=result.best_pose, mean_pose=result.mean_pose)
     summary = summarise(run, result, config, loaded.description)
@@ -291,6 +297,10 @@ def print_summary(summary: dict, run, result) -> None:
         if note:
             print(f"note: {note}")
     print(f"resampling events: {summary['resampling_events']}")
+    if summary.get("final_noise_scale") is not None:
+        print(f"motion noise: the particles' factor on the [motion] alphas ended at "
+              f"{summary['final_noise_scale']:.3g} (weighted geometric mean; they started "
+              f"log-uniform over 1/{summary['noise_spread']:g}-{summary['noise_spread']:g})")
     print(timing_text(summary))
     if summary.get("realtime_factor") is not None:
         compute = summary["filter_seconds"] + summary["compile_seconds"]

@@ -107,6 +107,11 @@ class MotionSection:
     # (Run.vo_failed: wheels and IMU where VO failed, "less accurate than those from VO",
     # paper 4); 1: weighed as VO
     fallback_scale: float = 1.0
+    # The particles' own motion noise: each particle's stds are the ones above times its own
+    # factor, log-uniform over [1 / noise_spread, noise_spread] at the start and resampled with
+    # it, so the filter weighs noise levels as it weighs poses (rbpf.motion.particle_scales);
+    # 1: every particle the alphas above (the paper)
+    noise_spread: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -283,6 +288,8 @@ class Config:
               for k in ("alpha_d", "alpha_theta_d", "alpha_theta", "alpha_cross")),
             (0 < self.motion.fallback_scale <= 1000, "motion", "fallback_scale",
              "must be in (0, 1000] (1: the fallback's frames weighed as VO's)"),
+            (1 <= self.motion.noise_spread <= 1000, "motion", "noise_spread",
+             "must be in [1, 1000] (1: every particle the alphas given)"),
             (m.resolution > 0, "map", "resolution", "must be positive"),
             (m.margin >= 0, "map", "margin", "must be non-negative"),
             # S = 0 with k > 0 would make log S = -inf and every log weight NaN

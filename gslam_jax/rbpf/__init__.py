@@ -24,8 +24,8 @@ This package exports what a user of the filter calls; the rest is imported from 
 """
 
 from gslam_jax.rbpf.draws import frame_keys, motion_noise, standard_normals, update_noise
-from gslam_jax.rbpf.kernel import (Proposal, Resampler, init, observe, predict, resample,
-                                   run_filter, scan_frames, step, update)
+from gslam_jax.rbpf.kernel import (Proposal, Resampler, init, mean_noise_scale, observe, predict,
+                                   resample, run_filter, scan_frames, step, update)
 from gslam_jax.rbpf.maps import particle_map
 from gslam_jax.rbpf.paths import (StepHistory, ancestry_path, backtrack_path, densest_particle,
                                   factor_cover, local_step_path, map_particle, mode_mean_path,
@@ -43,5 +43,5 @@ __all__ = [
     # results
     "backtrack_path", "densest_particle", "smoothed_mean_path", "mode_mean_path",
     "smoothed_step_path", "StepHistory", "step_history", "factor_cover", "local_step_path",
-    "ancestry_path", "map_particle", "particle_map",
+    "ancestry_path", "map_particle", "particle_map", "mean_noise_scale",
 ]

@@ -31,7 +31,7 @@ from jax import Array, lax
 
 from gslam_jax.rbpf import cells, maps, proposal, resampling, tempering
 from gslam_jax.rbpf.draws import frame_keys, motion_noise, update_noise
-from gslam_jax.rbpf.motion import apply_motion, scaled
+from gslam_jax.rbpf.motion import apply_motion, particle_scales, scaled
 from gslam_jax.rbpf.paths import backtrack_path, weighted_mean_pose
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import cell_noise, log_lambda
@@ -39,7 +39,8 @@ from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Obser
                                   RunOutput, StepInfo, UpdateInfo, UpdateNoise)
 
 __all__ = ["Proposal", "Resampler", "init", "predict", "propagate", "propagate_mean", "update",
-           "ancestors", "resample", "observe", "step", "scan_frames", "run_filter", "best_slot"]
+           "ancestors", "resample", "observe", "step", "scan_frames", "run_filter", "best_slot",
+           "mean_noise_scale"]
 
 Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
 """(state, u [3], standard-normal draws [J, 2], params) -> state with the particles moved."""
@@ -76,8 +77,10 @@ def init(cfg: FilterConfig, start_pose: Array | None = None,
             raise ValueError("init: a start_sigma needs a PRNG key to draw the start poses")
         else:
             pose = pose + jax.random.normal(key, (J, 3), jnp.float32) * sigma
+    noise = particle_scales(J, cfg.noise_spread) if cfg.noise_spread > 1 else None
     return FilterState(pose=pose, log_w=jnp.full((J,), -math.log(J), jnp.float32),
-                       maps=maps.init(cfg, prior_map), best=jnp.int32(0), prior_cov=cov)
+                       maps=maps.init(cfg, prior_map), best=jnp.int32(0), prior_cov=cov,
+                       noise_scale=noise)
 
 
 def predict(pose: Array, u: Array, eps: Array, params: FilterParams) -> Array:
@@ -234,9 +237,12 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
 
     def yes(s: FilterState) -> tuple[FilterState, Array]:
         anc = ancestors(lw, u, cfg)
-        cov = None if s.prior_cov is None else jnp.take(s.prior_cov, anc, axis=0)
-        return s._replace(maps=maps.resample(s.maps, anc), pose=jnp.take(s.pose, anc, axis=0),
-                          log_w=new_log_w(jnp.take(s.log_w, anc)), prior_cov=cov), anc
+        def take(x: Array | None) -> Array | None:
+            return None if x is None else jnp.take(x, anc, axis=0)
+
+        return s._replace(maps=maps.resample(s.maps, anc), pose=take(s.pose),
+                          log_w=new_log_w(take(s.log_w)), prior_cov=take(s.prior_cov),
+                          noise_scale=take(s.noise_scale)), anc
 
     def keep(s: FilterState) -> tuple[FilterState, Array]:
         return s, jnp.arange(J, dtype=jnp.int32)
@@ -257,7 +263,8 @@ def observe(state: FilterState, local_obs: Array, noise: UpdateNoise, params: Fi
                            log_lik=upd.log_lik, extent_violations=upd.extent_violations,
                            empty_obs=upd.empty_obs, dropped_cells=upd.dropped_cells,
                            map_status=maps.status(state.maps), exponent=upd.exponent,
-                           map_free=maps.free_tiles(state.maps))
+                           map_free=maps.free_tiles(state.maps),
+                           noise_scale=mean_noise_scale(state))
 
 
 def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
@@ -268,7 +275,15 @@ def _no_update_info(state: FilterState, cfg: FilterConfig) -> StepInfo:
                     updated=jnp.bool_(False), log_lik=jnp.float32(0.0),
                     extent_violations=jnp.int32(0), empty_obs=jnp.bool_(False),
                     dropped_cells=jnp.int32(0), map_status=maps.status(state.maps),
-                    exponent=jnp.float32(1.0), map_free=maps.free_tiles(state.maps))
+                    exponent=jnp.float32(1.0), map_free=maps.free_tiles(state.maps),
+                    noise_scale=mean_noise_scale(state))
+
+
+def mean_noise_scale(state: FilterState) -> Array:
+    """The particles' factor on the motion stds, their weighted geometric mean (1: none)."""
+    if state.noise_scale is None:
+        return jnp.float32(1.0)
+    return jnp.exp(jnp.sum(jnp.exp(state.log_w) * jnp.log(state.noise_scale)))
 
 
 def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
@@ -286,14 +301,17 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
     ``propagate_mean``. ``lattice_heading``: the local map's (``update``). ``fallback``: the
     control came from the fallback odometry, so the motion noise's stds are
     ``params.motion.fallback_scale`` times the VO's (``scaled``); a Python False leaves the
-    frame's motion model untouched (no scaling in the program).
+    frame's motion model untouched (no scaling in the program). A state with particle noise
+    scales (``FilterState.noise_scale``) moves each particle with its own.
     """
     if propose is None:
         propose = propagate_mean if cfg.proposal == "informed" else propagate
     k_motion, k_update = jax.random.split(key)
-    frame_params = params
+    scale = 1.0 if state.noise_scale is None else state.noise_scale
     if fallback is not False:
-        scale = jnp.where(fallback, params.motion.fallback_scale, 1.0)
+        scale = scale * jnp.where(fallback, params.motion.fallback_scale, 1.0)
+    frame_params = params
+    if state.noise_scale is not None or fallback is not False:
         frame_params = params._replace(motion=scaled(params.motion, scale))
     state = propose(state, u, motion_noise(k_motion, cfg), frame_params)
     if local_obs is None or has_obs is False:

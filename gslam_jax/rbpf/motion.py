@@ -16,18 +16,26 @@ alphas.
 A frame whose control came from the fallback odometry (wheels and IMU where VO failed; paper 4:
 "less accurate than those from VO") takes every std times ``fallback_scale`` (``scaled``,
 ``[motion] fallback_scale``), a parameter like the alphas: searchable and differentiable.
+
+With ``[motion] noise_spread`` s > 1 each particle carries its own factor on every std
+(``particle_scales``: log-uniform over [1/s, s]); the factor is resampled with the particle, so
+the filter weighs noise levels by the same evidence as poses (the static-parameter particle
+filter; Kantas et al., On particle methods for parameter estimation in state-space models,
+Statistical Science 2015, 3.1): where the alphas are wrong, the particles whose noise fits
+the log survive.
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jax import Array
 
-__all__ = ["MotionParams", "scaled", "motion_stds", "world_step", "control_between", "apply_motion",
-           "sample_motion", "log_density"]
+__all__ = ["MotionParams", "scaled", "particle_scales", "motion_stds", "world_step",
+           "control_between", "apply_motion", "sample_motion", "log_density"]
 
 
 class MotionParams(NamedTuple):
@@ -50,6 +58,15 @@ def scaled(params: MotionParams, scale: Array | float) -> MotionParams:
                            alpha_theta_d=params.alpha_theta_d * scale,
                            alpha_theta=params.alpha_theta * scale,
                            alpha_cross=params.alpha_cross * scale)
+
+
+def particle_scales(num_particles: int, spread: float) -> Array:
+    """Each particle's factor on the motion stds [J]: stratified log-uniform over
+    [1 / spread, spread] (the midpoints of P = ceil(J / 2) equal steps in log), rows j and
+    j + P equal, so that an antithetic pair (``draws.standard_normals``) shares its noise."""
+    P = (num_particles + 1) // 2
+    levels = jnp.exp(math.log(spread) * ((2.0 * jnp.arange(P) + 1.0) / P - 1.0))
+    return jnp.concatenate([levels, levels])[:num_particles].astype(jnp.float32)
 
 
 def motion_stds(u: Array, params: MotionParams) -> tuple[Array, Array, Array]:

@@ -62,6 +62,8 @@ class FilterConfig(NamedTuple):
     # ``draws.standard_normals`` ("auto" is resolved before, ``sizing.resolve_proposal_draws``;
     # this default is a sensorless run's)
     proposal_draws: str = choices.AUTO_PROPOSAL_DRAWS["points"]
+    # > 1: each particle's own factor on the motion stds (``FilterState.noise_scale``)
+    noise_spread: float = MotionSection.noise_spread
 
     @property
     def update_block(self) -> int:
@@ -151,6 +153,8 @@ class FilterConfig(NamedTuple):
         if self.tempering not in choices.TEMPERING:
             raise ValueError(f"tempering '{self.tempering}' unknown; choose one of "
                              f"{list(choices.TEMPERING)}")
+        if not self.noise_spread >= 1.0:
+            raise ValueError(f"noise_spread {self.noise_spread} must be >= 1 (1: none)")
         if not 0.0 < self.ess_target <= 1.0:
             raise ValueError(f"ess_target {self.ess_target} must lie in (0, 1]")
         return self
@@ -182,6 +186,8 @@ class FilterState(NamedTuple):
                        # then all equal)
     prior_cov: Array | None = None  # [J, 3, 3] "informed" proposal: the motion covariance
                                     # accumulated since each particle's last update (else None)
+    noise_scale: Array | None = None  # [J] each particle's factor on the motion stds
+                                      # (``cfg.noise_spread`` > 1; else None: all 1)
 
 
 class UpdateNoise(NamedTuple):
@@ -238,6 +244,8 @@ class StepInfo(NamedTuple):
                          # paper's fixed beta or no update; < 1: adaptive tempering flattened them)
     map_free: Array      # [] int32 free tiles in the shared store's pool at the frame's end
                          # (dense: 0); ``run_slam`` grows an automatic pool from it
+    noise_scale: Array   # [] the particles' factor on the motion stds, weighted geometric
+                         # mean after the frame (``FilterState.noise_scale``; 1: none)
 
 
 class RunOutput(NamedTuple):
