@@ -2,7 +2,9 @@
 
 One frame (``step``) is:
 
-* a proposal at every frame: sample the motion model (eqs. 1-3, 24) (``propagate``);
+* a proposal at every frame: sample the motion model (eqs. 1-3, 24) (``propagate``), each
+  particle with its own factor on the noise where the state carries one
+  (``FilterState.noise_scale``, ``[motion] noise_spread``);
 * at frames that carry a local map, ``update``: for each particle, the log-gamma importance
   factors of the observed cells against the map cells under them (eq. 26) and their tempered
   combination (eq. 30 or 31), in blocks of particles sized for the cache on a CPU
@@ -222,9 +224,9 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
              ) -> tuple[FilterState, Array, Array]:
     """ESS-gated resampling (eq. 23; a ``Resampler``): when ESS < ``resample_ratio * J``
     (``resampling.below_threshold``: a tie within float rounding resamples), particles are
-    drawn by ``ancestors`` and take their maps (``maps.resample``: dense maps copied over
-    the rows written so far, shared page tables gathered). Returns (state,
-    ancestors [J], resampled []).
+    drawn by ``ancestors`` and take their poses, noise factors and maps (``maps.resample``:
+    dense maps copied over the rows written so far, shared page tables gathered). Returns
+    (state, ancestors [J], resampled []).
 
     The choice and the ancestors use the weights' values only (stop-gradient); the new log
     weights are ``new_log_w(log_w[ancestors])``: equal by default (the paper's filter); the
@@ -237,6 +239,7 @@ def resample(state: FilterState, u: Array, cfg: FilterConfig,
 
     def yes(s: FilterState) -> tuple[FilterState, Array]:
         anc = ancestors(lw, u, cfg)
+
         def take(x: Array | None) -> Array | None:
             return None if x is None else jnp.take(x, anc, axis=0)
 
