@@ -29,7 +29,9 @@ that flat draws do not (docs/results.md, "Which loops J particles can close").
 the prediction: the particles the filter had within 1 m at the approach, and whether it
 closed. --vo-scale F draws the VO with the course's noise times F (a better or worse VO),
 --vo-failures F its failures' rate times F (0: none), and --noise-scale F multiplies the motion
-model's alphas.
+model's alphas. With ``--set motion.noise_spread=S`` each draw takes its own factor on them, as
+the filter's particles do (``rbpf.motion.particle_scales``); the cloud is then a mixture, and
+``p_gauss`` (a single Gaussian's fit) does not describe it: read ``p_within``.
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ from gslam_jax import loops
 from gslam_jax.config import layered_config
 from gslam_jax.datasets.sim_path import drive_path
 from gslam_jax.machine import environment
-from gslam_jax.rbpf.motion import MotionParams, apply_motion, scaled
+from gslam_jax.rbpf.motion import MotionParams, apply_motion, particle_scales, scaled
 from gslam_jax.sizing import motion_params
 from gslam_jax.vo.localmap import localmap_params
 
@@ -150,6 +152,8 @@ def loop_bound(file: Path, length_m: float, seed: int, config, course: str, draw
         return {"note": "no revisit within the radius in the driven path"}
     frame = approach_frame(truth, revisit, localmap_params(config).max_range)
     params = scaled(motion_params(config), noise_scale)
+    if config.motion.noise_spread > 1:  # each draw its own factor, as the filter's particles
+        params = scaled(params, particle_scales(draws, config.motion.noise_spread))
     pose = motion_draws(jax.random.key(seed), truth[0], odo.controls[:frame + 1],
                         odo.vo_draw.vo_failed[:frame + 1], params, draws)
     xy = np.asarray(pose[:, :2], np.float64)
