@@ -61,6 +61,8 @@ class OnlineFrame(NamedTuple):
 class Particles(NamedTuple):
     pose: np.ndarray    # [J, 3]
     weight: np.ndarray  # [J] normalised weights
+    noise_scale: np.ndarray | None = None  # [J] each particle's factor on the motion stds
+    #                                        ([motion] noise_spread > 1; else None: all 1)
 
 
 class OnlineStats(NamedTuple):
@@ -304,10 +306,13 @@ class Online:
         return self.push(control, stats, time_s, heading, vo_failed)
 
     def particles(self) -> Particles:
-        """The particles now: poses [J, 3] and normalised weights [J]."""
-        pose, log_w = jax.device_get((self.state.pose, self.state.log_w))
+        """The particles now: poses [J, 3], normalised weights [J] and, with ``[motion]
+        noise_spread`` > 1, each one's factor on the motion stds [J]."""
+        pose, log_w, noise = jax.device_get((self.state.pose, self.state.log_w,
+                                             self.state.noise_scale))
         return Particles(turn_poses(np.asarray(pose, np.float64), self.heading),
-                         np.exp(np.asarray(log_w, np.float64)))
+                         np.exp(np.asarray(log_w, np.float64)),
+                         None if noise is None else np.asarray(noise, np.float64))
 
     def map(self) -> GridMap:
         """The map the batch run would report after this frame (k, S float64 on the live

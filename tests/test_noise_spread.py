@@ -17,6 +17,7 @@ from gslam_jax import rbpf, slam
 from gslam_jax.app.cli import main
 from gslam_jax.app.compare import compare
 from gslam_jax.config import Config, ConfigError, FilterSection, MotionSection
+from gslam_jax.online import Online
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, particle_scales
 from gslam_jax.run import save_run
 
@@ -123,3 +124,20 @@ def test_gslam_run_reports_the_surviving_factor(drifting_run, tmp_path, capsys):
     assert 1 / 4 < summary["final_noise_scale"] < 4
     assert (f"motion noise: the particles' factor on the [motion] alphas ended at "
             f"{summary['final_noise_scale']:.3g}") in capsys.readouterr().out
+
+
+def test_online_holds_each_particle_s_factor_as_the_batch_run_does(drifting_run):
+    config = Config(filter=FilterSection(particles=16, seed=1),
+                    motion=MotionSection(noise_spread=8.0))
+    res = slam.run_slam(drifting_run, config)
+    live = Online(config, filter_config=slam.run_filter_config(drifting_run, config))
+    for t in range(drifting_run.num_frames):
+        m = drifting_run.obs_index[t]
+        live.push(drifting_run.controls[t], drifting_run.local_maps[m] if m >= 0 else None,
+                  drifting_run.timestamps[t])
+    p = live.particles()
+    assert p.noise_scale.shape == (16,)
+    np.testing.assert_allclose(np.exp(np.sum(p.weight * np.log(p.noise_scale))),
+                               res.noise_scale[-1], rtol=1e-4)
+    plain = Online(Config(filter=FilterSection(particles=4)))
+    assert plain.particles().noise_scale is None
