@@ -23,15 +23,17 @@ from gslam_jax.run import save_run
 
 
 @pytest.mark.parametrize("J, spread", [(8, 8.0), (7, 16.0), (1, 4.0), (200, 8.0)])
-def test_particle_scales_are_stratified_log_uniform_in_antithetic_pairs(J, spread):
+def test_particle_scales_are_stratified_cubes_in_antithetic_pairs(J, spread):
     s = np.asarray(particle_scales(J, spread), np.float64)
     P = (J + 1) // 2
-    # the midpoints of P equal steps of [-log spread, log spread], written out independently
-    edges = np.linspace(-math.log(spread), math.log(spread), P + 1)
-    want = np.exp((edges[:-1] + edges[1:]) / 2)
+    # spread ** (u ** 3), u the midpoints of P equal steps of [-1, 1], written out independently
+    edges = np.linspace(-1.0, 1.0, P + 1)
+    want = spread ** (((edges[:-1] + edges[1:]) / 2) ** 3)
     np.testing.assert_allclose(s[:P], want, rtol=1e-6)
     np.testing.assert_allclose(s[P:], want[:J - P], rtol=1e-6)  # row j + P is row j's pair
     assert s.min() > 1 / spread and s.max() < spread
+    near = np.abs(np.log(s[:P]) / math.log(spread)) <= 1 / 8  # |u| <= 1/2
+    assert near.mean() == pytest.approx(0.5, abs=1 / P + 1e-9)
 
 
 def _state(J: int, noise_scale) -> rbpf.FilterState:

@@ -300,7 +300,7 @@ def print_summary(summary: dict, run, result) -> None:
     if summary.get("final_noise_scale") is not None:
         print(f"motion noise: the particles' factor on the [motion] alphas ended at "
               f"{summary['final_noise_scale']:.3g} (weighted geometric mean; they started "
-              f"log-uniform over 1/{summary['noise_spread']:g}-{summary['noise_spread']:g})")
+              f"spread over 1/{summary['noise_spread']:g}-{summary['noise_spread']:g})")
     print(timing_text(summary))
     if summary.get("realtime_factor") is not None:
         compute = summary["filter_seconds"] + summary["compile_seconds"]

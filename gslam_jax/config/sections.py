@@ -108,9 +108,9 @@ class MotionSection:
     # paper 4); 1: weighed as VO
     fallback_scale: float = 1.0
     # The particles' own motion noise: each particle's stds are the ones above times its own
-    # factor, log-uniform over [1 / noise_spread, noise_spread] at the start and resampled with
-    # it, so the filter weighs noise levels as it weighs poses (rbpf.motion.particle_scales);
-    # 1: every particle the alphas above (the paper)
+    # factor, spread over (1 / noise_spread, noise_spread) at the start, half of them near 1,
+    # and resampled with it, so the filter weighs noise levels as it weighs poses
+    # (rbpf.motion.particle_scales); 1: every particle the alphas above (the paper)
     noise_spread: float = 1.0
 
 

@@ -18,7 +18,7 @@ A frame whose control came from the fallback odometry (wheels and IMU where VO f
 ``[motion] fallback_scale``), a parameter like the alphas: searchable and differentiable.
 
 With ``[motion] noise_spread`` s > 1 each particle carries its own factor on every std
-(``particle_scales``: log-uniform over [1/s, s]); the factor is resampled with the particle, so
+(``particle_scales``: over (1/s, s), dense near 1); the factor is resampled with the particle, so
 the filter weighs noise levels by the same evidence as poses (the static-parameter particle
 filter; Kantas et al., On particle methods for parameter estimation in state-space models,
 Statistical Science 2015, 3.1): where the alphas are wrong, the particles whose noise fits
@@ -61,11 +61,14 @@ def scaled(params: MotionParams, scale: Array | float) -> MotionParams:
 
 
 def particle_scales(num_particles: int, spread: float) -> Array:
-    """Each particle's factor on the motion stds [J]: stratified log-uniform over
-    [1 / spread, spread] (the midpoints of P = ceil(J / 2) equal steps in log), rows j and
-    j + P equal, so that an antithetic pair (``draws.standard_normals``) shares its noise."""
+    """Each particle's factor on the motion stds [J]: spread^(u^3) for u the midpoints of
+    P = ceil(J / 2) equal steps of [-1, 1], so every factor lies in (1 / spread, spread) and
+    half of them within spread^(+-1/8) of 1 (the alphas given; log-uniform levels cost 9 % RMS
+    there, docs/results.md), rows j and j + P equal, so that an antithetic pair
+    (``draws.standard_normals``) shares its noise."""
     P = (num_particles + 1) // 2
-    levels = jnp.exp(math.log(spread) * ((2.0 * jnp.arange(P) + 1.0) / P - 1.0))
+    u = (2.0 * jnp.arange(P) + 1.0) / P - 1.0
+    levels = jnp.exp(math.log(spread) * u ** 3)
     return jnp.concatenate([levels, levels])[:num_particles].astype(jnp.float32)
 
 
