@@ -310,12 +310,12 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
     if propose is None:
         propose = propagate_mean if cfg.proposal == "informed" else propagate
     k_motion, k_update = jax.random.split(key)
-    scale = 1.0 if state.noise_scale is None else state.noise_scale
+    scale = state.noise_scale  # [J] or None
     if fallback is not False:
-        scale = scale * jnp.where(fallback, params.motion.fallback_scale, 1.0)
-    frame_params = params
-    if state.noise_scale is not None or fallback is not False:
-        frame_params = params._replace(motion=scaled(params.motion, scale))
+        on_fallback = jnp.where(fallback, params.motion.fallback_scale, 1.0)
+        scale = on_fallback if scale is None else scale * on_fallback
+    frame_params = params if scale is None else params._replace(
+        motion=scaled(params.motion, scale))
     state = propose(state, u, motion_noise(k_motion, cfg), frame_params)
     if local_obs is None or has_obs is False:
         return state, _no_update_info(state, cfg)
