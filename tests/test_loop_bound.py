@@ -83,6 +83,7 @@ def test_the_bound_end_to_end_on_a_small_circle(tmp_path, capsys) -> None:
     s = got["summary"]["circle-40"]
     assert s["seeds"] == 1 and s["vo_miss_median_m"] == row["vo_miss_m"]
     assert s["spread_m"] == row["spread_m"] > 0.0 and 0.0 <= row["p_gauss"] <= 1.0
+    assert row["p_gauss"] <= row["p_best_scale"] <= 1.0 and row["best_scale"] >= 0.0
 
 
 def test_the_prediction_is_set_beside_the_filters_runs() -> None:
@@ -130,6 +131,38 @@ def test_the_gaussian_fit_gives_the_mass_within_the_radius() -> None:
                                                                                    rel=1e-3)
 
 
+def test_the_best_width_for_a_seed_against_scipy() -> None:
+    """``best_scaled_within``: for a round cloud the best width and its mass against SciPy's
+    noncentral chi-square law maximised by SciPy's bounded search over the width, and against
+    the far-truth closed form radius^2 / (e r^2) at width r / sqrt(2); for an elongated, turned
+    cloud no factor on a fine grid gives more, and the cloud as fitted (k = 1) gives less."""
+    from scipy import optimize, stats
+
+    from experiments.loop_bound import best_scaled_within, gaussian_within
+
+    for r, radius in [(2.0, 1.0), (6.8, 1.0), (22.0, 1.0), (9.0, 2.5)]:
+        def minus_mass(log_sigma: float) -> float:
+            s2 = np.exp(2.0 * log_sigma)
+            return -stats.ncx2.cdf(radius ** 2 / s2, df=2, nc=r ** 2 / s2)
+
+        ref = optimize.minimize_scalar(minus_mass, bounds=(-4.0, 6.0), method="bounded",
+                                       options={"xatol": 1e-9})
+        p, k = best_scaled_within(np.array([3.0, -1.0]), np.eye(2) * 4.0,
+                                  np.array([3.0, r - 1.0]), radius)
+        assert p == pytest.approx(-ref.fun, rel=1e-5)
+        assert 2.0 * k == pytest.approx(np.exp(ref.x), rel=1e-3)  # the cloud's own sigma is 2
+        if r / radius > 5:
+            assert p == pytest.approx(radius ** 2 / (np.e * r ** 2), rel=0.03)
+            assert 2.0 * k == pytest.approx(r / np.sqrt(2.0), rel=0.03)
+    mean, cov, target = np.array([1.0, 2.0]), np.array([[30.0, 12.0], [12.0, 9.0]]), \
+        np.array([9.0, -4.0])
+    p, k = best_scaled_within(mean, cov, target, 1.0)
+    grid = [gaussian_within(mean, x * x * cov, target, 1.0) for x in np.geomspace(0.1, 10, 2001)]
+    assert p >= max(grid) * (1 - 1e-9) and p == pytest.approx(max(grid), rel=1e-4)
+    assert gaussian_within(mean, cov, target, 1.0) < p
+    assert best_scaled_within(mean, cov, mean + 0.5, 1.0) == (1.0, 0.0)  # the truth inside
+
+
 def test_the_cloud_round_a_loop_grows_as_its_length_to_the_three_halves() -> None:
     """Heading noise alone (eq. 3's per-metre term) round circles of 200 m and 400 m walked in
     the same steps: the heading's variance grows as the length L, and every step's heading
@@ -153,9 +186,10 @@ def test_the_cloud_round_a_loop_grows_as_its_length_to_the_three_halves() -> Non
 def test_a_loops_summary_over_its_seeds_by_hand() -> None:
     from experiments.loop_bound import chance_of_one, summarise
 
-    rows = [{"length_m": 800.0, "p_within": p, "p_gauss": g, "spread_m": sp, "vo_miss_m": m}
-            for p, g, sp, m in [(0.01, 0.012, 7.0, 5.0), (0.0, 1e-5, 8.0, 30.0),
-                                (0.002, 0.003, 6.0, 9.0)]]
+    rows = [{"length_m": 800.0, "p_within": p, "p_gauss": g, "p_best_scale": b,
+             "spread_m": sp, "vo_miss_m": m}
+            for p, g, b, sp, m in [(0.01, 0.012, 0.02, 7.0, 5.0), (0.0, 1e-5, 4e-4, 8.0, 30.0),
+                                   (0.002, 0.003, 0.004, 6.0, 9.0)]]
     s = summarise(rows, [200])
     assert (s["length_m"], s["seeds"], s["spread_m"], s["vo_miss_median_m"]) == (800.0, 3, 7.0,
                                                                                    9.0)
@@ -163,5 +197,7 @@ def test_a_loops_summary_over_its_seeds_by_hand() -> None:
                                                       for p in (0.01, 0.0, 0.002)]))
     assert s["chance_gauss"][200] == pytest.approx(np.mean([chance_of_one(g, 200)
                                                             for g in (0.012, 1e-5, 0.003)]))
+    assert s["chance_best_scale"][200] == pytest.approx(
+        np.mean([chance_of_one(b, 200) for b in (0.02, 4e-4, 0.004)]))
     assert s["particles_for_share"] == float("inf")  # a seed in three with p = 0
     assert s["particles_for_share_gauss"] < float("inf")
