@@ -162,6 +162,25 @@ def best_scaled_within(mean: np.ndarray, cov: np.ndarray, target: np.ndarray, ra
     return min(float(best), 1.0), float(np.exp(best_log))
 
 
+def largest_miss(particles: float, share: float = SHARE, radius: float = loops.TOLERANCE
+                 ) -> float:
+    """The largest distance r between the truth and a round cloud's centre at which J =
+    ``particles`` draws have chance ``share`` of one within ``radius``, with the cloud's width
+    the best for that r (``best_scaled_within``): beyond it no noise level gives a seed that
+    chance. About radius / sqrt(e p) for p = 1 - (1 - share)^(1 / J) (6.8 m at J = 200)."""
+    def chance(r: float) -> float:
+        p, _ = best_scaled_within(np.zeros(2), np.eye(2), np.array([r, 0.0]), radius)
+        return float(chance_of_one(p, particles))
+
+    lo, hi = radius, 2.0 * radius
+    while chance(hi) >= share:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if chance(mid) >= share else (lo, mid)
+    return lo
+
+
 def against_runs(bounds: list[dict], runs: list[dict]) -> dict:
     """Per "proposal J=..", over the ``loop_closure`` runs of a (loop, seed) that ``bounds``
     has: the runs, the mean predicted chance of a particle within 1 m at the approach and the
@@ -254,6 +273,10 @@ def main(argv: list[str] | None = None) -> int:
     env = environment()
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
     config = layered_config(args.config, args.course, args.set)
+    print("# beyond a VO miss at the approach of "
+          + ", ".join(f"{largest_miss(J):.1f} m (J={J})" for J in args.particles)
+          + f" no noise level gives a seed a chance of {SHARE:.0%} of a particle within "
+          f"{loops.TOLERANCE:g} m (largest_miss)", flush=True)
     filtered, runs = read_rows(args.from_json), {}
     for r in filtered:
         if r.get("closed") is not None and "approach_within_1m" in r:

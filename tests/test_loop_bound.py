@@ -163,6 +163,30 @@ def test_the_best_width_for_a_seed_against_scipy() -> None:
     assert best_scaled_within(mean, cov, mean + 0.5, 1.0) == (1.0, 0.0)  # the truth inside
 
 
+def test_the_largest_miss_a_share_allows_against_scipy() -> None:
+    """``largest_miss``: at the distance it returns, the best round cloud (SciPy's noncentral
+    chi-square maximised over the width by SciPy) gives J particles the share's chance of one
+    within the radius, and a little further out less; near the far-truth closed form."""
+    from scipy import optimize, stats
+
+    from experiments.loop_bound import chance_of_one, largest_miss
+
+    def best_chance(r: float, J: int, radius: float) -> float:
+        ref = optimize.minimize_scalar(
+            lambda ls: -stats.ncx2.cdf(radius ** 2 / np.exp(2 * ls), df=2,
+                                       nc=r ** 2 / np.exp(2 * ls)),
+            bounds=(-4.0, 6.0), method="bounded", options={"xatol": 1e-9})
+        return float(chance_of_one(-ref.fun, J))
+
+    for J, share, radius in [(200, 0.8, 1.0), (2000, 0.8, 1.0), (20, 0.5, 2.0)]:
+        r = largest_miss(J, share, radius)
+        assert best_chance(r, J, radius) == pytest.approx(share, abs=1e-4)
+        assert best_chance(1.02 * r, J, radius) < share
+        p = 1.0 - (1.0 - share) ** (1.0 / J)
+        assert r == pytest.approx(radius / np.sqrt(np.e * p), rel=0.03)
+    assert largest_miss(200) == pytest.approx(6.8, abs=0.05)
+
+
 def test_the_cloud_round_a_loop_grows_as_its_length_to_the_three_halves() -> None:
     """Heading noise alone (eq. 3's per-metre term) round circles of 200 m and 400 m walked in
     the same steps: the heading's variance grows as the length L, and every step's heading
