@@ -248,6 +248,43 @@ def summarise(rows: list[dict], particles: list[int]) -> dict:
             "vo_miss_median_m": float(np.median([r["vo_miss_m"] for r in rows]))}
 
 
+def plot_bound(summary: dict, particles: list[int], path: Path) -> None:
+    """The chance of a particle within 1 m at the approach against loop length, a colour per
+    J: counted among the draws at the config's noise (solid) and with the best width per seed
+    (``chance_best_scale``, dashed: no noise level gives more); circles with dots, the real
+    paths' cuts with squares (unjoined: each cut is a loop of its own path, so their chances
+    need not fall with length), and the share ``SHARE`` as a grey line."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for i, J in enumerate(particles):
+        for family, marker in (("circle", "o"), ("cut", "s")):
+            loops_ = sorted((s["length_m"], s) for name, s in summary.items()
+                            if name.startswith("circle-") == (family == "circle"))
+            if not loops_:
+                continue
+            x = [length for length, _ in loops_]
+            for key, style, what in (("chance", "-", "at the noise given"),
+                                     ("chance_best_scale", "--", "best width per seed")):
+                ax.plot(x, [s[key][J] for _, s in loops_],
+                        marker + (style if family == "circle" else ""), color=f"C{i}",
+                        alpha=1.0 if key == "chance" else 0.6,
+                        label=f"J={J}, {what}" if family == "circle" or len(x) == len(
+                            summary) else None)
+    ax.axhline(SHARE, color="0.6", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_xlabel("loop length (m)")
+    ax.set_ylabel("chance of a particle within 1 m at the approach")
+    ax.set_title("flat-weight bound (circles: dots, real paths' cuts: squares)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--circles", type=float, nargs="*", default=[400, 800, 1000],
@@ -269,6 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from-json", type=Path, nargs="*", default=[],
                     help="loop_closure --json files: their runs beside the prediction")
     ap.add_argument("--json", type=Path, help="write settings and every row here")
+    ap.add_argument("--plot", type=Path, help="write the chance against loop length here (PNG)")
     args = ap.parse_args(argv)
     env = environment()
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
@@ -324,6 +362,8 @@ def main(argv: list[str] | None = None) -> int:
                       + ", ".join(f"J={J} {c:.0%}" for J, c in s["chance_best_scale"].items())
                       + f"; J for {SHARE:.0%}: {s['particles_for_share_best_scale']:.0f}",
                       flush=True)
+    if args.plot and summary:
+        plot_bound(summary, args.particles, args.plot)
     seen = against_runs(rows, filtered)
     for name, c in seen.items():
         print(f"  the filter's runs, {name} ({c['runs']}): predicted chance of a particle within "

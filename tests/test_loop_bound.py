@@ -68,9 +68,10 @@ def test_the_bound_end_to_end_on_a_small_circle(tmp_path, capsys) -> None:
     from gslam_jax.datasets.sim_path import drive_path
     from gslam_jax.vo.localmap import localmap_params
 
-    out = tmp_path / "bound.json"
+    out, png = tmp_path / "bound.json", tmp_path / "bound.png"
     assert main(["--circles", "40", "--seeds", "0", "--draws", "500", "--particles", "20",
-                 "--course", "mars-yard-a", "--json", str(out)]) == 0
+                 "--course", "mars-yard-a", "--json", str(out), "--plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "mean chance of a particle within 1 m at the approach J=20" \
         in capsys.readouterr().out
     got = json.loads(out.read_text())
