@@ -234,17 +234,13 @@ def summarise(rows: list[dict], particles: list[int]) -> dict:
     count (``chance``), from the Gaussian fit (``chance_gauss``) and from the fit scaled per
     seed to suit the truth (``chance_best_scale``, ``best_scaled_within``); the medians of the
     cloud's spread and of the VO's miss there."""
-    p = np.asarray([r["p_within"] for r in rows])
-    pg = np.asarray([r["p_gauss"] for r in rows])
-    pb = np.asarray([r["p_best_scale"] for r in rows])
-    return {"length_m": rows[0]["length_m"], "seeds": len(rows),
-            "chance": {J: float(np.mean(chance_of_one(p, J))) for J in particles},
-            "particles_for_share": particles_for(p),
-            "chance_gauss": {J: float(np.mean(chance_of_one(pg, J))) for J in particles},
-            "particles_for_share_gauss": particles_for(pg),
-            "chance_best_scale": {J: float(np.mean(chance_of_one(pb, J))) for J in particles},
-            "particles_for_share_best_scale": particles_for(pb),
-            "spread_m": float(np.median([r["spread_m"] for r in rows])),
+    out = {"length_m": rows[0]["length_m"], "seeds": len(rows)}
+    for field, suffix in (("p_within", ""), ("p_gauss", "_gauss"),
+                          ("p_best_scale", "_best_scale")):
+        p = np.asarray([r[field] for r in rows])
+        out["chance" + suffix] = {J: float(np.mean(chance_of_one(p, J))) for J in particles}
+        out["particles_for_share" + suffix] = particles_for(p)
+    return {**out, "spread_m": float(np.median([r["spread_m"] for r in rows])),
             "vo_miss_median_m": float(np.median([r["vo_miss_m"] for r in rows]))}
 
 
@@ -258,6 +254,7 @@ def plot_bound(summary: dict, particles: list[int], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    has_circles = any(name.startswith("circle-") for name in summary)
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for i, J in enumerate(particles):
         for family, marker in (("circle", "o"), ("cut", "s")):
@@ -271,8 +268,8 @@ def plot_bound(summary: dict, particles: list[int], path: Path) -> None:
                 ax.plot(x, [s[key][J] for _, s in loops_],
                         marker + (style if family == "circle" else ""), color=f"C{i}",
                         alpha=1.0 if key == "chance" else 0.6,
-                        label=f"J={J}, {what}" if family == "circle" or len(x) == len(
-                            summary) else None)
+                        label=f"J={J}, {what}" if family == "circle" or not has_circles
+                        else None)
     ax.axhline(SHARE, color="0.6", lw=0.8)
     ax.set_xscale("log")
     ax.set_ylim(-0.05, 1.05)
