@@ -15,7 +15,7 @@ from gslam_jax.config import Config, ConfigError
 from gslam_jax.gridmap import GridMap, place
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.run import Run
-from gslam_jax.run_checks import check_start_pose
+from gslam_jax.run.checks import check_start_pose
 
 __all__ = ["PriorMap", "START_STREAM", "check_prior", "locate_prior_start", "rebase",
            "known_box", "prior_state"]
@@ -41,7 +41,7 @@ def check_prior(prior: PriorMap, config: Config) -> None:
     """ConfigError when the prior map cannot be the filter's map: another resolution than
     [map] resolution (the filter's grid lies on the prior's lattice), or a start pose or
     spread that is not finite (the spread must be >= 0), or a start beyond float32's reach of
-    the map's cells (``run_checks.check_start_pose``)."""
+    the map's cells (``run.checks.check_start_pose``)."""
     res = prior.grid.resolution
     if not math.isclose(res, config.map.resolution, rel_tol=1e-6):
         raise ConfigError(f"the prior map {prior.source or ''} has resolution {res:g} m, "

@@ -14,7 +14,7 @@ from gslam_jax.config import Config, MapSection
 from gslam_jax.metrics import local_cell_centres
 from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, RunError
-from gslam_jax.run_checks import describe_cells
+from gslam_jax.run.checks import describe_cells
 
 __all__ = ["local_observations", "raw_observations", "ObsSettings", "obs_settings",
            "refine_observations", "map_observations", "range_noise_profile", "run_range_noise",

@@ -34,7 +34,7 @@ from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap, turn_poses
 from gslam_jax.rbpf import cells, maps
 from gslam_jax.run import integrate_controls
-from gslam_jax.run_checks import coordinate_limit
+from gslam_jax.run.checks import coordinate_limit
 from gslam_jax.vo.localmap import LocalMapBuilder, localmap_params, map_axes_heading
 
 __all__ = ["Online", "OnlineFrame", "OnlineStats", "Particles", "MapEdgeError",

@@ -21,7 +21,7 @@ from gslam_jax.observations import run_range_noise
 from gslam_jax.rbpf import maps, tilestore
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.run import Run, RunError
-from gslam_jax.run_checks import coordinate_limit, float32_spacing
+from gslam_jax.run.checks import coordinate_limit, float32_spacing
 
 __all__ = ["MapExtent", "map_extent", "check_float32_reach", "observed_cells", "map_memory",
            "filter_config", "extent_filter_config", "resolve_ess_target",
@@ -64,7 +64,7 @@ def map_extent(vo_poses: np.ndarray, local_size: int, resolution: float, margin:
 def check_float32_reach(vo_poses: np.ndarray, extent: MapExtent, resolution: float,
                         margin: float) -> None:
     """RunError naming the frame where the VO path, or ConfigError naming [map] margin where the
-    map ``extent`` around it, reaches ``run_checks.coordinate_limit(resolution)`` metres from the
+    map ``extent`` around it, reaches ``run.checks.coordinate_limit(resolution)`` metres from the
     origin: there the filter's float32 poses no longer resolve the map's cells."""
     limit = coordinate_limit(resolution)
     xy = np.asarray(vo_poses, np.float64)[:, :2]

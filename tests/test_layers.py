@@ -16,7 +16,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "gslam_jax"
 
 LAYERS = {
     "errors": 0, "choices": 0, "machine": 0, "io": 0, "sim.courses": 0, "version": 0,
-    "config": 1, "run_checks": 1,
+    "config": 1,
     "rbpf": 2, "run": 2,
     "vo": 3, "tiled": 3, "gridmap": 3,
     "sim": 4, "metrics": 4,

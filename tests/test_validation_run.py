@@ -7,7 +7,7 @@ from synthetic import make_run
 
 from gslam_jax.config import ConfigError
 from gslam_jax.run import Run, RunError, integrate_controls, load_run, save_run, validate_run
-from gslam_jax.run_checks import MAX_SPEED, coordinate_limit, float32_limit, float32_spacing
+from gslam_jax.run.checks import MAX_SPEED, coordinate_limit, float32_limit, float32_spacing
 from gslam_jax.sizing import check_float32_reach, map_extent
 
 

@@ -14,9 +14,8 @@ from typing import BinaryIO, NamedTuple
 import numpy as np
 
 from gslam_jax.errors import RunError
-from gslam_jax.run_checks import (HEADING_LIMIT, check_controls, check_start_pose,
-                                  check_types, describe_cells, normalise_stored,
-                                  variance_tolerance)
+from gslam_jax.run.checks import (HEADING_LIMIT, check_controls, check_start_pose, check_types,
+                                  describe_cells, normalise_stored, variance_tolerance)
 
 __all__ = ["Run", "RunError", "integrate_controls", "known_positions", "load_run", "save_run",
            "validate_run"]
