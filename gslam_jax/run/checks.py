@@ -1,5 +1,5 @@
-"""The checks behind a Run's validation (``run.container.validate_run``): the limits float32 poses set on
-coordinates and headings, and the checks of single fields (types, the start pose, the
+"""The checks behind a Run's validation (``run.validate_run``): the limits float32 poses set
+on coordinates and headings, and the checks of single fields (types, the start pose, the
 controls, the local maps' variances), each reporting through a ``fail(field, message)``
 callback so that the caller's error names its file, field and frame."""
 
