@@ -29,8 +29,8 @@ import numpy as np
 
 import gslam_jax
 from gslam_jax.datasets.sim import drive_course
+from gslam_jax.evaluation.metrics import rms_after_fit
 from gslam_jax.io import write_tum
-from gslam_jax.metrics import rms_after_fit
 from gslam_jax.sim.courses import course_from_path
 from gslam_jax.sim.environments import world_for_course
 from gslam_jax.sim.render import RenderParams, StereoRenderer

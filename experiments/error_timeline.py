@@ -30,8 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from experiments.common import add_case_arguments, cases_from_arguments, print_header
-from gslam_jax import loops, metrics, slam
+from gslam_jax import slam
 from gslam_jax.config import apply_overrides
+from gslam_jax.evaluation import metrics
+from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.run import Run
 
 __all__ = ["PATHS", "pose_errors", "first_exceeding", "timeline", "main"]
@@ -66,7 +68,7 @@ def timeline(run: Run, results: dict[str, slam.SlamResult], every: float, headin
     known = np.isfinite(truth).all(axis=1)
     if not known.all():
         raise ValueError("the timeline needs ground truth at every frame")
-    dist = loops.arc_length(truth)
+    dist = arc_length(truth)
     vo_path = next(iter(results.values())).vo_path  # the same Run's: any setting's
     vo_pos, vo_head = pose_errors(vo_path, truth)
     paths = {name: getattr(res, PATHS[path]) for name, res in results.items()}

@@ -56,9 +56,9 @@ from jax import Array, lax
 from experiments.loop_closure import approach_frame
 from experiments.loop_paths import START_M, add_vo_arguments, circle_loop, kitti_loops, vo_noise
 from experiments.loop_summary import read_rows
-from gslam_jax import loops
 from gslam_jax.config import layered_config
 from gslam_jax.datasets.sim_path import drive_path
+from gslam_jax.evaluation import loops
 from gslam_jax.machine import environment
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, particle_scales, scaled
 from gslam_jax.sizing import motion_params

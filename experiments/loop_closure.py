@@ -12,7 +12,7 @@ j to within --radius of an earlier pose i, with the travel between them nearest 
 meet and close first: ``loop_paths.kitti_cuts``). Each loop is driven once and then --overlap
 metres on, through a corridor world of --course (``datasets.sim_path``); seed s is both the
 simulation seed (world and VO noise) and the filter seed. The revisit scored is the frame at 10
-m of travel and its return one loop later; the verdict is ``gslam_jax.loops.closure`` (revisit
+m of travel and its return one loop later; the verdict is ``evaluation.loops.closure`` (revisit
 error and map offset <= 1 m) of the final best particle's path, of the final densest particle's
 path (``[filter] estimate = "mode"``: after a revisit's resampling the weights are nearly equal,
 and the best particle can be one of the few that missed the start while most of the weight is
@@ -53,9 +53,11 @@ from experiments.common import scaled_alphas
 from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop, kitti_loops,
                                    vo_noise)
 from experiments.loop_summary import VERDICTS, plot, print_summary, read_rows
-from gslam_jax import loops, metrics, slam
+from gslam_jax import slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim_path import simulate_path
+from gslam_jax.evaluation import loops, metrics
+from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
@@ -89,7 +91,7 @@ def approach_frame(truth: np.ndarray, revisit: loops.Revisit, reach_m: float) ->
     ``reach_m``) can first see the map made at the loop's start: the particles there have met
     nothing but their own maps since, so how near the truth they are is the sample's doing
     alone."""
-    arc = loops.arc_length(truth)
+    arc = arc_length(truth)
     at = arc[revisit.j] - (reach_m + APPROACH_M + START_M)
     return int(np.clip(np.searchsorted(arc, at, side="right") - 1, 0, revisit.j))
 

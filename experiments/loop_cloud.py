@@ -27,9 +27,11 @@ from experiments.common import scaled_alphas
 from experiments.loop_closure import approach_frame, simulate_loop
 from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop, kitti_loops,
                                    vo_noise)
-from gslam_jax import loops, slam
+from gslam_jax import slam
 from gslam_jax.config import Config, layered_config
+from gslam_jax.evaluation import loops
 from gslam_jax.gridmap import turn_poses
+from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.run import Run
 from gslam_jax.vo.localmap import localmap_params
 
@@ -47,7 +49,7 @@ def cloud_rows(truth: np.ndarray, vo: np.ndarray, best: np.ndarray, poses: np.nd
     the truth and the share of the normalised weights
     ``log_w`` [T, J] they hold (NaN without weights), and the resamplings and updates since
     the previous row."""
-    arc = loops.arc_length(truth)
+    arc = arc_length(truth)
     rows, since, next_m = [], [0, 0], 0.0
     for t in range(len(truth)):
         since[0] += bool(resampled[t])

@@ -15,8 +15,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gslam_jax import loops
 from gslam_jax.datasets.sim_path import world_kind
+from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.sim.vonoise import VONoiseParams
 
 START_M = 10.0  # the revisit's first frame: this far along the loop
@@ -111,7 +111,7 @@ def kitti_cuts(file: Path, lengths: list[float], radius: float, every: int = 5,
     earlier one's is that loop again and is not given twice (KITTI 05's nearest 850 m and
     1000 m would be its 854 m loop from pose 1560 and its 855 m loop from pose 1555: one loop)."""
     xy = _kitti_xy(file)
-    arc = loops.arc_length(xy)
+    arc = arc_length(xy)
     back = first_returns(xy, radius)
     found = []
     for a in range(0, len(xy), every):
@@ -136,7 +136,7 @@ def kitti_file(folder: Path, file: Path, a: int, b: int, overlap: float) -> Path
     """The lines of a KITTI pose file from START_M metres before pose a (so that the revisit
     scored is a, b) to ``overlap`` metres after b."""
     lines = [ln for ln in file.read_text().splitlines() if ln.strip()]
-    arc = loops.arc_length(_kitti_xy(file))
+    arc = arc_length(_kitti_xy(file))
     first = int(np.searchsorted(arc, arc[a] - START_M))
     end = int(np.searchsorted(arc, arc[b] + overlap))
     path = folder / f"{file.stem}-{a}-{b}.txt"

@@ -42,12 +42,12 @@ import numpy as np
 from gslam_jax import slam
 from gslam_jax.config import Config, config_to_toml, layered_config, parse_config
 from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.evaluation.metrics import rigid_fit_2d
 from gslam_jax.gps import align_to_gps
 from gslam_jax.gps.georeference import gps_input
 from gslam_jax.gridmap import GridMap, add, compose, invert_pose, transform
 from gslam_jax.gridmap.align import AlignmentRefused, align_maps, check_alignment
 from gslam_jax.machine import environment
-from gslam_jax.metrics import rigid_fit_2d
 from gslam_jax.vo.localmap import localmap_params
 
 
@@ -153,7 +153,7 @@ def _self_check(course: str, trial: int, path: np.ndarray, config: Config) -> di
     """Trial ``trial``'s B map checked against itself at its own path (the Run simulated again:
     the local maps do not depend on the start pose), as ``gslam run`` checks it; a doubled map
     is refused as ``gslam merge`` refuses it."""
-    from gslam_jax.consistency import check_consistency
+    from gslam_jax.gridmap.consistency import check_consistency
 
     run, _ = simulate_run(course, seed=0, params=localmap_params(config),
                           noise_seed=100 + trial)

@@ -31,8 +31,9 @@ import math
 import time
 from pathlib import Path
 
-from gslam_jax import metrics, slam
+from gslam_jax import slam
 from gslam_jax.config import apply_overrides
+from gslam_jax.evaluation import metrics
 from gslam_jax.run import known_positions
 
 from experiments.common import (add_case_arguments, cases_from_arguments, print_header,

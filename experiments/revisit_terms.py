@@ -33,7 +33,9 @@ import numpy as np
 from experiments.loop_closure import approach_frame
 from experiments.loop_cloud import NEAR_M, add_loop_arguments, simulated_loop
 from experiments.loop_paths import START_M
-from gslam_jax import loops, rbpf, slam
+from gslam_jax import rbpf, slam
+from gslam_jax.evaluation import loops
+from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.observations import map_observations
 from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
@@ -118,7 +120,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     revisit = loops.find_revisit(truth, START_M, 0.5 * loop.length_m)
     if revisit is None:
         raise SystemExit(f"{loop.name}: the path does not come back within {START_M} m")
-    arc = loops.arc_length(truth)
+    arc = arc_length(truth)
     first = approach_frame(truth, revisit, localmap_params(config).max_range) - args.chunk
     last = int(np.searchsorted(arc, arc[revisit.j] + args.after))
     print(f"{loop.name}: revisit at frames {revisit.i} and {revisit.j}, {arc[revisit.j]:.1f} m; "

@@ -39,9 +39,12 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from experiments.loop_paths import START_M, circle_file
-from gslam_jax import loops, metrics, slam
+from gslam_jax import slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim_path import simulate_path
+from gslam_jax.evaluation import loops
+from gslam_jax.gridmap.grid import arc_length
+from gslam_jax.gridmap.pose_maps import local_cell_centres, place_local_map, pose_lattice
 from gslam_jax.machine import environment
 from gslam_jax.observations import run_range_noise
 from gslam_jax.rbpf import cells
@@ -63,7 +66,7 @@ def window_rows(P: np.ndarray, log_w: np.ndarray, truth: np.ndarray, revisit: lo
     P: [T, J, 3] particle poses; log_w: [T, J] log weights (no resampling)."""
     J = P.shape[1]
     err = np.array([loops.revisit_error(truth, P[:, p], revisit.i, revisit.j) for p in range(J)])
-    arc = loops.arc_length(truth)
+    arc = arc_length(truth)
     rows = []
     for m in np.arange(from_m, arc[-1] - window + 1e-9, window):
         a, b = (min(int(np.searchsorted(arc, x)), len(arc) - 1) for x in (m, m + window))
@@ -85,23 +88,23 @@ def truth_scores(run, config, revisit: loops.Revisit, map_m: float, bands=(0, 4,
     pose (per cell, by range band, and summed) and summed 1 m to the left, without and with
     the range profile. See the module docstring."""
     truth = run.ground_truth
-    arc = loops.arc_length(truth)
+    arc = arc_length(truth)
     L = run.local_maps.shape[1]
     noise = run_range_noise(run, config).reshape(L, L)
-    lattice = metrics.pose_lattice(run, truth, 2.0)
+    lattice = pose_lattice(run, truth, 2.0)
     K, S = np.zeros(lattice.k.size), np.zeros(lattice.k.size)
     frames = np.flatnonzero(run.obs_index >= 0)
     for t in frames[arc[frames] < map_m]:
-        flat, k, s = metrics.place_local_map(run, t, truth[t], lattice)
+        flat, k, s = place_local_map(run, t, truth[t], lattice)
         np.add.at(K, flat, k)
         np.add.at(S, flat, s)
     known = np.flatnonzero(K > 0)
     chance = np.random.default_rng(0).choice(known, chance_cells)
     log_predictive = jax.jit(cells.log_predictive_integer)
-    rng = np.hypot(*metrics.local_cell_centres(L, float(run.resolution)))
+    rng = np.hypot(*local_cell_centres(L, float(run.resolution)))
 
     def lr(t, pose, with_noise):
-        flat, k, s = metrics.place_local_map(run, t, pose, lattice)
+        flat, k, s = place_local_map(run, t, pose, lattice)
         seen = cells.obs_from_stats(run.local_maps[run.obs_index[t]])[..., 0] > 0  # as placed
         n = noise[seen] if with_noise else np.zeros(int(seen.sum()))
         on = K[flat] > 0
@@ -193,7 +196,7 @@ def main(argv: list[str] | None = None) -> None:
             log_w.append(np.asarray(report.info.log_w))
 
         slam.run_slam(run, cfg, on_chunk=keep)
-        arc = loops.arc_length(run.ground_truth)
+        arc = arc_length(run.ground_truth)
         start = arc[revisit.j] - 40.0 if args.from_m is None else args.from_m
         rows = window_rows(np.concatenate(poses), np.concatenate(log_w), run.ground_truth,
                            revisit, args.window, max(0.0, start))

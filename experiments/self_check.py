@@ -23,8 +23,9 @@ import numpy as np
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
-from gslam_jax.consistency import check_consistency
-from gslam_jax.loops import arc_length, revisit_error
+from gslam_jax.evaluation.loops import revisit_error
+from gslam_jax.gridmap.consistency import check_consistency
+from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 

@@ -70,7 +70,7 @@ def locate_prior_start(prior: PriorMap, run: Run, config: Config) -> PriorMap:
     InputError) when the run's start cannot be told from the map."""
     if prior.start is not None:
         return prior
-    from gslam_jax.relocalise import locate_start
+    from gslam_jax.gridmap.relocalise import locate_start
 
     found = locate_start(prior.grid, run)
     given = np.asarray(prior.start_sigma, float)

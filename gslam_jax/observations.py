@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gslam_jax.config import Config, MapSection
-from gslam_jax.metrics import local_cell_centres
+from gslam_jax.gridmap.pose_maps import local_cell_centres
 from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, RunError
 from gslam_jax.run.checks import describe_cells

@@ -55,7 +55,7 @@ def _counts_at(run, poses: np.ndarray, like: dict) -> np.ndarray:
     """Point counts k of every local map of ``run`` placed at ``poses`` on the lattice of the
     map file ``like`` (the metrics' numpy placement, eq. 14's sum)."""
     from gslam_jax.gridmap import GridMap
-    from gslam_jax.metrics import pose_map
+    from gslam_jax.gridmap.pose_maps import pose_map
 
     shape = like["k"].shape
     lattice = GridMap(np.zeros(shape), np.zeros(shape), tuple(like["origin"]),
@@ -84,8 +84,8 @@ def test_a_map_on_the_start_axes_is_written_with_its_heading(tmp_path):
     the start heading), and the local maps placed along map_path_tum.txt (in the run's frame)
     on that turned lattice give its counts in every cell."""
     from gslam_jax.gridmap import load_map
+    from gslam_jax.gridmap.pose_maps import pose_map
     from gslam_jax.io import read_tum
-    from gslam_jax.metrics import pose_map
 
     start = np.array([0.4, -0.2, 0.9])
     run, path = run_file(tmp_path / "r.npz", initial_pose=start)
@@ -203,8 +203,8 @@ def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
 
 def test_run_reports_the_configured_estimate(mean_run):
     """[filter] estimate = "mean": the trajectory files and the RMS are the weighted mean poses."""
+    from gslam_jax.evaluation.metrics import rms_after_fit
     from gslam_jax.io import read_tum
-    from gslam_jax.metrics import rms_after_fit
 
     run, out = mean_run
     mean = np.load(out / "trace.npz")["mean_pose"]

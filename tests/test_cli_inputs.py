@@ -272,8 +272,8 @@ def test_compare_accepts_a_table1_config(tmp_path, monkeypatch, capsys):
 
 
 def test_trajectory_errors_match_the_metrics_on_full_ground_truth():
-    from gslam_jax import metrics
-    from gslam_jax.metrics import errors_over_known_frames
+    from gslam_jax.evaluation import metrics
+    from gslam_jax.evaluation.metrics import errors_over_known_frames
 
     run = shared_run()
     gt, vo = np.asarray(run.ground_truth), run.vo_poses()

@@ -1,4 +1,4 @@
-"""A run's map checked against itself (gslam_jax.consistency): a loop driven at the true
+"""A run's map checked against itself (gslam_jax.gridmap.consistency): a loop driven at the true
 poses is consistent; the same loop with its second visit laid 2 m off is found doubled there,
 with the correction that undoes the offset."""
 
@@ -11,8 +11,8 @@ import pytest
 
 from gslam_jax.config import Config, apply_overrides
 from gslam_jax.datasets.sim_path import simulate_path
-from gslam_jax.consistency import ConsistencyParams, check_consistency
-from gslam_jax.loops import arc_length
+from gslam_jax.gridmap.consistency import ConsistencyParams, check_consistency
+from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.vo.localmap import localmap_params
 
 SMALL = apply_overrides(Config(), ["localmap.max_range=5"])  # 64-cell local maps: CI-sized

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from gslam_jax.metrics import rms_after_fit
+from gslam_jax.evaluation.metrics import rms_after_fit
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "own_rig.py"
 

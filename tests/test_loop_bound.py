@@ -63,9 +63,9 @@ def test_the_bound_end_to_end_on_a_small_circle(tmp_path, capsys) -> None:
     from experiments.loop_bound import main
     from experiments.loop_closure import approach_frame
     from experiments.loop_paths import START_M, circle_loop
-    from gslam_jax import loops
     from gslam_jax.config import Config
     from gslam_jax.datasets.sim_path import drive_path
+    from gslam_jax.evaluation import loops
     from gslam_jax.vo.localmap import localmap_params
 
     out, png = tmp_path / "bound.json", tmp_path / "bound.png"

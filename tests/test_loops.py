@@ -1,5 +1,5 @@
-"""Loop closure: the revisit, the revisit error, the map offset and the verdict (gslam_jax.loops),
-and a CI-sized run of experiments/loop_closure.py."""
+"""Loop closure: the revisit, the revisit error, the map offset and the verdict
+(gslam_jax.evaluation.loops), and a CI-sized run of experiments/loop_closure.py."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from gslam_jax import loops
 from gslam_jax.config import Config, apply_overrides
 from gslam_jax.datasets.sim_path import simulate_path
-from gslam_jax.metrics import GridMap
+from gslam_jax.evaluation import loops
+from gslam_jax.gridmap.grid import GridMap, arc_length
 from gslam_jax.sim.vonoise import VO_PROFILES
 from gslam_jax.vo.localmap import localmap_params
 
@@ -159,7 +159,7 @@ def test_closure_verdict_on_a_simulated_loop(noisy_loop) -> None:
     assert truth.closed and truth.error_m == 0.0
     assert truth.map_offset_m <= math.sqrt(2) * run.resolution + 1e-9
     # the second visit laid 2 m off: both figures see it
-    arc = loops.arc_length(gt)
+    arc = arc_length(gt)
     off = gt.copy()
     off[np.abs(arc - arc[rv.j]) <= 5.0, 1] += 2.0
     doubled = loops.closure(run, off, rv)
@@ -186,7 +186,7 @@ def test_experiment_pipeline_gives_a_verdict(noisy_loop) -> None:
     rv = loops.Revisit(*row["revisit"])
     vo_err = abs(_rel(run.vo_poses(), rv.i, rv.j) - _rel(run.ground_truth, rv.i, rv.j))
     assert row["vo_error_m"] == pytest.approx(vo_err) and row["vo_closed"] is False
-    arc = loops.arc_length(run.ground_truth)  # the cloud is read before the start is in view
+    arc = arc_length(run.ground_truth)  # the cloud is read before the start is in view
     before = arc[rv.j] - arc[row["approach_frame"]]
     reach = SMALL.localmap.max_range + 2.0 + 10.0  # sensor range, APPROACH_M, START_M
     assert reach <= before < reach + 0.5

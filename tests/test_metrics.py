@@ -9,10 +9,10 @@ import pytest
 from scipy.optimize import minimize
 from scipy.special import gammaln
 
+from gslam_jax.evaluation.metrics import (apply_rigid, drift_per_distance, final_position_error,
+                                          rigid_fit_2d, rms_after_fit, trajectory_metrics)
+from gslam_jax.gridmap.pose_maps import pose_map, vo_only_map
 from gslam_jax.rbpf import cells
-from gslam_jax.metrics import (apply_rigid, drift_per_distance,
-                               final_position_error, pose_map, rigid_fit_2d, rms_after_fit,
-                               trajectory_metrics, vo_only_map)
 from gslam_jax.run import Run
 
 
@@ -145,7 +145,7 @@ def test_vo_only_map_uses_the_integrated_controls() -> None:
 
 
 def test_drift_over_known_frames_by_hand():
-    from gslam_jax.metrics import drift_over_known_frames
+    from gslam_jax.evaluation.metrics import drift_over_known_frames
 
     # Truth: 10 m east then 10 m north (20 m); the estimate ends 0.5 m off (3-4-5 x 0.1).
     gt = np.array([[0, 0, 0], [10, 0, np.pi / 2], [10, 10, np.pi / 2]], float)
@@ -171,7 +171,7 @@ def test_drift_over_known_frames_by_hand():
 
 
 def test_ground_truth_in_map_frame_starts_on_the_path():
-    from gslam_jax.metrics import ground_truth_in_map_frame
+    from gslam_jax.evaluation.metrics import ground_truth_in_map_frame
 
     gt = np.array([[np.nan] * 3, [1, 1, 0], [2, 1, 0]], float)
     path = np.array([[0, 0, 0], [5, 5, np.pi / 2], [5, 6, np.pi / 2]], float)

@@ -129,7 +129,7 @@ def test_error_along_distance_against_brute_force() -> None:
     from scipy.optimize import minimize
 
     from gslam_jax.app.plots import error_along_distance
-    from gslam_jax.metrics import errors_over_known_frames
+    from gslam_jax.evaluation.metrics import errors_over_known_frames
 
     rng = np.random.default_rng(3)
     t = np.linspace(0, 2 * np.pi, 25)
@@ -169,13 +169,14 @@ def test_error_along_distance_refuses_mismatched_shapes() -> None:
 def test_write_figures_writes_errors_png_only_with_ground_truth(tmp_path, monkeypatch) -> None:
     from types import SimpleNamespace
 
-    from gslam_jax import metrics
     from gslam_jax.app.outputs import write_figures
+    from gslam_jax.gridmap import pose_maps
+    from gslam_jax.gridmap.grid import GridMap
 
     rng = np.random.default_rng(0)
     k = np.where(rng.uniform(size=(40, 30)) < 0.8, 5.0, 0.0)
-    grid = metrics.GridMap(k, k * 0.01, (-1.0, -1.0), 0.16)
-    monkeypatch.setattr(metrics, "vo_only_map", lambda run: grid)
+    grid = GridMap(k, k * 0.01, (-1.0, -1.0), 0.16)
+    monkeypatch.setattr(pose_maps, "vo_only_map", lambda run: grid)
     path = np.stack([np.linspace(0, 4, 12), np.linspace(0, 2, 12), np.zeros(12)], axis=1)
     result = SimpleNamespace(kmap=grid.k, smap=grid.S, map_origin=grid.origin,
                              resolution=grid.resolution, map_heading=0.0, path=path,

@@ -18,10 +18,11 @@ import numpy as np
 import pytest
 from synthetic import World, truth_and_controls
 
-from gslam_jax import map_reuse, metrics, rbpf, sizing, slam
+from gslam_jax import map_reuse, rbpf, sizing, slam
 from gslam_jax.app import cli
 from gslam_jax.app.pipeline import load_prior
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
+from gslam_jax.evaluation import metrics
 from gslam_jax.gridmap import GridMap, MapFileError, save_map
 from gslam_jax.rbpf import maps, tilebytes, tilestore, unknown
 from gslam_jax.run import Run, integrate_controls

@@ -10,8 +10,8 @@ import pytest
 
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.gridmap.align import AlignmentRefused
-from gslam_jax.metrics import pose_map
-from gslam_jax.relocalise import locate_start, run_prefix
+from gslam_jax.gridmap.pose_maps import pose_map
+from gslam_jax.gridmap.relocalise import locate_start, run_prefix
 from gslam_jax.vo.localmap import LocalMapParams
 
 PARAMS = LocalMapParams(resolution=0.16, max_range=8.0)

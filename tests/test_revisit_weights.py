@@ -8,7 +8,8 @@ import math
 import numpy as np
 
 from experiments.revisit_weights import pose_errors, window_rows
-from gslam_jax import loops
+from gslam_jax.evaluation import loops
+from gslam_jax.gridmap.grid import arc_length
 
 
 def test_pose_errors_in_the_true_robot_frame():
@@ -35,7 +36,7 @@ def test_window_rows_follow_the_increments():
     assert np.all(np.diff(err) > 0)
     # the log weights reward the large-error particles over the first half of the travel and
     # the small-error ones over the second
-    arc = loops.arc_length(truth)
+    arc = arc_length(truth)
     favour_far = np.where(arc < 20, arc, 20.0)[:, None] * np.arange(J)[None, :]
     favour_near = np.where(arc > 20, arc - 20, 0.0)[:, None] * -10.0 * np.arange(J)[None, :]
     rows = window_rows(P, favour_far + favour_near, truth, revisit, window=10.0, from_m=0.0)

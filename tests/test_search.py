@@ -12,12 +12,9 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import metrics
 from gslam_jax.config import Config, FilterSection, MapSection
-from gslam_jax.tuning import designs as D
-from gslam_jax.tuning import evaluation as E
-from gslam_jax.tuning import search as S
-from gslam_jax.tuning import space as SP
+from gslam_jax.evaluation import metrics
+from gslam_jax.tuning import designs as D, evaluation as E, search as S, space as SP
 from gslam_jax.vo.localmap import LocalMapParams
 
 LM = LocalMapParams(resolution=0.16, max_range=2.5, travel=1.0)

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from gslam_jax import metrics
 from gslam_jax.datasets.sim_stereo import load_sim_stereo
+from gslam_jax.evaluation import metrics
 from gslam_jax.vo.localmap import LocalMapParams
 
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from gslam_jax.datasets.sim import simulate_odometry, simulate_run
-from gslam_jax.vo.localmap import LocalMapParams
-from gslam_jax.metrics import rms_after_fit
+from gslam_jax.evaluation.metrics import rms_after_fit
 from gslam_jax.run import integrate_controls
 from gslam_jax.sim import (VONoiseParams, apply_vo_noise, course_names, drive, make_course,
                            true_increments)
+from gslam_jax.vo.localmap import LocalMapParams
 
 QUIET = dict(scale_bias_std=0.0, heading_bias_std=0.0, failure_rate=0.0)
 

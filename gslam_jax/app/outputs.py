@@ -52,13 +52,14 @@ def write_figures(out: Path, run, result, num_particles: int,
     resampling threshold (``threshold`` J, filter.resample_ratio); with ground truth, the truth
     over the maps and ``errors.png`` (position error against distance travelled, after the
     RMS's rigid fit). Returns the Gamma-SLAM map's expected std."""
-    from gslam_jax import metrics
     from gslam_jax.app import plots
+    from gslam_jax.evaluation import metrics
+    from gslam_jax.gridmap import pose_maps
     from gslam_jax.rbpf import cells
 
     slam_std = np.asarray(cells.expected_std(result.kmap, result.smap))
     slam_at = (*result.map_origin, result.map_heading)  # the lattice may be turned
-    vo_map = metrics.vo_only_map(run)
+    vo_map = pose_maps.vo_only_map(run)
     vo_std = np.asarray(cells.expected_std(vo_map.k, vo_map.S))
     plots.save_map_png(out / "map.png", slam_std, slam_at, result.resolution,
                        path=result.path, title="Gamma-SLAM map (best particle)",
@@ -91,7 +92,8 @@ def summarise(run, result, config: Config, description: str) -> dict:
     """The figures of ``summary.json`` (without the GPS figures). With ground truth that moved
     less than MIN_DRIFT_DISTANCE there is no drift percentage and no ``motion_fit``; a
     ``drift_note`` says why."""
-    from gslam_jax import metrics, sizing
+    from gslam_jax import sizing
+    from gslam_jax.evaluation import metrics
 
     summary = {
         "source": description,

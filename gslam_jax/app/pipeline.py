@@ -189,7 +189,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
                                on_chunk=on_chunk, **({"chunk": chunk} if chunk else {}))
         consistency = None
         if map_check:
-            from gslam_jax.consistency import check_consistency
+            from gslam_jax.gridmap.consistency import check_consistency
             consistency = check_consistency(run, result.path, progress=bar("map self-check"))
         if prior is not None:  # the VO-only map and the figures in the prior's frame too
             loaded = loaded._replace(run=map_reuse.rebase(run, prior.start))

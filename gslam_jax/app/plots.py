@@ -231,7 +231,7 @@ def error_along_distance(ground_truth: np.ndarray, estimate: np.ndarray
     the estimate's position error there (m) after the rigid fit the RMS uses
     (``metrics.rigid_fit_2d`` over those frames, so the errors' RMS is the summary's RMS).
     Empty with fewer than 2 such frames."""
-    from gslam_jax.metrics import apply_rigid, rigid_fit_2d
+    from gslam_jax.evaluation.metrics import apply_rigid, rigid_fit_2d
     from gslam_jax.run import known_positions
 
     gt = np.asarray(ground_truth, np.float64)

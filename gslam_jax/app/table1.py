@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gslam_jax import metrics, slam
+from gslam_jax import slam
 from gslam_jax.app.outfile import check_output_file, write_text_atomic
-from gslam_jax.config import (Config, ConfigError, apply_overrides, config_to_toml,
-                              load_table_config)
+from gslam_jax.config import Config, ConfigError, apply_overrides, config_to_toml, load_table_config
+from gslam_jax.evaluation import metrics
 
 __all__ = ["PAPER_TABLE1", "run_course", "main"]
 

@@ -22,7 +22,7 @@ import numpy as np
 from gslam_jax.errors import InputError
 
 __all__ = ["GridMap", "MapFileError", "load_map", "save_map", "known_cells", "transform",
-           "add", "place", "compose", "invert_pose", "apply_pose", "turn_poses"]
+           "add", "place", "compose", "invert_pose", "apply_pose", "turn_poses", "arc_length"]
 
 
 class MapFileError(InputError):
@@ -146,6 +146,12 @@ def turn_poses(poses: np.ndarray, heading: float) -> np.ndarray:
     x, y = poses[..., 0], poses[..., 1]
     return np.stack([c * x - s * y, s * x + c * y,
                      np.angle(np.exp(1j * (poses[..., 2] + heading)))], axis=-1)
+
+
+def arc_length(poses: np.ndarray) -> np.ndarray:
+    """[N] distance travelled from the first pose to each pose (m)."""
+    xy = np.asarray(poses, np.float64)[:, :2]
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
 
 
 def _lattice_index(grid: GridMap, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -27,10 +27,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gslam_jax.gridmap.grid import GridMap, apply_pose, arc_length, known_cells
+from gslam_jax.gridmap.pose_maps import place_local_map, pose_lattice
 from gslam_jax.gridmap.score import score_poses
-from gslam_jax.gridmap.grid import GridMap, apply_pose, known_cells
-from gslam_jax.loops import arc_length
-from gslam_jax.metrics import place_local_map, pose_lattice
 from gslam_jax.run import Run
 
 __all__ = ["ConsistencyParams", "Revisit", "Consistency", "check_consistency"]

@@ -18,7 +18,7 @@ import numpy as np
 
 from gslam_jax.gridmap import GridMap, compose
 from gslam_jax.gridmap.align import AlignParams, Alignment, AlignmentRefused, align_maps
-from gslam_jax.metrics import pose_map
+from gslam_jax.gridmap.pose_maps import pose_map
 from gslam_jax.run import Run
 
 __all__ = ["StartEstimate", "locate_start", "run_prefix"]

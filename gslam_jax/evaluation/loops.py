@@ -28,11 +28,12 @@ import numpy as np
 from scipy.signal import correlate
 from scipy.special import gammaln
 
-from gslam_jax.metrics import GridMap, pose_map
+from gslam_jax.gridmap.grid import GridMap, arc_length
+from gslam_jax.gridmap.pose_maps import pose_map
 from gslam_jax.run import Run
 
-__all__ = ["TOLERANCE", "Closure", "Revisit", "arc_length", "closure", "expected_std",
-           "find_revisit", "map_offset", "revisit_error", "visit_maps"]
+__all__ = ["TOLERANCE", "Closure", "Revisit", "closure", "expected_std", "find_revisit",
+           "map_offset", "revisit_error", "visit_maps"]
 
 TOLERANCE = 1.0  # metres: revisit error and map offset at or under it close the loop
 
@@ -56,12 +57,6 @@ class Closure(NamedTuple):
     map_offset_m: float
     map_corr: float
     closed: bool
-
-
-def arc_length(poses: np.ndarray) -> np.ndarray:
-    """[N] distance travelled from the first pose to each pose (m)."""
-    xy = np.asarray(poses, np.float64)[:, :2]
-    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
 
 
 def find_revisit(true: np.ndarray, start_m: float, min_loop_m: float,
