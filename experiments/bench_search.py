@@ -18,14 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from experiments.common import report  # noqa: E402
-from gslam_jax import (  # noqa: E402
-    observations,
-    rbpf,  # noqa: E402
-    sizing,
-)
+from gslam_jax import rbpf  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
-from gslam_jax.machine import environment  # noqa: E402
+from gslam_jax.driver import observations, sizing  # noqa: E402
+from gslam_jax.driver.machine import environment  # noqa: E402
 from gslam_jax.tuning import designs as D  # noqa: E402
 from gslam_jax.tuning import evaluation as E  # noqa: E402
 from gslam_jax.tuning import search as S  # noqa: E402

@@ -14,11 +14,12 @@ from typing import Callable
 import jax
 import numpy as np
 
-from gslam_jax import choices, sizing, slam
+from gslam_jax import choices
 from gslam_jax.config import Config, layered_config
 from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.driver import device_arrays, sizing
+from gslam_jax.driver.machine import environment
 from gslam_jax.gridmap.grid import turn_poses
-from gslam_jax.machine import environment
 from gslam_jax.run import Run, load_run
 from gslam_jax.sim.vonoise import VO_PROFILES
 from gslam_jax.tuning.evaluation import evaluate
@@ -71,7 +72,7 @@ def key_averaged(run: Run, config: Config, names: tuple[str, ...] = ALPHAS
                  ) -> Callable[[np.ndarray, range, str], np.ndarray]:
     """f(values [P, d], keys, objective) -> [P]: the objective of each parameter set averaged
     over the filter keys (common random numbers across the sets for each key)."""
-    inputs, cfg = slam.run_arrays(run, config)
+    inputs, cfg = device_arrays.run_arrays(run, config)
     base = sizing.filter_params(config)
 
     def f(values: np.ndarray, keys: range, objective: str) -> np.ndarray:

@@ -30,8 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from experiments.common import add_case_arguments, cases_from_arguments, print_header
-from gslam_jax import slam
 from gslam_jax.config import apply_overrides
+from gslam_jax.driver import slam
+from gslam_jax.driver.results import SlamResult
 from gslam_jax.evaluation import metrics
 from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.run import Run
@@ -57,7 +58,7 @@ def first_exceeding(values: np.ndarray, limit: float, dist: np.ndarray) -> float
 PATHS = {"reported": "path", "mean": "mean_pose", "best": "best_pose"}
 
 
-def timeline(run: Run, results: dict[str, slam.SlamResult], every: float, heading_limit: float,
+def timeline(run: Run, results: dict[str, SlamResult], every: float, heading_limit: float,
              margin: float, path: str = "reported") -> dict:
     """Rows every ``every`` metres of travel (the VO's and each setting's errors) and each
     setting's summary; ``results`` maps a setting's name to its run of ``run``. ``path``: the

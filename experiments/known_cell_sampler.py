@@ -23,8 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from gslam_jax import rbpf
-from gslam_jax.machine import environment
-from gslam_jax.rbpf import densestore, maps, tilestore, unknown
+from gslam_jax.driver.machine import environment
+from gslam_jax.rbpf import maps, unknown
 
 
 def _best(fn, args, repeats: int) -> float:
@@ -40,10 +40,7 @@ def _best(fn, args, repeats: int) -> float:
 def _whole_map(store: maps.Maps, rows: jax.Array, u: jax.Array, cfg) -> tuple:
     """The scan the stores no longer do: each particle's whole-map bits, then
     ``unknown.sample_known_cells``."""
-    if isinstance(store, maps.TileStore):
-        bits = tilestore.known_bits(store, rows, cfg.map_shape)
-    else:
-        bits = densestore.known_bits(store, rows)
+    bits = maps.known_bits(store, rows, cfg)
     return jax.vmap(unknown.sample_known_cells)(bits, u)
 
 
@@ -53,8 +50,7 @@ def measure(shape: tuple[int, int], J: int, density: float, samples: int, store:
     k = np.where(rng.random(shape) < density, 3.0, 0.0).astype(np.float32)
     cfg = rbpf.FilterConfig(J, shape, (0.0, 0.0), 0.16, 64, unknown_cells="sample",
                             store=store)
-    ty, tx = tilestore.pages_per_side(shape, cfg.tile)
-    cfg = cfg._replace(pool_tiles=ty * tx)  # the prior map's tiles, once
+    cfg = cfg._replace(pool_tiles=maps.whole_maps_tiles(cfg, 1))  # the prior map's tiles, once
     store_ = maps.init(cfg, (jnp.asarray(k), jnp.asarray(k * 1e-3)))
     rows = jnp.arange(J, dtype=jnp.int32)
     u = jax.random.uniform(jax.random.key(seed), (J, samples))

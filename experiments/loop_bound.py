@@ -58,10 +58,10 @@ from experiments.loop_paths import START_M, add_vo_arguments, circle_loop, kitti
 from experiments.loop_summary import read_rows
 from gslam_jax.config import layered_config
 from gslam_jax.datasets.sim_path import drive_path
+from gslam_jax.driver.machine import environment
+from gslam_jax.driver.sizing import motion_params
 from gslam_jax.evaluation import loops
-from gslam_jax.machine import environment
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, particle_scales, scaled
-from gslam_jax.sizing import motion_params
 from gslam_jax.vo.localmap import localmap_params
 
 SHARE = 0.8  # the closure rate the J of the summary reaches

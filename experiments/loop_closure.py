@@ -53,12 +53,13 @@ from experiments.common import scaled_alphas
 from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop, kitti_loops,
                                    vo_noise)
 from experiments.loop_summary import VERDICTS, plot, print_summary, read_rows
-from gslam_jax import slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim_path import simulate_path
+from gslam_jax.driver import slam
+from gslam_jax.driver.machine import environment
+from gslam_jax.driver.results import ChunkReport
 from gslam_jax.evaluation import loops, metrics
 from gslam_jax.gridmap.grid import arc_length
-from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
 APPROACH_M = 2.0  # the cloud is read this far before the sensor first reaches the start's map
@@ -111,7 +112,7 @@ class ApproachCloud:
         self.frame, self.nearest_m, self.within = frame, None, {}
         self.nearest_heading_deg = None
 
-    def __call__(self, report: slam.ChunkReport) -> None:
+    def __call__(self, report: ChunkReport) -> None:
         t = self.frame - report.start
         if 0 <= t < len(report.best_pose):
             pose = np.asarray(report.info.pose[t], np.float64)

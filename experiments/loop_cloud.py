@@ -27,8 +27,8 @@ from experiments.common import scaled_alphas
 from experiments.loop_closure import approach_frame, simulate_loop
 from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop, kitti_loops,
                                    vo_noise)
-from gslam_jax import slam
 from gslam_jax.config import Config, layered_config
+from gslam_jax.driver import slam
 from gslam_jax.evaluation import loops
 from gslam_jax.gridmap import turn_poses
 from gslam_jax.gridmap.grid import arc_length

@@ -39,19 +39,20 @@ from pathlib import Path
 
 import numpy as np
 
-from gslam_jax import slam
 from gslam_jax.config import Config, config_to_toml, layered_config, parse_config
 from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.driver import slam
+from gslam_jax.driver.machine import environment
+from gslam_jax.driver.results import SlamResult
 from gslam_jax.evaluation.metrics import rigid_fit_2d
 from gslam_jax.gps import align_to_gps
 from gslam_jax.gps.georeference import gps_input
 from gslam_jax.gridmap import GridMap, add, compose, invert_pose, transform
 from gslam_jax.gridmap.align import AlignmentRefused, align_maps, check_alignment
-from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
 
-def _slam_map(run, config: Config) -> tuple[GridMap, slam.SlamResult]:
+def _slam_map(run, config: Config) -> tuple[GridMap, SlamResult]:
     result = slam.run_slam(run, config)
     return result.grid, result
 

@@ -23,7 +23,7 @@ from experiments.common import (
     report,
 )
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
-from gslam_jax.machine import environment
+from gslam_jax.driver.machine import environment
 from gslam_jax.tuning.evaluation import OBJECTIVES
 
 

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gslam_jax import slam
 from gslam_jax.config import layered_config
 from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.driver import slam
+from gslam_jax.driver.machine import environment
+from gslam_jax.driver.online import Online
 from gslam_jax.evaluation.metrics import rms_after_fit
-from gslam_jax.machine import environment
-from gslam_jax.online import Online
 from gslam_jax.vo.localmap import localmap_params
 
 

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gslam_jax import slam
 from gslam_jax.config import apply_overrides, load_config
+from gslam_jax.driver import slam
 from gslam_jax.evaluation import metrics
 from gslam_jax.run import load_run
 

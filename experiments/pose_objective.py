@@ -58,10 +58,11 @@ from experiments.pose_grid import (  # noqa: F401  (the experiment's API)
     offset_grid,
     peak,
 )
-from gslam_jax import observations, rbpf, sizing
+from gslam_jax import rbpf
 from gslam_jax.config import Config, apply_overrides, layered_config
 from gslam_jax.datasets.sim import simulate_run
-from gslam_jax.machine import environment
+from gslam_jax.driver import observations, sizing
+from gslam_jax.driver.machine import environment
 from gslam_jax.rbpf import cells, maps
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import log_lambda

@@ -22,7 +22,7 @@ import numpy as np
 from gslam_jax import choices, rbpf  # noqa: E402
 from gslam_jax.app.bench import (_chained, _synthetic_state, bench_config,  # noqa: E402
                                   synthetic_local_map)
-from gslam_jax.machine import environment  # noqa: E402
+from gslam_jax.driver.machine import environment
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:

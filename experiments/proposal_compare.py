@@ -31,8 +31,8 @@ import math
 import time
 from pathlib import Path
 
-from gslam_jax import slam
 from gslam_jax.config import apply_overrides
+from gslam_jax.driver import slam
 from gslam_jax.evaluation import metrics
 from gslam_jax.run import known_positions
 

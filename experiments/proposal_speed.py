@@ -26,7 +26,7 @@ from jax import lax
 
 from gslam_jax import choices, rbpf
 from gslam_jax.app.bench import _synthetic_state, bench_config, synthetic_local_map
-from gslam_jax.machine import environment
+from gslam_jax.driver.machine import environment
 from gslam_jax.rbpf import cells, proposal
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import log_lambda

@@ -33,15 +33,17 @@ import numpy as np
 from experiments.loop_closure import approach_frame
 from experiments.loop_cloud import NEAR_M, add_loop_arguments, simulated_loop
 from experiments.loop_paths import START_M
-from gslam_jax import rbpf, slam
+from gslam_jax import rbpf
+from gslam_jax.driver import slam
+from gslam_jax.driver.observations import map_observations
+from gslam_jax.driver.results import ChunkReport
+from gslam_jax.driver.sizing import filter_params
 from gslam_jax.evaluation import loops
 from gslam_jax.gridmap.grid import arc_length
-from gslam_jax.observations import map_observations
 from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import cell_noise, known_cell_terms
 from gslam_jax.rbpf.motion import apply_motion
-from gslam_jax.sizing import filter_params
 from gslam_jax.vo.localmap import localmap_params
 
 FAR_M = 5.0  # m: particles this far from the truth are the "far" group
@@ -87,7 +89,7 @@ def group_medians(values: dict[str, np.ndarray], groups: dict[str, np.ndarray]
 class _Scorer:
     """Scores one update's local map for every particle against the given maps."""
 
-    def __init__(self, report: slam.ChunkReport, config):
+    def __init__(self, report: ChunkReport, config):
         self.params = filter_params(config, report.run)
         self.observations = map_observations(report.run, config)
         self.rows = np.arange(report.cfg.num_particles)
@@ -128,7 +130,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     rows: list[dict] = []
     state: dict = {}
 
-    def on_chunk(r: slam.ChunkReport) -> None:
+    def on_chunk(r: ChunkReport) -> None:
         end = r.start + len(r.best_pose) - 1
         if "lineage" in state:
             state["lineage"] = carry_lineage(state["lineage"], np.asarray(r.info.ancestors))

@@ -39,14 +39,14 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from experiments.loop_paths import START_M, circle_file
-from gslam_jax import slam
 from gslam_jax.config import apply_overrides, layered_config
 from gslam_jax.datasets.sim_path import simulate_path
+from gslam_jax.driver import slam
+from gslam_jax.driver.machine import environment
+from gslam_jax.driver.observations import run_range_noise
 from gslam_jax.evaluation import loops
 from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.gridmap.pose_maps import local_cell_centres, place_local_map, pose_lattice
-from gslam_jax.machine import environment
-from gslam_jax.observations import run_range_noise
 from gslam_jax.rbpf import cells
 from gslam_jax.vo.localmap import localmap_params
 

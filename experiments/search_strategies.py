@@ -34,7 +34,7 @@ import jax
 import numpy as np
 
 from experiments.common import report  # noqa: E402
-from gslam_jax import sizing, slam  # noqa: E402
+from gslam_jax.driver import device_arrays, sizing
 from gslam_jax.app.bench import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
@@ -73,7 +73,7 @@ def evaluator(run: Run, config: Config, names: tuple[str, ...], keys: list[int],
               ) -> ST.Evaluator:
     """values [P, d] -> mean-path RMS [P] averaged over ``keys``; P padded to a multiple of
     ``batch`` so that every call reuses one compiled shape."""
-    inputs, cfg = slam.run_arrays(run, config)
+    inputs, cfg = device_arrays.run_arrays(run, config)
     base = sizing.filter_params(config)
 
     def per_key(values: np.ndarray) -> np.ndarray:

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gslam_jax import slam
 from gslam_jax.config import Config
+from gslam_jax.driver import slam
 from gslam_jax.evaluation import metrics
 from gslam_jax.run import Run
 from gslam_jax.tuning.motion_fit import ALPHA_THETA_MAX, fit_run

@@ -23,10 +23,10 @@ import numpy as np
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.driver.machine import environment
 from gslam_jax.evaluation.loops import revisit_error
 from gslam_jax.gridmap.consistency import check_consistency
 from gslam_jax.gridmap.grid import arc_length
-from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
 TRUTH_TOLERANCE = 1.0  # metres of median revisit error over which the truth calls a stretch doubled

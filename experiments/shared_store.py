@@ -33,8 +33,8 @@ def point(course: str, J: int, store: str, frames: int, unknown_cells: str = "ig
 
     import numpy as np
 
-    from gslam_jax import sizing, slam
     from gslam_jax.config import Config
+    from gslam_jax.driver import sizing, slam
     from gslam_jax.rbpf import maps
 
     c = Config()
@@ -65,9 +65,9 @@ def ab(rounds: int, particles: int = 200, unknown_cells: str = "ignore") -> dict
     import jax
     import numpy as np
 
-    from gslam_jax import observations, sizing
     from gslam_jax.app.compare import _default_run, time_dense_updates
     from gslam_jax.config import Config
+    from gslam_jax.driver import observations, sizing
 
     run = _default_run()
     c = Config()

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import cv2
 
-from gslam_jax import slam
 from gslam_jax.config import Config
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.datasets.sim_stereo import load_sim_stereo
+from gslam_jax.driver import slam
+from gslam_jax.driver.machine import environment
 from gslam_jax.evaluation import metrics
-from gslam_jax.machine import environment
 from gslam_jax.vo.localmap import localmap_params
 
 

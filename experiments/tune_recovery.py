@@ -24,10 +24,8 @@ from experiments.common import (
     report,
 )
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
-from gslam_jax.machine import environment
-from gslam_jax.tuning import designs as D
-from gslam_jax.tuning import gradient as TU
-from gslam_jax.tuning import space as SP
+from gslam_jax.driver.machine import environment
+from gslam_jax.tuning import designs as D, gradient as TU, space as SP
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -2,22 +2,25 @@
 
 Where things live, lowest layer first (``tests/test_layers.py`` keeps imports going down):
 
-* ``config``, ``choices``, ``errors``, ``machine``, ``io``: settings and shared basics;
+* ``config``, ``choices``, ``errors``, ``io``, ``version``: settings and shared basics;
 * ``rbpf``: the paper's filter math: ``cells`` (eq. 14 update, eq. 26 log predictive),
   ``motion`` (eqs. 1-3), ``resampling``, ``tempering``, ``unknown`` (eq. 31), the map store
-  (``maps``, ``tilestore``) and the kernel (``init``, ``step``, ``scan_frames``);
-* ``run``: the ``Run`` container (controls, local maps) and its ``.npz`` format;
+  behind its seam (``maps``) and the kernel (``init``, ``step``, ``scan_frames``);
+* ``run``: the ``Run`` container (controls, local maps), its checks and its ``.npz`` format;
 * ``vo``: the stereo front-end, images -> VO increments -> points -> ``localmap``;
-* ``sim``: the simulator; ``tiled``: the independent copy-on-write reference;
-  ``gridmap``: finished maps as values (``GridMap``), their global alignment by the gamma
-  likelihood (``align_maps``) and merging (``merge_maps``, ``merge_runs``);
-* ``metrics``: RMS after the rigid fit, drift, maps at given poses;
+* ``tiled``: the independent copy-on-write reference;
+* ``gridmap``: finished maps as values (``GridMap``), built from a run at given poses
+  (``pose_maps``), their global alignment by the gamma likelihood (``align_maps``), merging
+  (``merge_maps``, ``merge_runs``), where a run starts in an earlier map (``relocalise``:
+  ``locate_start``) and a run's map checked against itself (``consistency``:
+  ``check_consistency``, terrain mapped twice);
+* ``sim``: the simulator; ``evaluation``: RMS after the rigid fit, drift (``metrics``) and loop
+  closure (``loops``);
 * ``datasets``: the sources of frames, one module each (``datasets.registry``);
-  ``relocalise``: where a run starts in an earlier map (``locate_start``);
-  ``consistency``: a run's map checked against itself (``check_consistency``: terrain mapped
-  twice);
-* ``slam``: the host driver, ``run_slam(run, config)``;
-* ``online``: the same filter one frame at a time for a live robot (``Online``);
+* ``driver``: the host side of a run: ``run_slam(run, config)`` (``driver.slam``) and its
+  results, the settings for a Run (``sizing``), its observations, the map's axes, prior maps
+  (``map_reuse``), the device arrays of the search and the tuner, the machine's memory, and
+  the same filter one frame at a time for a live robot (``online.Online``);
 * ``gps``: alignment to GPS, UTM, georeferenced outputs; ``tuning``: parameter search, optax
   tuning, motion-noise fit;
 * ``app``: the ``gslam`` command line, ``gslam run`` as functions, results, figures.
@@ -39,14 +42,14 @@ _EXPORTS = {
     "Run": "gslam_jax.run",
     "load_run": "gslam_jax.run",
     "save_run": "gslam_jax.run",
-    "run_slam": "gslam_jax.slam",
-    "SlamResult": "gslam_jax.slam",
-    "PriorMap": "gslam_jax.map_reuse",
-    "MapExtent": "gslam_jax.sizing",
-    "Online": "gslam_jax.online",
-    "OnlineFrame": "gslam_jax.online",
-    "OnlineStats": "gslam_jax.online",
-    "MapEdgeError": "gslam_jax.online",
+    "run_slam": "gslam_jax.driver.slam",
+    "SlamResult": "gslam_jax.driver.results",
+    "PriorMap": "gslam_jax.driver.map_reuse",
+    "MapExtent": "gslam_jax.driver.sizing",
+    "Online": "gslam_jax.driver.online",
+    "OnlineFrame": "gslam_jax.driver.online",
+    "OnlineStats": "gslam_jax.driver.online",
+    "MapEdgeError": "gslam_jax.driver.online",
     "simulate_run": "gslam_jax.datasets.sim",
     "GridMap": "gslam_jax.gridmap",
     "load_map": "gslam_jax.gridmap",

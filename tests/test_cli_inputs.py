@@ -45,7 +45,7 @@ def no_filter(monkeypatch):
     """Fail the test if the filter starts: the checks must come first."""
     def boom(*args, **kwargs):
         raise AssertionError("the filter ran before the inputs were checked")
-    monkeypatch.setattr("gslam_jax.slam.run_slam", boom)
+    monkeypatch.setattr("gslam_jax.driver.slam.run_slam", boom)
 
 
 def test_gps_log_is_checked_before_the_filter(tmp_path, capsys, no_filter):

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import choices, rbpf, sizing
+from gslam_jax import choices, rbpf
 from gslam_jax.app.cli import build_parser
 from gslam_jax.config import Config, ConfigError, apply_overrides, load_config
+from gslam_jax.driver import sizing
 from gslam_jax.rbpf import resampling
 from gslam_jax.rbpf.types import DRAWS
 from gslam_jax.tiled import numerics

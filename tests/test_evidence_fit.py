@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import slam
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
+from gslam_jax.driver import slam
 from gslam_jax.tuning.evidence_fit import fit_noise_scale
 from gslam_jax.tuning.space import ALPHA_NAMES, SearchError
 from gslam_jax.vo.localmap import LocalMapParams

@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import rbpf, sizing, slam
+from gslam_jax import rbpf
 from gslam_jax.app.cli import main
 from gslam_jax.config import Config, ConfigError, FilterSection, MotionSection
-from gslam_jax.observations import refine_observations
-from gslam_jax.online import Online
+from gslam_jax.driver import sizing, slam
+from gslam_jax.driver.observations import refine_observations
+from gslam_jax.driver.online import Online
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds, scaled
 from gslam_jax.run import save_run
 from gslam_jax.tuning import gradient as TU

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from synthetic import World, make_run
 
-from gslam_jax import observations, rbpf, sizing, slam
+from gslam_jax import rbpf
 from gslam_jax.config import Config, FilterSection, MotionSection
+from gslam_jax.driver import observations, sizing, slam
 from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf.cells import obs_from_stats
 from gslam_jax.rbpf.footprint import observation_cells

@@ -14,9 +14,10 @@ import pytest
 from scipy.special import gammaln
 from synthetic import make_run
 
-from gslam_jax import slam
 from gslam_jax.app.cli import main
 from gslam_jax.app.geotiff import geotiff_transform
+from gslam_jax.driver import slam
+from gslam_jax.driver.results import PathEstimates, SlamResult
 from gslam_jax.run import save_run
 
 
@@ -101,8 +102,9 @@ def test_without_rasterio_the_run_succeeds_and_says_why(run_file, tmp_path, caps
 
     def fake(run, config, progress=None, **kwargs):  # the filter is not what is tested here
         T, vo = run.num_frames, run.vo_poses()
-        return slam.SlamResult(
-            best_path=vo, map_path=vo, smoothed_path=vo, best_pose=vo, mean_pose=vo, vo_path=vo,
+        return SlamResult(
+            paths=PathEstimates.given(best=vo, map=vo, smoothed=vo), best_pose=vo,
+            mean_pose=vo, vo_path=vo,
             ess=np.full(T, 8.0), resampled=np.zeros(T, bool),
             updated=np.asarray(run.obs_index) >= 0, log_lik=np.zeros(T), exponent=np.ones(T),
             kmap=np.ones((24, 24), np.float32), smap=np.ones((24, 24), np.float32),

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import gps, sizing
+from gslam_jax import gps
 from gslam_jax.app.cli import main
 from gslam_jax.config import Config, ConfigError, apply_overrides
+from gslam_jax.driver import sizing
 from gslam_jax.gps import GpsLogError
 from gslam_jax.run import RunError, load_run, save_run
 
@@ -30,7 +31,7 @@ def no_work(monkeypatch):
     """Fail the test if a source is simulated or the filter starts: checks come first."""
     def boom(*args, **kwargs):
         raise AssertionError("work started before the inputs were checked")
-    monkeypatch.setattr("gslam_jax.slam.run_slam", boom)
+    monkeypatch.setattr("gslam_jax.driver.slam.run_slam", boom)
     monkeypatch.setattr("gslam_jax.datasets.sim.simulate_run", boom)
 
 

@@ -15,18 +15,16 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "gslam_jax"
 
 LAYERS = {
-    "errors": 0, "choices": 0, "machine": 0, "io": 0, "sim.courses": 0, "version": 0,
+    "errors": 0, "choices": 0, "io": 0, "sim.courses": 0, "version": 0,
     "config": 1,
     "rbpf": 2, "run": 2,
     "vo": 3, "tiled": 3, "gridmap": 3,
     "sim": 4, "evaluation": 4,
-    "datasets": 5, "observations": 5,
-    "map_reuse": 6,
-    "sizing": 7, "map_axes": 7,
-    "slam": 8,
-    "gps": 9, "tuning": 9, "online": 9,
-    "app": 10,
-    "": 11,  # gslam_jax/__init__.py: the public API gathers from every layer
+    "datasets": 5,
+    "driver": 6,
+    "gps": 7, "tuning": 7,
+    "app": 8,
+    "": 9,  # gslam_jax/__init__.py: the public API gathers from every layer
 }
 
 

@@ -6,7 +6,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax.observations import local_map_footprints
+from gslam_jax.driver.observations import local_map_footprints
 from gslam_jax.rbpf.paths import (COVER_SPREADS, StepHistory, factor_cover, local_step_path,
                                   smoothed_step_path)
 from gslam_jax.vo.localmap import LocalMapParams

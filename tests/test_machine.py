@@ -6,7 +6,7 @@ from pathlib import Path
 
 import jax
 
-from gslam_jax import machine
+from gslam_jax.driver import machine
 
 
 def test_cpu_model_from_cpuinfo(tmp_path):
@@ -39,7 +39,7 @@ def test_environment_names_the_cpu_cores_and_jax_settings(monkeypatch):
 
 
 def test_physical_memory_respects_a_container_limit(tmp_path, monkeypatch):
-    from gslam_jax import machine
+    from gslam_jax.driver import machine
 
     limit, unlimited = tmp_path / "memory.max", tmp_path / "unlimited"
     limit.write_text("1073741824\n")

@@ -102,7 +102,7 @@ def _config(axes: str) -> Config:
 
 
 def test_on_the_start_axes_the_result_turns_with_the_frame_and_nothing_else() -> None:
-    from gslam_jax.slam import run_slam
+    from gslam_jax.driver.slam import run_slam
 
     run = _maze_run()
     turn = 30.0
@@ -141,9 +141,9 @@ def _local_maps(axes: str, turn: float):
 def test_a_map_lattice_on_the_start_axes_is_binned_alike_in_any_frame() -> None:
     """``[localmap] lattice = "map"`` with ``[map] axes = "start"``: each local map is binned on
     the robot's start axes, so a drive seen in a turned frame gives the same local maps; on the
-    frame's axes it does not. ``slam.local_lattice_axes`` reads the axes back from a Run."""
+    frame's axes it does not. ``map_axes.local_lattice_axes`` reads the axes back from a Run."""
+    from gslam_jax.driver.map_axes import local_lattice_axes
     from gslam_jax.run import Run
-    from gslam_jax.slam import local_lattice_axes
     from gslam_jax.vo.geometry import increments_2d
 
     (a, _), (b, poses_b) = _local_maps("start", 0.0), _local_maps("start", 0.9)
@@ -166,8 +166,9 @@ def test_local_maps_binned_on_other_axes_than_the_map_are_named() -> None:
     other way round), warns: each local cell would be placed by its centre."""
     import warnings
 
+    from gslam_jax.driver.map_axes import LatticeWarning
+    from gslam_jax.driver.slam import run_slam
     from gslam_jax.run import Run
-    from gslam_jax.slam import LatticeWarning, run_slam
     from gslam_jax.vo.geometry import increments_2d
 
     def run_of(axes: str) -> Run:

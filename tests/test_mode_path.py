@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from cached_runs import FRAMES, shared_run
 
-from gslam_jax import choices, rbpf, slam
+from gslam_jax import choices, rbpf
 from gslam_jax.config import Config, apply_overrides
+from gslam_jax.driver import slam
 from gslam_jax.gridmap.pose_maps import pose_map
 from gslam_jax.rbpf.paths import MODE_RADIUS_M
 

@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import rbpf, slam
+from gslam_jax import rbpf
 from gslam_jax.app.cli import main
 from gslam_jax.app.compare import compare
 from gslam_jax.config import Config, ConfigError, FilterSection, MotionSection
-from gslam_jax.online import Online
+from gslam_jax.driver import slam
+from gslam_jax.driver.online import Online
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, particle_scales
 from gslam_jax.run import save_run
 

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from synthetic import World, truth_and_controls
 
-from gslam_jax import sizing, slam
 from gslam_jax.config import Config, ConfigError, FilterSection, LocalMapSection
+from gslam_jax.driver import sizing, slam
+from gslam_jax.driver.online import MapEdgeError, Online, online_step
 from gslam_jax.errors import InputError
 from gslam_jax.gridmap import turn_poses
-from gslam_jax.online import MapEdgeError, Online, online_step
 from gslam_jax.run import Run, integrate_controls
 from gslam_jax.vo.localmap import build_local_maps, localmap_params
 
@@ -165,8 +165,8 @@ def test_a_range_noise_profile_is_estimated_as_the_frames_come(frames, batch, mo
     estimate of a run cut after those n maps; it changes the weights; one compilation."""
     import dataclasses
 
-    from gslam_jax import observations
-    from gslam_jax.observations import run_range_noise
+    from gslam_jax.driver import observations
+    from gslam_jax.driver.observations import run_range_noise
 
     # 64 x 64 local maps, 15 of them; this world's variance does not grow with range, so the
     # profile is noise (not zero after 1, 2 and 4 maps, zero after 8)

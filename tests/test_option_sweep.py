@@ -82,7 +82,7 @@ def no_work(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "given.toml").write_text("[space]\nalpha_d = [0.01, 0.1]\n")  # --space
     for target in ("gslam_jax.app.pipeline.prepare_source", "gslam_jax.app.bench.environment",
-                   "gslam_jax.machine.environment", "gslam_jax.app.compare._compare"):
+                   "gslam_jax.driver.machine.environment", "gslam_jax.app.compare._compare"):
         monkeypatch.setattr(target, work)
 
 
@@ -159,7 +159,7 @@ def _filter_config(config: Config) -> None:
     sys.path.insert(0, str(Path(__file__).parent))
     from synthetic import make_run
 
-    from gslam_jax import sizing
+    from gslam_jax.driver import sizing
     sizing.filter_config(config, make_run(steps=15)[0])
 
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import slam
 from gslam_jax.app import pipeline
 from gslam_jax.config import Config, ConfigError, apply_overrides
 from gslam_jax.datasets.registry import Source
+from gslam_jax.driver import slam
 from gslam_jax.io import read_tum
 from gslam_jax.run import save_run
 

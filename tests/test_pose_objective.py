@@ -10,8 +10,9 @@ import pytest
 from synthetic import World, truth_and_controls
 
 from experiments import pose_objective as P
-from gslam_jax import observations, rbpf
+from gslam_jax import rbpf
 from gslam_jax.config import Config
+from gslam_jax.driver import observations
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.run import Run, integrate_controls
 from gslam_jax.vo.localmap import LocalMapParams, build_local_maps

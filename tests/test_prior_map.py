@@ -18,10 +18,12 @@ import numpy as np
 import pytest
 from synthetic import World, truth_and_controls
 
-from gslam_jax import map_reuse, rbpf, sizing, slam
+from gslam_jax import rbpf
 from gslam_jax.app import cli
 from gslam_jax.app.pipeline import load_prior
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
+from gslam_jax.driver import map_reuse, sizing, slam
+from gslam_jax.driver.results import SlamResult
 from gslam_jax.evaluation import metrics
 from gslam_jax.gridmap import GridMap, MapFileError, save_map
 from gslam_jax.rbpf import maps, tilebytes, tilestore, unknown
@@ -147,7 +149,7 @@ def _config() -> Config:
     return Config(filter=FilterSection(particles=12), map=MapSection(margin=2.0))
 
 
-def _grid(result: slam.SlamResult) -> GridMap:
+def _grid(result: SlamResult) -> GridMap:
     return GridMap(result.kmap.astype(np.float64), result.smap.astype(np.float64),
                    result.map_origin, result.resolution)
 
@@ -155,10 +157,10 @@ def _grid(result: slam.SlamResult) -> GridMap:
 class Runs(NamedTuple):
     a: Run                    # the prior's run
     b: Run                    # the same terrain, other sensor noise and VO drift
-    res_a: slam.SlamResult
-    plain_b: slam.SlamResult  # B without the prior
+    res_a: SlamResult
+    plain_b: SlamResult  # B without the prior
     prior: map_reuse.PriorMap      # A's map, B's start in A's frame
-    res_b: slam.SlamResult    # B with it
+    res_b: SlamResult    # B with it
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,9 @@ import pytest
 from scipy import stats
 from synthetic import make_run
 
-from gslam_jax import observations, rbpf, sizing
+from gslam_jax import rbpf
 from gslam_jax.config import Config, ConfigError, apply_overrides
+from gslam_jax.driver import observations, sizing
 
 _make_run = functools.lru_cache(make_run)
 

@@ -12,9 +12,9 @@ import pytest
 from scipy.special import gammaln
 from synthetic import make_run
 
-from gslam_jax import sizing
 from gslam_jax.config import Config, ConfigError, apply_overrides
-from gslam_jax.observations import RING_M, range_noise_profile
+from gslam_jax.driver import sizing
+from gslam_jax.driver.observations import RING_M, range_noise_profile
 from gslam_jax.rbpf import FilterParams
 from gslam_jax.rbpf.importance import cell_noise, known_cell_terms, log_importance
 
@@ -143,7 +143,7 @@ def test_filter_params_estimates_the_profile_only_when_asked():
     noise = sizing.filter_params(prof, run).range_noise
     assert noise.shape == (run.local_maps.shape[1] ** 2,)
     # a short run: every local map is used, as the filter converts them
-    from gslam_jax.observations import local_observations
+    from gslam_jax.driver.observations import local_observations
     whole = range_noise_profile(local_observations(run, config.map.min_variance), run.resolution)
     np.testing.assert_allclose(np.asarray(noise), whole, rtol=1e-5, atol=1e-12)
     with pytest.raises(ConfigError, match="range_noise"):
@@ -170,7 +170,7 @@ def test_running_profile_keeps_evenly_spaced_maps_and_is_causal(monkeypatch):
     """``RunningRangeNoise`` with room for 4 maps, fed 12 distinct ones: it keeps maps 0, 4, 8
     (every map, then every other, then every fourth) and estimates again at 1, 2, 4, 8 and 12
     maps, each time the profile of exactly the maps kept so far (computed here directly)."""
-    import gslam_jax.observations as observations
+    import gslam_jax.driver.observations as observations
     from gslam_jax.rbpf import cells
 
     monkeypatch.setattr(observations, "PROFILE_MAPS", 4)

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import slam
 from gslam_jax.app.cli import main
+from gslam_jax.driver import slam
+from gslam_jax.driver.results import PathEstimates, SlamResult
 from gslam_jax.gps import GpsLogError
 from gslam_jax.io import read_tum, write_tum
 from gslam_jax.run import load_run, save_run
@@ -37,8 +38,9 @@ def fake_slam(monkeypatch):
     def fake(run, config, progress=None, **kwargs):
         calls.append(run)
         T, vo = run.num_frames, run.vo_poses()
-        return slam.SlamResult(
-            best_path=vo, map_path=vo, smoothed_path=vo, best_pose=vo, mean_pose=vo, vo_path=vo,
+        return SlamResult(
+            paths=PathEstimates.given(best=vo, map=vo, smoothed=vo), best_pose=vo,
+            mean_pose=vo, vo_path=vo,
             ess=np.full(T, 8.0),
             resampled=np.zeros(T, bool), updated=np.asarray(run.obs_index) >= 0,
             log_lik=np.zeros(T), exponent=np.ones(T), kmap=np.ones((24, 24), np.float32),

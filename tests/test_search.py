@@ -135,7 +135,7 @@ def test_search_ranks_and_writes(small_run, tmp_path):
     # Every set is the filter's own output under the same key (common random numbers).
     import dataclasses
 
-    from gslam_jax import slam
+    from gslam_jax.driver import slam
     best = res.best()
     cfg = dataclasses.replace(CONFIG, motion=dataclasses.replace(CONFIG.motion, **best))
     out = slam.run_slam(small_run, cfg)
@@ -168,8 +168,8 @@ def test_rms_needs_a_frame_with_ground_truth(small_run):
         S.search(blind, CONFIG, space, n=2, objective="rms")
     import jax
 
-    from gslam_jax import sizing, slam
-    inputs, cfg = slam.run_arrays(blind, CONFIG)
+    from gslam_jax.driver import device_arrays, sizing
+    inputs, cfg = device_arrays.run_arrays(blind, CONFIG)
     with pytest.raises(SP.SearchError, match=r"no frame with a finite position \(x, y\)"):
         E.evaluate(np.array([[0.05]]), jax.random.key(0), inputs, sizing.filter_params(CONFIG),
                    space.names, cfg, "rms")
@@ -185,7 +185,7 @@ def test_rms_scores_position_only_ground_truth(small_run):
     """Ground truth with NaN headings (positions only): the RMS uses x, y alone, as
     metrics.errors_over_known_frames does. Before, every frame was dropped and the search
     refused ("no frame with finite values")."""
-    from gslam_jax import slam
+    from gslam_jax.driver import device_arrays
     space = SP.parse_space({"alpha_d": [0.01, 0.1]})
     gt = small_run.ground_truth.copy()
     gt[:, 2] = np.nan
@@ -199,7 +199,7 @@ def test_rms_scores_position_only_ground_truth(small_run):
                     objective="rms")
     np.testing.assert_array_equal(got.objective, want.objective)  # headings play no part
     assert np.all(np.isfinite(got.objective))
-    np.testing.assert_array_equal(slam.ground_truth_mask(partial),
+    np.testing.assert_array_equal(device_arrays.ground_truth_mask(partial),
                                   np.arange(small_run.num_frames) != 5)
 
 
@@ -253,7 +253,7 @@ def test_sharded_on_two_cpu_devices(tmp_path):
 def test_observation_settings_match_the_config_path(small_run):
     """Searching min_variance, obs_weight and min_points scores each set as a run whose [map]
     config holds those values (``config_with_values``: min_points rounded up)."""
-    from gslam_jax import slam
+    from gslam_jax.driver import slam
 
     space = SP.parse_space({"min_variance": {"range": [1e-6, 1e-2], "log": True},
                            "obs_weight": [0.2, 1.0], "min_points": [2.0, 6.0],
@@ -286,13 +286,13 @@ def test_run_and_search_share_the_observation_route(small_run):
     (``observations.refine_observations``); with the default settings that equals the float64 host
     conversion of ``cells.obs_from_stats`` bit for bit, and within float32 rounding with
     others."""
-    from gslam_jax import observations, slam
+    from gslam_jax.driver import device_arrays, observations
 
     np.testing.assert_array_equal(np.asarray(observations.map_observations(small_run, CONFIG)),
                                   observations.local_observations(small_run, 1e-6))
     values = {"min_variance": 1e-3, "obs_weight": 0.4, "min_points": 3}
     cfg = SP.config_with_values(CONFIG, values)
-    inputs, _ = slam.run_arrays(small_run, CONFIG)
+    inputs, _ = device_arrays.run_arrays(small_run, CONFIG)
     row = jnp.asarray(list(values.values()), jnp.float32)
     searched = SP.observations_from_values(row, tuple(values), inputs.obs, inputs.local_obs)
     np.testing.assert_array_equal(np.asarray(searched),
@@ -304,7 +304,8 @@ def test_run_and_search_share_the_observation_route(small_run):
 def test_settings_table_names_config_fields_and_device_fields():
     """Every searchable setting is a field of its Config section; the observation settings
     are the fields of ``observations.ObsSettings``, the filter parameters those of FilterParams."""
-    from gslam_jax import observations, rbpf
+    from gslam_jax import rbpf
+    from gslam_jax.driver import observations
 
     for s in SP.SETTINGS.values():
         assert hasattr(getattr(CONFIG, s.section), s.name), s
@@ -353,8 +354,8 @@ def test_the_search_scores_the_path_the_run_reports(small_run, path):
     """``--score-path``: the search's RMS at the config's own values is the RMS of the path
     ``run_slam`` reports under that estimate (local_steps needs the run's local map
     footprints, which the search's inputs carry)."""
-    from gslam_jax import slam
     from gslam_jax.config import apply_overrides
+    from gslam_jax.driver import slam
 
     space = SP.parse_space({"alpha_d": [0.01, 0.1]})
     values = np.array([[CONFIG.motion.alpha_d]])

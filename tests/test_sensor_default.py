@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import choices, sizing, slam
+from gslam_jax import choices
 from gslam_jax.config import Config, ConfigError, apply_overrides
-from gslam_jax.online import Online
+from gslam_jax.driver import sizing, slam
+from gslam_jax.driver.online import Online
 from gslam_jax.run import RunError, load_run, save_run
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import observations, sizing, slam
 from gslam_jax.config import Config, ConfigError, FilterSection, MapSection
+from gslam_jax.driver import chunk_checks, observations, sizing, slam
 from gslam_jax.errors import InputError
 from gslam_jax.rbpf import cells, maps
 from gslam_jax.run import RunError
@@ -29,11 +29,12 @@ def test_zero_variance_cells_with_zero_floor_raise_naming_the_frame():
     config = _small_config(min_variance=0.0)  # built directly: validate() now refuses it
     updates = np.flatnonzero(run.obs_index >= 0)
     m = run.obs_index[updates[1]]
-    with pytest.raises(slam.WeightError, match=rf"frame {updates[1]}: the filter cannot weigh "
-                                               rf"local map {m}: the update with it left "
-                                               rf"non-finite particle weights \(ESS nan, evidence "
-                                               rf"\(log-likelihood\) nan, not finite\); check "
-                                               rf"local map {m}'s statistics") as err:
+    with pytest.raises(chunk_checks.WeightError,
+                       match=rf"frame {updates[1]}: the filter cannot weigh "
+                             rf"local map {m}: the update with it left "
+                             rf"non-finite particle weights \(ESS nan, evidence "
+                             rf"\(log-likelihood\) nan, not finite\); check "
+                             rf"local map {m}'s statistics") as err:
         slam.run_slam(run, config)
     assert "min_variance" not in str(err.value)  # config validation already requires it > 0
     res = slam.run_slam(run, _small_config())  # the default floor: finite weights throughout
@@ -82,7 +83,7 @@ def test_map_memory_check_against_a_given_budget(unknown_cells):
 
 def test_weight_error_is_an_input_error():
     """The CLI prints InputErrors without a traceback; WeightError reports unweighable data."""
-    assert issubclass(slam.WeightError, InputError)
+    assert issubclass(chunk_checks.WeightError, InputError)
 
 
 def test_observations_beyond_float32_are_a_run_error_naming_the_local_map():

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import rbpf, slam
+from gslam_jax import rbpf
 from gslam_jax.config import apply_overrides, Config
+from gslam_jax.driver import slam
 
 
 def _loop_smoother(poses, ancestors, log_w):

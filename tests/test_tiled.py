@@ -67,8 +67,8 @@ def _equivalence() -> dict:
     from gslam_jax import rbpf
     from gslam_jax.app.compare import check_agreement
     from gslam_jax.app.dense_timing import DenseOutput
-    from gslam_jax.observations import local_observations
-    from gslam_jax.sizing import map_extent, observed_cells
+    from gslam_jax.driver.observations import local_observations
+    from gslam_jax.driver.sizing import map_extent, observed_cells
     from gslam_jax.tiled.reference import run_tiled
     from gslam_jax.vo.localmap import LocalMapParams
 
@@ -234,8 +234,8 @@ def _small_setup(mode: str, J: int = 8):
     from cached_runs import shared_run
 
     from gslam_jax import rbpf
-    from gslam_jax.observations import local_observations
-    from gslam_jax.sizing import map_extent
+    from gslam_jax.driver.observations import local_observations
+    from gslam_jax.driver.sizing import map_extent
 
     run = shared_run(24, seed=1)  # also compare's run (the ``compared`` fixture)
     obs = local_observations(run, 1e-4)

@@ -258,8 +258,8 @@ def test_filter_on_shared_store_equals_dense(mode):
     and log weights (within 1e-5), on the same draws."""
     from cached_runs import shared_run
 
-    from gslam_jax import observations, sizing
     from gslam_jax import rbpf as gf
+    from gslam_jax.driver import observations, sizing
 
     run = shared_run(30, seed=2)  # both modes share the course
     obs = jnp.asarray(observations.local_observations(run, 1e-6))
@@ -307,8 +307,8 @@ def _pool_run_and_config():
 def test_filter_reports_pool_exhaustion_per_frame():
     """The scan reports the status per frame. Fed as ``slam.run_slam`` feeds it (one chunk),
     so the next test reuses this compilation."""
-    from gslam_jax import observations, sizing
     from gslam_jax import rbpf as gf
+    from gslam_jax.driver import observations, sizing
 
     run, config = _pool_run_and_config()
     cfg = sizing.filter_config(config, run)
@@ -325,7 +325,7 @@ def test_filter_reports_pool_exhaustion_per_frame():
 
 
 def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
-    from gslam_jax import slam
+    from gslam_jax.driver import slam
 
     run, config = _pool_run_and_config()
     exhausted = r"^frame \d+: .*\[map\] pool_tiles = 30"
@@ -339,7 +339,7 @@ def test_a_chunk_that_exhausts_an_automatic_pool_runs_again_in_a_grown_one(monke
     the dense store's bit for bit."""
     import dataclasses
 
-    from gslam_jax import slam
+    from gslam_jax.driver import slam
     from gslam_jax.rbpf import maps
 
     run, config = _pool_run_and_config()
@@ -361,14 +361,14 @@ def test_an_automatic_pool_without_room_to_grow_says_it_is_automatic(monkeypatch
     automatic and to fix its size, not that a setting of 30 was."""
     import dataclasses
 
-    from gslam_jax import slam
+    from gslam_jax.driver import sizing, slam
     from gslam_jax.rbpf import maps
 
     run, config = _pool_run_and_config()
     automatic = dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
     real = maps.pool_tiles
     monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 30))
-    cfg = slam.filter_config(automatic, run)
+    cfg = sizing.filter_config(automatic, run)
     monkeypatch.setattr(slam, "map_memory", lambda: (3 * maps.map_bytes(cfg), "test memory"))
     with pytest.raises(tilebytes.PoolExhaustedError,
                        match=r"^frame \d+: .*automatic pool of 30 tiles ran out, and the memory "
@@ -383,7 +383,7 @@ def test_run_slam_grows_an_automatic_pool_and_gets_the_dense_stores_numbers(monk
     and the run is the dense store's bit for bit."""
     import dataclasses
 
-    from gslam_jax import slam
+    from gslam_jax.driver import sizing, slam
     from gslam_jax.rbpf import maps
 
     run, config = _pool_run_and_config()
@@ -398,7 +398,7 @@ def test_run_slam_grows_an_automatic_pool_and_gets_the_dense_stores_numbers(monk
     np.testing.assert_array_equal(shared.kmap, dense.kmap)
     np.testing.assert_array_equal(shared.smap, dense.smap)
     np.testing.assert_array_equal(shared.ess, dense.ess)
-    assert shared.map_bytes > maps.map_bytes(slam.filter_config(automatic, run))
+    assert shared.map_bytes > maps.map_bytes(sizing.filter_config(automatic, run))
 
 
 def test_auto_store_is_dense_when_it_fits_and_shared_with_a_notice_otherwise():

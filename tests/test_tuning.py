@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from synthetic import make_run
 
-from gslam_jax import observations, rbpf, sizing
+from gslam_jax import rbpf
 from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
+from gslam_jax.driver import observations, sizing
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, log_density
 from gslam_jax.tuning import gradient as TU
 from gslam_jax.vo.localmap import LocalMapParams

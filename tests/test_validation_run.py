@@ -6,9 +6,9 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax.config import ConfigError
+from gslam_jax.driver.sizing import check_float32_reach, map_extent
 from gslam_jax.run import Run, RunError, integrate_controls, load_run, save_run, validate_run
 from gslam_jax.run.checks import MAX_SPEED, coordinate_limit, float32_limit, float32_spacing
-from gslam_jax.sizing import check_float32_reach, map_extent
 
 
 @pytest.fixture(scope="module")
@@ -266,8 +266,8 @@ def test_map_extent_beyond_float32_reach():
 def test_prior_map_start_beyond_float32_reach_is_refused():
     """``gslam run --prior-map M --start 1e300,1e300,0`` passed as finite; now named."""
     from gslam_jax.config import Config
+    from gslam_jax.driver.map_reuse import PriorMap, check_prior
     from gslam_jax.gridmap import GridMap
-    from gslam_jax.map_reuse import PriorMap, check_prior
 
     grid = GridMap(np.ones((8, 8)), np.ones((8, 8)), (0.0, 0.0), 0.16)
     prior = PriorMap(grid, np.array([1e300, 1e300, 0.0]), np.zeros(3), "m.npz")

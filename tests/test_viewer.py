@@ -154,7 +154,7 @@ def test_gslam_view_shows_a_finished_run(runs, capsys):
 def test_live_stream_logs_each_pushed_frame(tmp_path):
     from gslam_jax.app.viewer import open_viewer
     from gslam_jax.config import Config, FilterSection, LocalMapSection
-    from gslam_jax.online import Online
+    from gslam_jax.driver.online import Online
 
     run, _ = make_run(steps=12)
     config = Config(filter=FilterSection(particles=PARTICLES),
@@ -208,7 +208,7 @@ def test_view_names_a_folder_that_is_not_a_run(tmp_path, capsys):
 def no_work(monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError("work started before the viewer options were checked")
-    monkeypatch.setattr("gslam_jax.slam.run_slam", boom)
+    monkeypatch.setattr("gslam_jax.driver.slam.run_slam", boom)
     monkeypatch.setattr("gslam_jax.app.pipeline.prepare_source", boom)
 
 

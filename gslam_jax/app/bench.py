@@ -24,8 +24,8 @@ from jax import lax
 
 from gslam_jax import choices, rbpf
 from gslam_jax.app.outfile import atomic_file, check_output_file, write_text_atomic
+from gslam_jax.driver.machine import environment, physical_memory
 from gslam_jax.errors import InputError
-from gslam_jax.machine import environment, physical_memory
 from gslam_jax.rbpf import maps, unknown
 
 __all__ = ["BenchError", "bench_config", "synthetic_local_map", "check_arguments", "time_update",
@@ -150,9 +150,9 @@ def time_course(course: str = "mars-yard-a", particles: int = 200, seed: int = 0
     import dataclasses
     import resource
 
-    from gslam_jax import sizing, slam
     from gslam_jax.config import Config
     from gslam_jax.datasets.sim import simulate_run
+    from gslam_jax.driver import sizing, slam
     from gslam_jax.vo.localmap import localmap_params
 
     config = Config()

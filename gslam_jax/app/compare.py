@@ -232,10 +232,10 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
              unknown_cells: str | None, tile_size: float | None, seed: int, store: str | None,
              pool_tiles: int | None) -> tuple[dict, DenseOutput, TiledOutput, rbpf.FilterConfig]:
     """``compare`` without the output folder: the result dict, both runs and the config."""
-    from gslam_jax.machine import environment
-    from gslam_jax.observations import local_observations
-    from gslam_jax.sizing import fallback_frames, filter_config, filter_params
-    from gslam_jax.slam import map_heading, on_map_axes
+    from gslam_jax.driver.machine import environment
+    from gslam_jax.driver.map_axes import map_heading, on_map_axes
+    from gslam_jax.driver.observations import local_observations
+    from gslam_jax.driver.sizing import fallback_frames, filter_config, filter_params
 
     config = config or Config()
     if config.filter.range_noise != "none":

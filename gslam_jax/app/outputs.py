@@ -17,8 +17,8 @@ from gslam_jax.config import Config
 from gslam_jax.datasets.registry import LoadedSource
 
 if TYPE_CHECKING:
-    from gslam_jax.map_reuse import PriorMap
-    from gslam_jax.slam import SlamResult
+    from gslam_jax.driver.map_reuse import PriorMap
+    from gslam_jax.driver.results import SlamResult
 
 __all__ = ["json_ready", "write_figures", "local_maps_used", "summarise", "write_outputs",
            "print_summary", "timing_text", "MOTION_NOISE_RANGE", "MIN_DRIFT_DISTANCE"]
@@ -92,7 +92,7 @@ def summarise(run, result, config: Config, description: str) -> dict:
     """The figures of ``summary.json`` (without the GPS figures). With ground truth that moved
     less than MIN_DRIFT_DISTANCE there is no drift percentage and no ``motion_fit``; a
     ``drift_note`` says why."""
-    from gslam_jax import sizing
+    from gslam_jax.driver import sizing
     from gslam_jax.evaluation import metrics
 
     summary = {

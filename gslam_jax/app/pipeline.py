@@ -126,8 +126,8 @@ def load_prior(path: Path, start, start_sigma, config: Config):
     is located from the run once it is loaded (``map_reuse.locate_prior_start``)."""
     import numpy as np
 
+    from gslam_jax.driver.map_reuse import PriorMap, check_prior
     from gslam_jax.gridmap import load_map
-    from gslam_jax.map_reuse import PriorMap, check_prior
 
     path = Path(path)
     grid = load_map(path)
@@ -161,7 +161,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
     map is checked against itself (``consistency``: terrain the run mapped twice) and the
     verdict printed and recorded in ``summary.json`` (``map_consistency``).
     """
-    from gslam_jax import map_reuse, slam
+    from gslam_jax.driver import map_reuse, slam
 
     bar = progress or (lambda label: None)
     check_inputs(src, config, gps)

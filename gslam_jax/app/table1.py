@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gslam_jax import slam
 from gslam_jax.app.outfile import check_output_file, write_text_atomic
 from gslam_jax.config import Config, ConfigError, apply_overrides, config_to_toml, load_table_config
+from gslam_jax.driver import slam
 from gslam_jax.evaluation import metrics
 
 __all__ = ["PAPER_TABLE1", "run_course", "main"]
@@ -57,7 +57,7 @@ def main(courses: list[str], seeds: list[int], particles: int | None = None,
     Every course's config gets the checks of ``gslam run`` and ``json_path`` is checked
     before any course runs; the JSON is written atomically."""
     from gslam_jax.app.pipeline import Source, check_inputs
-    from gslam_jax.machine import environment
+    from gslam_jax.driver.machine import environment
 
     shared, per_course = load_table_config(config_path)
     if quick:

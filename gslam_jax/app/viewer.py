@@ -37,8 +37,8 @@ from gslam_jax.errors import InputError
 from gslam_jax.gridmap.grid import apply_pose, turn_poses
 
 if TYPE_CHECKING:
-    from gslam_jax.online import Online, OnlineFrame
-    from gslam_jax.slam import ChunkReport
+    from gslam_jax.driver.online import Online, OnlineFrame
+    from gslam_jax.driver.results import ChunkReport
 
 __all__ = ["ViewerError", "RunViewer", "require_rerun", "has_display", "check_viewer",
            "open_viewer", "map_rgba", "finite_strips", "STD_RANGE", "INSTALL_HINT"]

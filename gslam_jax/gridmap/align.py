@@ -33,11 +33,11 @@ from jax import Array, lax
 
 from gslam_jax.errors import InputError
 from gslam_jax.gridmap.grid import GridMap, compose, invert_pose
+from gslam_jax.gridmap.pose_fit import (FLAT_VARIANCE, PosePrior, block_jackknife, laplace_fit,
+                                        log_prior, map_blocks, mutual_covariance)
 from gslam_jax.gridmap.score import (Level, MovingMap, bucket, cell_terms, log_variance_range,
                                      moving_map, prepare, reach, reference_level,
                                      score_pose_batch)
-from gslam_jax.gridmap.pose_fit import (FLAT_VARIANCE, PosePrior, block_jackknife, laplace_fit,
-                                        log_prior, map_blocks, mutual_covariance)
 from gslam_jax.rbpf.proposal import candidate_grid
 
 __all__ = ["AlignParams", "PosePrior", "Alignment", "AlignmentRefused", "align_maps",

@@ -9,11 +9,12 @@ the host driver reach it only through the functions here, which dispatch to the 
   cells under a footprint: eq. 26's priors, eq. 31's borrowed known cells), ``write``
   (eq. 14), ``sample_known`` (eq. 31's uniform known cells), ``finish_update`` (after an update's
   writes), ``resample`` (each particle takes its ancestor's maps), ``particle_map``,
-  ``to_dense``, ``status``;
-* on the host: ``choose_store`` (``store = "auto"``), ``pool_tiles``, ``map_bytes`` (what a
-  store allocates), ``peak_bytes``, ``check_memory`` (before allocating), ``check_status``
-  (the shared store's error bits, after a run), ``grow_pool`` and ``PoolGrowth`` (an automatic
-  pool that is running low, grown between chunks of frames).
+  ``to_dense``, ``known_bits``, ``status``;
+* on the host: ``choose_store`` (``store = "auto"``), ``pool_tiles``, ``whole_maps_tiles``,
+  ``prior_tiles``, ``map_bytes`` (what a store allocates), ``peak_bytes``, ``check_memory``
+  (before allocating), ``check_status`` and ``pool_ran_out`` (the shared store's error bits,
+  after a run or a chunk), ``grow_pool`` and ``PoolGrowth`` (an automatic pool that is running
+  low, grown between chunks of frames).
 """
 
 from __future__ import annotations
@@ -32,9 +33,10 @@ from gslam_jax.rbpf.tilestore import TileStore
 from gslam_jax.rbpf.types import FilterConfig, FilterState
 
 __all__ = ["Maps", "DenseMaps", "TileStore", "MapStoreNotice", "init", "read", "write",
-           "sample_known", "finish_update", "resample", "particle_map", "to_dense", "status",
-           "free_tiles", "page_window", "pool_tiles", "map_bytes", "peak_bytes", "choose_store",
-           "check_memory", "check_status", "grow_pool", "PoolGrowth"]
+           "sample_known", "finish_update", "resample", "particle_map", "to_dense", "known_bits",
+           "status", "free_tiles", "page_window", "pool_tiles", "whole_maps_tiles", "prior_tiles",
+           "map_bytes", "peak_bytes", "choose_store", "check_memory", "check_status",
+           "pool_ran_out", "grow_pool", "PoolGrowth"]
 
 Maps = Union[DenseMaps, TileStore]
 """The particles' maps (``FilterState.maps``): the dense store or the shared tile store."""
@@ -132,6 +134,14 @@ def to_dense(maps: Maps, cfg: FilterConfig) -> tuple[Array, Array, Array]:
     return maps.k, maps.S, maps.known_bits
 
 
+def known_bits(maps: Maps, particles: Array, cfg: FilterConfig) -> Array:
+    """Known-cell bits [n, H/8, W/8, 2] of the whole maps of ``particles`` [n] (eq. 31's
+    bitmasks, ``unknown.pack_known``'s layout), whichever store holds them."""
+    if _shared(maps):
+        return tilestore.known_bits(maps, particles, cfg.map_shape)
+    return densestore.known_bits(maps, particles)
+
+
 def status(maps: Maps) -> Array:
     """The shared store's sticky error bits (``check_status``); 0 for the dense store."""
     return maps.status if _shared(maps) else jnp.int32(0)
@@ -156,7 +166,20 @@ def pool_tiles(cfg: FilterConfig) -> int:
         return cfg.pool_tiles
     ty, tx = tilestore.pages_per_side(cfg.map_shape, cfg.tile)
     auto = AUTO_POOL_MAPS * ty * tx + cfg.num_particles * page_window(cfg) ** 2
-    return min(auto, cfg.num_particles * ty * tx)
+    return min(auto, whole_maps_tiles(cfg))
+
+
+def whole_maps_tiles(cfg: FilterConfig, particles: int | None = None) -> int:
+    """Tiles of ``particles`` (default: every particle's) whole maps in the shared store: a
+    pool that size cannot run out."""
+    ty, tx = tilestore.pages_per_side(cfg.map_shape, cfg.tile)
+    return (cfg.num_particles if particles is None else particles) * ty * tx
+
+
+def prior_tiles(k, cfg: FilterConfig) -> int:
+    """Pool tiles of the shared store that a prior map k [H, W] (on the filter's lattice)
+    takes: its tiles with a known cell (host side)."""
+    return tilestore.prior_tiles(k, cfg.tile)
 
 
 def map_bytes(cfg: FilterConfig) -> int:
@@ -233,6 +256,13 @@ def check_status(status_bits: int | Array, cfg: FilterConfig, where: str = "",
     tilebytes.check_status(status_bits, pool_tiles(cfg), where, automatic)
 
 
+def pool_ran_out(status_bits) -> int:
+    """1 + the index of the first of a chunk's per-frame ``status`` bits [n] that says the
+    shared pool ran out of tiles; 0 if none does."""
+    hit = (np.asarray(status_bits) & tilestore.POOL_EXHAUSTED) != 0
+    return int(np.argmax(hit)) + 1 if hit.any() else 0
+
+
 def grow_pool(maps_: Maps, cfg: FilterConfig, need_free: int, available: int
               ) -> tuple[Maps, FilterConfig] | None:
     """The shared store with at least ``need_free`` free tiles (host side, between chunks of
@@ -244,8 +274,7 @@ def grow_pool(maps_: Maps, cfg: FilterConfig, need_free: int, available: int
     if not _shared(maps_):
         return None
     have, free = pool_tiles(cfg), int(maps_.n_free)
-    ty, tx = tilestore.pages_per_side(cfg.map_shape, cfg.tile)
-    cap = cfg.num_particles * ty * tx
+    cap = whole_maps_tiles(cfg)
     if free >= need_free or have >= cap:
         return None
     new = min(max(2 * have, have - free + need_free), cap)

@@ -25,8 +25,8 @@ from typing import Any, Callable, Sequence
 import jax
 import numpy as np
 
-from gslam_jax import sizing, slam
 from gslam_jax.config import Config
+from gslam_jax.driver import device_arrays, sizing
 from gslam_jax.run import Run
 from gslam_jax.tuning.evaluation import chunk_size, evaluate
 from gslam_jax.tuning.search import SearchResult, design_values, finish
@@ -39,7 +39,7 @@ def evaluate_chunk(values: np.ndarray, run: Run, config: Config, names: tuple[st
                    key_data: np.ndarray, objective: str, path: str) -> np.ndarray:
     """On a worker: the objectives of one chunk [B, d], sharded over that worker's JAX devices
     in one call (``evaluation.evaluate`` with ``batch`` = B)."""
-    inputs, cfg = slam.run_arrays(run, config, names)
+    inputs, cfg = device_arrays.run_arrays(run, config, names)
     key = jax.random.wrap_key_data(np.asarray(key_data))
     return evaluate(values, key, inputs, sizing.filter_params(config, run), names, cfg, objective,
                     path, batch=len(values))
@@ -87,7 +87,7 @@ def distributed_search(client: Any, run: Run, config: Config, space: SearchSpace
     """``search.search`` on a Dask cluster (same arguments, same checks, same ranking)."""
     values = design_values(run, space, design, n, objective, path, seed, values)
     if objective == "rms":
-        slam.require_ground_truth(slam.ground_truth_mask(run), "rms", SearchError)
+        device_arrays.require_ground_truth(device_arrays.ground_truth_mask(run), "rms", SearchError)
     key = jax.random.key(config.filter.seed) if key is None else key
     t0 = time.perf_counter()
     first: list[float] = []

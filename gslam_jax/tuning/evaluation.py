@@ -32,8 +32,9 @@ import numpy as np
 from jax import Array, lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from gslam_jax import choices, observations, rbpf, slam
-from gslam_jax.machine import device_memory_limit, physical_memory
+from gslam_jax import choices, rbpf
+from gslam_jax.driver import device_arrays, observations
+from gslam_jax.driver.machine import device_memory_limit, physical_memory
 from gslam_jax.tuning.space import (
     OBS_PARAM_NAMES,
     SearchError,
@@ -91,7 +92,7 @@ def objective_value(out: rbpf.RunOutput, objective: str, reference: Array, mask:
     return jnp.where(jnp.max(out.infos.map_status) > 0, jnp.nan, value)
 
 
-_Inputs = slam.RunArrays
+_Inputs = device_arrays.RunArrays
 
 
 def _batch_fn(key: Array, inputs: _Inputs, base: rbpf.FilterParams, names: tuple[str, ...],
@@ -152,13 +153,14 @@ def evaluate(values: np.ndarray, key: Array, inputs: _Inputs, base: rbpf.FilterP
     run one after another in ``lax.map`` (inner=1, the default there); accelerators default to
     vmapping the whole per-device block (``default_inner``).
 
-    inputs: ``slam.run_arrays``; the observation settings not in ``names`` are ``inputs.obs``.
+    inputs: ``device_arrays.run_arrays``; the observation settings not in ``names`` are
+    ``inputs.obs``.
 
     Objective "rms" needs a frame with a ground-truth position (``inputs.mask``; headings are
-    not used); a SearchError otherwise (``slam.require_ground_truth``).
+    not used); a SearchError otherwise (``device_arrays.require_ground_truth``).
     """
     if objective == "rms":
-        slam.require_ground_truth(inputs.mask, "rms", SearchError)
+        device_arrays.require_ground_truth(inputs.mask, "rms", SearchError)
     devices = list(devices or jax.devices())
     nd = len(devices)
     P = values.shape[0]

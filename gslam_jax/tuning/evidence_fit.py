@@ -34,8 +34,8 @@ from typing import Callable, NamedTuple, Sequence
 import jax
 import numpy as np
 
-from gslam_jax import sizing, slam
 from gslam_jax.config import Config
+from gslam_jax.driver import device_arrays, sizing
 from gslam_jax.run import Run
 from gslam_jax.tuning.evaluation import auto_batch, default_inner, evaluate
 from gslam_jax.tuning.space import ALPHA_NAMES, SearchError
@@ -89,7 +89,7 @@ def fit_noise_scale(run: Run, config: Config, factors: Sequence[float] = DEFAULT
         raise SearchError("[motion] every alpha is 0: there is no noise to scale")
     fixed = dataclasses.replace(config, filter=dataclasses.replace(config.filter,
                                                                    tempering="fixed"))
-    inputs, cfg = slam.run_arrays(run, fixed)
+    inputs, cfg = device_arrays.run_arrays(run, fixed)
     params = sizing.filter_params(fixed, run)
     values = factors[:, None] * base[None, :]
     devices = jax.devices()

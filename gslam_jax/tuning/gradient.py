@@ -41,8 +41,9 @@ import numpy as np
 import optax
 from jax import Array, lax
 
-from gslam_jax import choices, rbpf, sizing, slam
+from gslam_jax import choices, rbpf
 from gslam_jax.config import Config
+from gslam_jax.driver import device_arrays, sizing
 from gslam_jax.errors import InputError
 from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.motion import MotionParams, motion_stds
@@ -69,7 +70,7 @@ class TuneError(InputError):
     """A bad tuning request; the message names the field."""
 
 
-TuneInputs = slam.RunArrays  # the Run's device arrays (``slam.run_arrays``, raw observations)
+TuneInputs = device_arrays.RunArrays  # the Run's device arrays (``run_arrays``, raw observations)
 
 
 class Objectives(NamedTuple):
@@ -154,8 +155,8 @@ def sw_objectives(key: Array, params: rbpf.FilterParams, inputs: TuneInputs,
 
 
 def make_inputs(run: Run, config: Config) -> tuple[TuneInputs, rbpf.FilterConfig]:
-    """Device inputs and the static filter config for ``run`` (``slam.run_arrays``)."""
-    return slam.run_arrays(run, config)
+    """Device inputs and the static filter config for ``run`` (``device_arrays.run_arrays``)."""
+    return device_arrays.run_arrays(run, config)
 
 
 def objective_fn(log_values: Array, keys: Array, base: rbpf.FilterParams, inputs: TuneInputs,
@@ -281,9 +282,9 @@ def tune(run: Run, config: Config, objective: str = "loglik", optimizer: str = "
         raise TuneError(f"optimizer '{optimizer}' is not an optax optimiser")
     if steps < 1 or runs_per_step < 1:
         raise TuneError("steps and runs_per_step must be at least 1")
-    inputs, cfg = slam.run_arrays(run, config, names, TuneError)
+    inputs, cfg = device_arrays.run_arrays(run, config, names, TuneError)
     if objective == "supervised":
-        slam.require_ground_truth(inputs.mask, objective, TuneError)
+        device_arrays.require_ground_truth(inputs.mask, objective, TuneError)
     base = sizing.filter_params(config, run)
     for n in names:
         if not (math.isfinite(cur[n]) and cur[n] > 0):

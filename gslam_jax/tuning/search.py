@@ -20,8 +20,8 @@ import jax
 import numpy as np
 from jax import Array
 
-from gslam_jax import sizing, slam
 from gslam_jax.config import Config
+from gslam_jax.driver import device_arrays, sizing
 from gslam_jax.run import Run
 from gslam_jax.tuning.designs import design_points
 from gslam_jax.tuning.evaluation import OBJECTIVES, PATHS, auto_batch, default_inner, evaluate
@@ -138,7 +138,7 @@ def search(run: Run, config: Config, space: SearchSpace, design: str = "halton",
     """
     values = design_values(run, space, design, n, objective, path, seed, values)
     # evaluate() checks "rms"'s truth
-    inputs, cfg = slam.run_arrays(run, config, space.names, SearchError)
+    inputs, cfg = device_arrays.run_arrays(run, config, space.names, SearchError)
     base = sizing.filter_params(config, run)
     key = jax.random.key(config.filter.seed) if key is None else key
     if not crn:

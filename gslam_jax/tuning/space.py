@@ -31,8 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from gslam_jax import observations, rbpf
+from gslam_jax import rbpf
 from gslam_jax.config import Config, ConfigError
+from gslam_jax.driver import observations
 from gslam_jax.errors import InputError
 
 __all__ = ["Setting", "SETTINGS", "PARAM_NAMES", "FILTER_PARAM_NAMES", "OBS_PARAM_NAMES",
@@ -212,8 +213,9 @@ def params_from_values(values: Array, names: Sequence[str], base: rbpf.FilterPar
 def observations_from_values(values: Array, names: Sequence[str], base: observations.ObsSettings,
                              raw: Array) -> Array:
     """Local-map observations [M, L, L, 2] for one parameter row ``values`` [d]: the raw
-    observations (``slam.run_arrays``) refined by ``observations.refine_observations`` with the
-    named observation settings, the others from ``base``."""
+    observations (``device_arrays.run_arrays``) refined by
+    ``observations.refine_observations`` with the named observation settings, the others from
+    ``base``."""
     col = {n: values[i] for i, n in enumerate(names)}
     settings = base._replace(**{n: col[n] for n in OBS_PARAM_NAMES if n in col})
     return observations.refine_observations(raw, settings)

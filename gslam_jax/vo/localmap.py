@@ -85,7 +85,7 @@ def map_axes_heading(axes: str, start_pose: np.ndarray | None) -> float:
     """The angle of the map's axes in the frame of a run that starts at ``start_pose`` (None:
     zeros), by ``[map] axes`` (``choices.MAP_AXES``): 0 for the frame's ("frame"), the start
     heading for the robot's ("start"). The filter's map lattice lies on them
-    (``slam.map_heading``), and a "map" local lattice is turned onto them
+    (``driver.map_axes.map_heading``), and a "map" local lattice is turned onto them
     (``LocalMapBuilder.axes_heading``)."""
     if axes == "start" and start_pose is not None:
         return float(np.asarray(start_pose, np.float64)[2])

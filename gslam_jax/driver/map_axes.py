@@ -10,12 +10,12 @@ import warnings
 import numpy as np
 
 from gslam_jax.config import Config
+from gslam_jax.driver.map_reuse import PriorMap, rebase
 from gslam_jax.gridmap import turn_poses
-from gslam_jax.map_reuse import PriorMap
 from gslam_jax.run import Run
 from gslam_jax.vo.localmap import map_axes_heading
 
-__all__ = ["map_heading", "on_map_axes", "LatticeWarning", "local_lattice_axes",
+__all__ = ["map_heading", "on_map_axes", "filtered_run", "LatticeWarning", "local_lattice_axes",
            "check_local_lattices"]
 
 
@@ -41,6 +41,17 @@ def on_map_axes(run: Run, heading: float) -> Run:
     return run._replace(initial_pose=turn_poses(run.start_pose(), -heading),
                         ground_truth=truth)
 
+
+
+def filtered_run(run: Run, config: Config, prior: PriorMap | None = None
+                 ) -> tuple[Run, float, Run]:
+    """``run`` as given (rebased on a ``prior``'s start), the angle of the map lattice's axes
+    in its frame (``map_heading``) and the run on those axes (``on_map_axes``): what
+    ``run_slam`` filters."""
+    if prior is not None:
+        run = rebase(run, prior.start)
+    heading = map_heading(run, config, prior)
+    return run, heading, on_map_axes(run, heading)
 
 class LatticeWarning(UserWarning):
     """A run's local maps were binned on the map's axes ("map" lattice) at another angle than

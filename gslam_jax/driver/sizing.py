@@ -14,11 +14,11 @@ import numpy as np
 
 from gslam_jax import choices, rbpf
 from gslam_jax.config import Config, ConfigError
+from gslam_jax.driver.machine import device_memory_limit, physical_memory, process_memory_limit
+from gslam_jax.driver.map_reuse import PriorMap, check_prior, known_box
+from gslam_jax.driver.observations import run_range_noise
 from gslam_jax.gridmap import place
-from gslam_jax.machine import device_memory_limit, physical_memory, process_memory_limit
-from gslam_jax.map_reuse import PriorMap, check_prior, known_box
-from gslam_jax.observations import run_range_noise
-from gslam_jax.rbpf import maps, tilestore
+from gslam_jax.rbpf import maps
 from gslam_jax.rbpf.motion import MotionParams
 from gslam_jax.run import Run, RunError
 from gslam_jax.run.checks import coordinate_limit, float32_spacing
@@ -198,9 +198,8 @@ def _prior_pool(cfg: rbpf.FilterConfig, prior: PriorMap) -> rbpf.FilterConfig:
     the prior's tiles, which stay in the pool besides the run's own history; never more than
     every particle's whole map."""
     grid = place(prior.grid, cfg.map_origin, cfg.map_shape)
-    ty, tx = tilestore.pages_per_side(cfg.map_shape, cfg.tile)
-    pool = maps.pool_tiles(cfg) + tilestore.prior_tiles(grid.k, cfg.tile)
-    return cfg._replace(pool_tiles=min(pool, cfg.num_particles * ty * tx))
+    pool = maps.pool_tiles(cfg) + maps.prior_tiles(grid.k, cfg)
+    return cfg._replace(pool_tiles=min(pool, maps.whole_maps_tiles(cfg)))
 
 
 def _extent_cause(run: Run, config: Config) -> str:

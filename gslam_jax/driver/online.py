@@ -28,8 +28,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax import choices, observations, rbpf, sizing, slam
+from gslam_jax import choices, rbpf
 from gslam_jax.config import Config, ConfigError
+from gslam_jax.driver import chunk_checks, observations, sizing
 from gslam_jax.errors import InputError
 from gslam_jax.gridmap import GridMap, turn_poses
 from gslam_jax.rbpf import cells, maps
@@ -140,7 +141,7 @@ class Online:
         if self.start.shape != (3,) or not np.isfinite(self.start).all():
             raise ConfigError(f"Online: start_pose must be 3 finite numbers (x, y, theta), "
                               f"got {np.asarray(start_pose).tolist()}")
-        # the map's axes ([map] axes): the filter runs on them, as ``slam.on_map_axes``
+        # the map's axes ([map] axes): the filter runs on them, as ``map_axes.on_map_axes``
         self.heading = map_axes_heading(config.map.axes, self.start)
         start_on_axes = turn_poses(self.start, -self.heading)
         self.localmap = localmap_params(config, sensor)
@@ -232,8 +233,8 @@ class Online:
         ``time_s`` its time in seconds (for ``stats``; None: the frame index), ``vo_failed``
         whether the control came from the fallback odometry (``Run.vo_failed``: its motion
         noise is ``[motion] fallback_scale`` times the VO's). InputError for a
-        malformed frame, ``slam.WeightError`` for non-finite weights, MapEdgeError past the
-        map's edge."""
+        malformed frame, ``chunk_checks.WeightError`` for non-finite weights, MapEdgeError
+        past the map's edge."""
         t = self.frames
         u = np.asarray(control, np.float64)
         if u.shape != (3,) or not np.isfinite(u).all():
@@ -274,8 +275,9 @@ class Online:
         self._vo_pose = integrate_controls(u[None], self._vo_pose)[0]
         batch = jax.tree.map(lambda x: np.asarray(x)[None], info)  # a one-frame chunk
         maps_so_far = int(sum(self._updated))
-        slam._check_weights(batch, t, 1, {t: maps_so_far - 1 if local_map is not None else -1})
-        slam._check_map_status(batch, t, self.cfg, automatic=self._growth is not None)
+        chunk_checks.check_weights(batch, t, 1,
+                                   {t: maps_so_far - 1 if local_map is not None else -1})
+        chunk_checks.check_map_status(batch, t, self.cfg, automatic=self._growth is not None)
         if int(info.dropped_cells):
             raise InputError(f"frame {t}: the local map has more informative cells than "
                              f"observed_cells = {self.cfg.max_observed}; raise it (0: no cap)")

@@ -13,7 +13,7 @@ import numpy as np
 from gslam_jax import rbpf
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.gridmap import GridMap, place
-from gslam_jax.rbpf import maps, tilestore
+from gslam_jax.rbpf import maps
 from gslam_jax.run import Run
 from gslam_jax.run.checks import check_start_pose
 
@@ -102,7 +102,7 @@ def prior_state(prior: PriorMap, cfg: rbpf.FilterConfig, key: jax.Array) -> rbpf
     from ``key`` folded with START_STREAM; a zero spread draws nothing)."""
     grid = place(prior.grid, cfg.map_origin, cfg.map_shape)
     if cfg.store == "shared":
-        need, have = tilestore.prior_tiles(grid.k, cfg.tile), maps.pool_tiles(cfg)
+        need, have = maps.prior_tiles(grid.k, cfg), maps.pool_tiles(cfg)
         if need > have:
             raise ConfigError(f"the prior map needs {need} tiles of the shared map store, "
                               f"more than its [map] pool_tiles = {have}; raise [map] "
