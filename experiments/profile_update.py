@@ -20,9 +20,9 @@ import numpy as np
 
 
 from gslam_jax import choices, rbpf  # noqa: E402
-from gslam_jax.app.bench import (_chained, _synthetic_state, bench_config,  # noqa: E402
-                                  synthetic_local_map)
-from gslam_jax.driver.machine import environment
+from gslam_jax.app.bench import (bench_config, chained, synthetic_local_map,  # noqa: E402
+                                  synthetic_state)
+from gslam_jax.driver.machine import environment  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:
@@ -48,8 +48,8 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
         # Move the particles a little so that XLA cannot hoist the reads out of the loop.
         return s._replace(pose=s.pose + 1e-4 * jnp.tanh(s.log_w)[:, None])
 
-    fn = _chained(one, args.chain)
-    state = jax.block_until_ready(fn(_synthetic_state(cfg, rng)))  # compile
+    fn = chained(one, args.chain)
+    state = jax.block_until_ready(fn(synthetic_state(cfg, rng)))  # compile
     with tempfile.TemporaryDirectory() as tmp:
         jax.profiler.start_trace(tmp)
         for _ in range(args.calls):

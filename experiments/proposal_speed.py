@@ -25,7 +25,7 @@ import numpy as np
 from jax import lax
 
 from gslam_jax import choices, rbpf
-from gslam_jax.app.bench import _synthetic_state, bench_config, synthetic_local_map
+from gslam_jax.app.bench import bench_config, synthetic_local_map, synthetic_state
 from gslam_jax.driver.machine import environment
 from gslam_jax.rbpf import cells, proposal
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> dict:
     local = synthetic_local_map(rng, L)
     params = rbpf.FilterParams()
     noise = rbpf.update_noise(jax.random.key(0), cfg)
-    state = _synthetic_state(cfg._replace(proposal="motion"), rng)
+    state = synthetic_state(cfg._replace(proposal="motion"), rng)
     warm = jax.jit(lambda s: rbpf.update(s, local, noise.unknown_u, params,
                                          cfg._replace(proposal="motion"))[0])
     for _ in range(3):  # some known cells under every footprint

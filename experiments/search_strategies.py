@@ -34,10 +34,10 @@ import jax
 import numpy as np
 
 from experiments.common import report  # noqa: E402
-from gslam_jax.driver import device_arrays, sizing
 from gslam_jax.app.bench import environment  # noqa: E402
 from gslam_jax.config import Config, FilterSection, MapSection  # noqa: E402
 from gslam_jax.datasets.sim import simulate_run  # noqa: E402
+from gslam_jax.driver import device_arrays, sizing  # noqa: E402
 from gslam_jax.run import Run, load_run  # noqa: E402
 from gslam_jax.tuning import designs as D  # noqa: E402
 from gslam_jax.tuning import evaluation as E  # noqa: E402

@@ -65,11 +65,11 @@ def ab(rounds: int, particles: int = 200, unknown_cells: str = "ignore") -> dict
     import jax
     import numpy as np
 
-    from gslam_jax.app.compare import _default_run, time_dense_updates
+    from gslam_jax.app.compare import default_run, time_dense_updates
     from gslam_jax.config import Config
     from gslam_jax.driver import observations, sizing
 
-    run = _default_run()
+    run = default_run()
     c = Config()
     config = dataclasses.replace(
         c, filter=dataclasses.replace(c.filter, particles=particles, unknown_cells=unknown_cells),

@@ -161,7 +161,7 @@ def slow_work(monkeypatch):
     monkeypatch.setattr("gslam_jax.app.bench.time_update", boom)
     monkeypatch.setattr("gslam_jax.app.bench.time_course", boom)
     monkeypatch.setattr("gslam_jax.app.table1.run_course", boom)
-    monkeypatch.setattr("gslam_jax.app.compare._default_run", boom)
+    monkeypatch.setattr("gslam_jax.app.compare.default_run", boom)
     monkeypatch.setattr("gslam_jax.app.compare.run_dense", boom)
     monkeypatch.setattr("gslam_jax.tuning.motion_fit.fit_run", boom)
 

@@ -1,9 +1,10 @@
 """The package's architecture as a test: every import goes down the layers, none across or up,
-and no module imports itself back through others (no import cycles).
+no module imports itself back through others (no import cycles), and the map stores are
+reached only through their seam (``rbpf.maps``).
 
 Layers, lowest first: the shared basics; settings; the paper's filter math and the Run
-container; the front-end, the reference and metrics; the simulator; the sources; the host
-driver; GPS and parameter search; the application.
+container; the front-end, the reference and finished maps (``gridmap``); the simulator and
+evaluation; the sources; the host driver; GPS and parameter search; the application.
 """
 
 from __future__ import annotations
@@ -108,3 +109,17 @@ def test_no_import_cycles():
         if m not in state:
             visit(m, [m])
 
+
+
+STORE_MODULES = {"rbpf.densestore", "rbpf.tilestore", "rbpf.tilebytes", "rbpf.tilesample"}
+
+
+def test_the_map_stores_are_reached_only_through_rbpf():
+    """The map-store seam (``rbpf.maps``): no module outside rbpf/, and no experiment, imports
+    a store's own modules."""
+    experiments = PACKAGE.parent / "experiments"
+    importers = {**{m: imp for m, imp in _graph().items() if m.split(".")[0] != "rbpf"},
+                 **{f"experiments/{p.name}": _imports(p) for p in experiments.glob("*.py")}}
+    wrong = sorted(f"{m} imports {t}" for m, imp in importers.items() for t in imp
+                   if t in STORE_MODULES)
+    assert not wrong, "\n".join(wrong)

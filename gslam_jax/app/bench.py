@@ -28,8 +28,8 @@ from gslam_jax.driver.machine import environment, physical_memory
 from gslam_jax.errors import InputError
 from gslam_jax.rbpf import maps, unknown
 
-__all__ = ["BenchError", "bench_config", "synthetic_local_map", "check_arguments", "time_update",
-           "time_course", "plot_scaling", "main"]
+__all__ = ["BenchError", "bench_config", "synthetic_local_map", "synthetic_state", "chained",
+           "check_arguments", "time_update", "time_course", "plot_scaling", "main"]
 
 
 class BenchError(InputError):
@@ -76,7 +76,7 @@ def check_arguments(particles, local, map_side, modes, particle_block, stores) -
             raise BenchError(f"--particles {J} --local {L} --map {side} --mode {mode} "
                              f"--particle-block {b} --store {store}: {err}") from err
 
-def _synthetic_state(cfg: rbpf.FilterConfig, rng: np.random.Generator) -> rbpf.FilterState:
+def synthetic_state(cfg: rbpf.FilterConfig, rng: np.random.Generator) -> rbpf.FilterState:
     """Particles scattered around the map centre (1 m standard deviation, any heading) on
     empty maps (``rbpf.init``: every cell unknown); the timed updates fill their footprints."""
     H, W = cfg.map_shape
@@ -89,7 +89,7 @@ def _synthetic_state(cfg: rbpf.FilterConfig, rng: np.random.Generator) -> rbpf.F
     return state._replace(pose=jnp.asarray(pose))
 
 
-def _chained(fn, chain: int):
+def chained(fn, chain: int):
     """jit(scan of ``chain`` calls of fn(state) -> state), donating the state."""
 
     def many(state):
@@ -125,15 +125,15 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     u = jnp.asarray([0.2, 0.0, 0.05], jnp.float32)
     eps = rbpf.motion_noise(jax.random.key(seed + 1), cfg)
 
-    update = _chained(lambda s: rbpf.update(s, obs, noise.unknown_u, params, cfg)[0], chain)
-    sec, state = _best_seconds(update, _synthetic_state(cfg, rng), repeats)
-    predict = _chained(lambda s: s._replace(pose=rbpf.predict(s.pose, u, eps, params)), chain)
+    update = chained(lambda s: rbpf.update(s, obs, noise.unknown_u, params, cfg)[0], chain)
+    sec, state = _best_seconds(update, synthetic_state(cfg, rng), repeats)
+    predict = chained(lambda s: s._replace(pose=rbpf.predict(s.pose, u, eps, params)), chain)
     sec_predict, state = _best_seconds(predict, state, repeats)
     # The update and one forced resampling (``rbpf.observe``; the dead particles' maps copied
     # from their ancestors over the written rows, ``densestore.gather_particles``), minus the
     # update.
     always = cfg._replace(resample_ratio=2.0)
-    resample = _chained(lambda s: rbpf.observe(s, obs, noise, params, always)[0], chain)
+    resample = chained(lambda s: rbpf.observe(s, obs, noise, params, always)[0], chain)
     sec_resample, state = _best_seconds(resample, state, repeats)
     per = 1.0 / chain
     return {"particles": J, "local": local, "map": map_side, "mode": mode, "store": store,

@@ -43,7 +43,7 @@ from gslam_jax.tiled.reference import (
 from gslam_jax.vo.localmap import LocalMapParams
 
 __all__ = ["TOLERANCES", "MAX_TILE_CELLS", "CompareError", "default_tile_size",
-           "check_tile_size", "dense_label", "check_agreement", "compare"]
+           "check_tile_size", "dense_label", "check_agreement", "default_run", "compare"]
 
 TOLERANCES = {"log_w": 1e-4, "pose": 1e-5, "k": 1e-6, "S_rel": 1e-5}
 
@@ -188,7 +188,9 @@ def _plot(path: Path, dense: DenseOutput, tiled: TiledOutput, title: str) -> Non
 DEFAULT_RUN_PARAMS = LocalMapParams(max_range=5.0, travel=2.0)
 
 
-def _default_run() -> Run:
+def default_run() -> Run:
+    """The run ``compare`` uses when given none: the simulated mars-yard-a course, seed 0, its
+    first 600 frames, local maps of ``DEFAULT_RUN_PARAMS``."""
     from gslam_jax.datasets.sim import simulate_run
 
     run, _ = simulate_run("mars-yard-a", seed=0, params=DEFAULT_RUN_PARAMS, max_frames=600)
@@ -246,7 +248,7 @@ def _compare(run: Run | None, config: Config | None, say, *, particles: int,
         raise ConfigError(f"[motion] noise_spread = {config.motion.noise_spread:g}: the tiled "
                           f"reference moves every particle with the same motion noise, as the "
                           f"paper does; compare with noise_spread = 1")
-    run = run if run is not None else _default_run()
+    run = run if run is not None else default_run()
     # both implementations on the map lattice's axes, as ``gslam run`` filters ([map] axes)
     run = on_map_axes(run, map_heading(run, config))
     config = dataclasses.replace(
