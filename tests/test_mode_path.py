@@ -1,7 +1,7 @@
 """The ``mode`` and ``mode_mean`` estimates: ``rbpf.densest_particle`` against a brute-force
 count over every pair, the paths they report against following the ancestry by hand, and the
 map a run reports with them: the local maps placed along the mode's path (NumPy's
-``metrics.pose_map``)."""
+``pose_maps.pose_map``)."""
 
 from __future__ import annotations
 
