@@ -29,6 +29,7 @@ from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop
                                    vo_noise)
 from gslam_jax import loops, slam
 from gslam_jax.config import Config, layered_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.gridmap import turn_poses
 from gslam_jax.run import Run
 from gslam_jax.vo.localmap import localmap_params
@@ -104,7 +105,7 @@ def simulated_loop(args: argparse.Namespace) -> tuple[Loop, Run, Config]:
     ``--vo-failures`` and ``--noise-scale``."""
     config = scaled_alphas(layered_config(args.config, args.course,
                                           ["map.store=auto", f"filter.seed={args.seed}"]
-                                          + args.set), args.noise_scale)
+                                          + args.set, courses=COURSES), args.noise_scale)
     noise = vo_noise(args.course, args.vo_scale, args.vo_failures)
     with tempfile.TemporaryDirectory() as tmp:
         if args.kitti is None:

@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from gslam_jax.config import Config, ConfigError, apply_overrides, config_to_toml, load_config
+from gslam_jax.sim.courses import COURSES
 
 
 def test_defaults_are_the_papers():
@@ -65,7 +66,7 @@ def test_shipped_configs_load():
         if "space" in data:
             load_space(path)
         elif "course" in data:
-            load_table_config(path)
+            load_table_config(path, COURSES)
         else:
             load_config(path)
 
@@ -76,7 +77,7 @@ def test_table1_per_course_sections_override_only_their_course(tmp_path):
     path = tmp_path / "t.toml"
     path.write_text("[filter]\nparticles = 50\n[motion]\nalpha_d = 0.04\n"
                     "[course.mars-yard-b.motion]\nalpha_theta_d = 0.03\n")
-    shared, per_course = load_table_config(path)
+    shared, per_course = load_table_config(path, COURSES)
     assert shared.motion.alpha_d == 0.04 and shared.motion.alpha_theta_d == 0.01
     b = per_course["mars-yard-b"]
     assert (b.motion.alpha_d, b.motion.alpha_theta_d, b.filter.particles) == (0.04, 0.03, 50)
@@ -94,7 +95,7 @@ def test_table1_bad_course_sections_are_named(tmp_path, text, named):
     path = tmp_path / "t.toml"
     path.write_text(text)
     with pytest.raises(ConfigError, match=re.escape(named)):
-        load_table_config(path)
+        load_table_config(path, COURSES)
 
 
 PAPER = Path(__file__).resolve().parents[2] / "shared" / "paper" / "gamma-slam-jfr2009.txt"

@@ -130,7 +130,7 @@ def load_config(args: argparse.Namespace):
     from gslam_jax.config import layered_config
 
     simulated = getattr(args, "run_file", None) is None and get_source(args.source).simulated
-    return layered_config(args.config, args.course if simulated else None, args.set)
+    return layered_config(args.config, args.course if simulated else None, args.set, COURSES)
 
 
 def config_and_run(args: argparse.Namespace):

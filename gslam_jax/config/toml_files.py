@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -129,15 +130,15 @@ def config_to_toml(config: Config) -> str:
     return "\n".join(section_to_toml(config, name) for name in SECTION_TYPES)
 
 
-def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config]]:
+def load_table_config(path: str | Path | None, courses: Collection[str] = ()
+                      ) -> tuple[Config, dict[str, Config]]:
     """The shared config and per-course configs of a Table I TOML file.
 
     Besides the usual sections, the file may hold ``[course.<name>.<section>]`` tables whose
     keys override the shared settings for that course only, as the paper tuned its noise
-    parameters per environment (7.3). Unknown course names are errors that name the file.
+    parameters per environment (7.3); ``courses``: the names such a table may have (the
+    simulator's, ``sim.courses.COURSES``). Other names are errors that name the file.
     """
-    from gslam_jax.sim.courses import COURSES  # here: config stays below every other layer
-
     if path is None:
         return Config(), {}
     data = read_toml(path)
@@ -145,22 +146,23 @@ def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config
     base = parse_config(data, str(path))
     if not isinstance(per_course, dict):
         raise ConfigError(f"{path}: [course] must be a table of [course.<name>.<section>] tables")
-    courses = {}
+    configs = {}
     for name, table in per_course.items():
-        if name not in COURSES:
-            raise ConfigError(f"{path}: unknown course [course.{name}]; known courses: "
-                              f"{', '.join(COURSES)}")
+        if name not in courses:
+            known = ", ".join(courses) or "none (this command reads no course tables)"
+            raise ConfigError(f"{path}: unknown course [course.{name}]; known courses: {known}")
         if not isinstance(table, dict):
             raise ConfigError(f"{path}: [course.{name}] must be a table of sections")
-        courses[name] = parse_config(table, f"{path} [course.{name}]", base=base)
-    return base, courses
+        configs[name] = parse_config(table, f"{path} [course.{name}]", base=base)
+    return base, configs
 
 
 def layered_config(path: str | Path | None, course: str | None = None,
-                   overrides: list[str] | None = None) -> Config:
+                   overrides: list[str] | None = None, courses: Collection[str] = ()) -> Config:
     """The config a command runs with: defaults, the file at ``path`` (its shared sections and,
     for the simulated ``course``, that course's ``[course.<name>.*]`` tables; None: no course
-    tables), then the ``section.key=value`` ``overrides``."""
-    shared, per_course = load_table_config(path)
+    tables), then the ``section.key=value`` ``overrides``. ``courses``: the names a
+    ``[course.<name>]`` table may have (``load_table_config``)."""
+    shared, per_course = load_table_config(path, courses)
     config = per_course.get(course, shared) if course is not None else shared
     return apply_overrides(config, overrides or [])
