@@ -113,7 +113,7 @@ def cmd_config(args: argparse.Namespace) -> int:
         check_output_file(args.out, "--out")
         if args.out.exists() and not args.overwrite:
             raise ConfigError(f"--out {args.out}: exists (--overwrite replaces it)")
-    text = config_to_toml(layered_config(args.config, None, args.set, COURSES))
+    text = config_to_toml(layered_config(args.config, None, args.set, COURSES), comments=True)
     if args.out is None:
         print(text, end="")
     else:

@@ -14,11 +14,11 @@ from typing import Any, Callable
 import numpy as np
 
 from gslam_jax import choices
-from gslam_jax.config.setting import setting, settings_of
+from gslam_jax.config.setting import UNSET, setting, settings_of
 from gslam_jax.errors import InputError
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
-           "StereoSection", "RigSection", "Config", "SECTION_TYPES"]
+           "StereoSection", "RigSection", "Config", "SECTION_TYPES", "paper_differences"]
 
 
 class ConfigError(InputError):
@@ -328,3 +328,11 @@ class Config:
 
 SECTION_TYPES = {"filter": FilterSection, "motion": MotionSection, "map": MapSection,
                   "localmap": LocalMapSection, "stereo": StereoSection, "rig": RigSection}
+
+
+def paper_differences() -> dict[str, tuple[Any, Any]]:
+    """``"section.key"`` -> (default, the paper's value) of every setting whose default is not
+    the paper's (``configs/paper.toml`` holds the paper's), in declaration order."""
+    return {f"{name}.{key}": (default, rule.paper)
+            for name, cls in SECTION_TYPES.items()
+            for key, default, rule in settings_of(cls) if rule.paper is not UNSET}

@@ -11,9 +11,11 @@ from pathlib import Path
 from typing import Any
 
 from gslam_jax.config.sections import SECTION_TYPES, Config, ConfigError
+from gslam_jax.config.setting import UNSET, Setting, settings_of
 
 __all__ = ["read_toml", "load_config", "parse_config", "apply_overrides", "section_to_toml",
-           "config_to_toml", "load_table_config", "layered_config"]
+           "config_to_toml", "key_comment", "COMMENTED_HEADER", "load_table_config",
+           "layered_config"]
 
 
 def _coerce(value: Any, expected: type, where: str) -> Any:
@@ -109,25 +111,46 @@ def apply_overrides(config: Config, overrides: list[str]) -> Config:
     return parse_config(data, "--set", base=config)
 
 
-def section_to_toml(config: Config, name: str) -> str:
-    """One section of the config (``name``: filter, motion, ...) as a TOML table."""
+def _toml_value(value: Any) -> str:
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):  # a matrix: 4 rows of 4, or []
+        rows = [value[i:i + 4] for i in range(0, len(value), 4)]
+        return f"[{', '.join(str(list(r)) for r in rows)}]"
+    return repr(value)
+
+
+def key_comment(rule: Setting) -> str:
+    """The one-line comment ``gslam config`` prints beside a key: its declared meaning, and the
+    paper's value where the default is another."""
+    paper = "" if rule.paper is UNSET else f"; the paper's: {_toml_value(rule.paper)}"
+    return rule.doc + paper
+
+
+def section_to_toml(config: Config, name: str, comments: bool = False) -> str:
+    """One section of the config (``name``: filter, motion, ...) as a TOML table; with
+    ``comments`` each key followed by its ``key_comment``."""
+    section = getattr(config, name)
     lines = [f"[{name}]"]
-    for key, value in dataclasses.asdict(getattr(config, name)).items():
-        if isinstance(value, str):
-            lines.append(f'{key} = "{value}"')
-        elif isinstance(value, bool):
-            lines.append(f"{key} = {'true' if value else 'false'}")
-        elif isinstance(value, tuple):  # a matrix: 4 rows of 4, or []
-            rows = [value[i:i + 4] for i in range(0, len(value), 4)]
-            lines.append(f"{key} = [{', '.join(str(list(r)) for r in rows)}]")
-        else:
-            lines.append(f"{key} = {value!r}")
+    for key, _, rule in settings_of(section):
+        line = f"{key} = {_toml_value(getattr(section, key))}"
+        lines.append(f"{line}  # {key_comment(rule)}" if comments else line)
     return "\n".join(lines) + "\n"
 
 
-def config_to_toml(config: Config) -> str:
-    """The full config as TOML text (written beside every run's results)."""
-    return "\n".join(section_to_toml(config, name) for name in SECTION_TYPES)
+def config_to_toml(config: Config, comments: bool = False) -> str:
+    """The full config as TOML text (written bare beside every run's results; with
+    ``comments``, as ``gslam config`` prints it, each key with its one-line meaning)."""
+    text = "\n".join(section_to_toml(config, name, comments) for name in SECTION_TYPES)
+    return (COMMENTED_HEADER + text) if comments else text
+
+
+COMMENTED_HEADER = ("# gslam's settings, each key with what it means (docs/configuration.md);\n"
+                    "# where a default is not the paper's, its comment gives the paper's value\n"
+                    "# (configs/paper.toml).\n")
+"""The lines ``config_to_toml(..., comments=True)`` starts with."""
 
 
 def load_table_config(path: str | Path | None, courses: Collection[str] = ()
