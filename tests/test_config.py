@@ -311,3 +311,11 @@ def test_course_tables_need_the_course_names_given():
     with pytest.raises(ConfigError, match=r"unknown course \[course\.\S+\]; known courses: none"):
         load_table_config(path)
     assert set(load_table_config(path, COURSES)[1]) <= set(COURSES)
+
+
+def test_every_proposal_has_one_rule():
+    """``rbpf.proposal.select`` knows every ``[filter] proposal`` value, and only those."""
+    from gslam_jax import choices
+    from gslam_jax.rbpf import proposal
+
+    assert tuple(proposal.RULES) == choices.PROPOSALS
