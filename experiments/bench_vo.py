@@ -22,7 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gslam_jax.datasets.kitti import read_image, read_kitti_calib
+from gslam_jax.datasets.kitti import read_kitti_calib
+from gslam_jax.datasets.reading import read_image
 from gslam_jax.vo.estimate import Camera
 from gslam_jax.vo.features import FeatureParams
 from gslam_jax.vo.odometry import StereoVO, VOParams

@@ -16,6 +16,7 @@ import numpy as np
 
 from gslam_jax import choices
 from gslam_jax.config import Config, layered_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.driver import device_arrays, sizing
 from gslam_jax.driver.machine import environment
@@ -122,10 +123,10 @@ def print_header(overrides: list[str]) -> None:
 def cases_from_arguments(args: argparse.Namespace) -> list[tuple[str, Run, Config]]:
     """(name, Run, config) of every Run file and every simulated course and sim seed named by
     ``add_case_arguments``' options, each with the config layered for it."""
-    cases = [(str(p), load_run(p), layered_config(args.config, None, args.set))
+    cases = [(str(p), load_run(p), layered_config(args.config, None, args.set, courses=COURSES))
              for p in args.runs]
     for course in args.courses:
-        config = layered_config(args.config, course, args.set)
+        config = layered_config(args.config, course, args.set, courses=COURSES)
         for s in args.sim_seeds:
             run, _ = simulate_run(course, seed=s, params=localmap_params(config),
                                   max_frames=args.max_frames)

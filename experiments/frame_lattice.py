@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax.config import apply_overrides, layered_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.datasets.kitti import KittiParams, kitti_frontend
 from gslam_jax.run import load_run, save_run
 from gslam_jax.vo.localmap import localmap_params
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="also write every row here (JSON lines)")
     args = ap.parse_args(argv)
     print_header(args.set)
-    config = layered_config(args.config, None, args.set)
+    config = layered_config(args.config, None, args.set, courses=COURSES)
     out = args.json.open("w") if args.json else None
     for lattice in args.lattices:
         for turn in args.turns:

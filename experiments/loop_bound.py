@@ -57,6 +57,7 @@ from experiments.loop_closure import approach_frame
 from experiments.loop_paths import START_M, add_vo_arguments, circle_loop, kitti_loops, vo_noise
 from experiments.loop_summary import read_rows
 from gslam_jax.config import layered_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.datasets.sim_path import drive_path
 from gslam_jax.driver.machine import environment
 from gslam_jax.driver.sizing import motion_params
@@ -307,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     env = environment()
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)
-    config = layered_config(args.config, args.course, args.set)
+    config = layered_config(args.config, args.course, args.set, courses=COURSES)
     print("# beyond a VO miss at the approach of "
           + ", ".join(f"{largest_miss(J):.1f} m (J={J})" for J in args.particles)
           + f" no noise level gives a seed a chance of {SHARE:.0%} of a particle within "

@@ -54,6 +54,7 @@ from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop
                                    vo_noise)
 from experiments.loop_summary import VERDICTS, plot, print_summary, read_rows
 from gslam_jax.config import apply_overrides, layered_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.datasets.sim_path import simulate_path
 from gslam_jax.driver import slam
 from gslam_jax.driver.machine import environment
@@ -273,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     env = environment()
     config = scaled_alphas(layered_config(args.config, args.course,
-                                          args.set + [f"map.store={args.store}"]),
+                                          args.set + [f"map.store={args.store}"], courses=COURSES),
                            args.noise_scale)
     noise = vo_noise(args.course, args.vo_scale, args.vo_failures)
     print(f"# {env['date']} | {env['cpus']} cpus | jax {env['jax']}", flush=True)

@@ -30,6 +30,7 @@ from experiments.loop_paths import (START_M, Loop, add_vo_arguments, circle_loop
 from gslam_jax.config import Config, layered_config
 from gslam_jax.driver import slam
 from gslam_jax.evaluation import loops
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.gridmap import turn_poses
 from gslam_jax.gridmap.grid import arc_length
 from gslam_jax.run import Run
@@ -106,7 +107,7 @@ def simulated_loop(args: argparse.Namespace) -> tuple[Loop, Run, Config]:
     ``--vo-failures`` and ``--noise-scale``."""
     config = scaled_alphas(layered_config(args.config, args.course,
                                           ["map.store=auto", f"filter.seed={args.seed}"]
-                                          + args.set), args.noise_scale)
+                                          + args.set, courses=COURSES), args.noise_scale)
     noise = vo_noise(args.course, args.vo_scale, args.vo_failures)
     with tempfile.TemporaryDirectory() as tmp:
         if args.kitti is None:

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax.config import Config, config_to_toml, layered_config, parse_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.driver import slam
 from gslam_jax.driver.machine import environment
@@ -234,7 +235,7 @@ def main(argv: list[str] | None = None) -> dict:
     maps = {}
     cache = Path(args.cache) if args.cache else None
     for course in args.courses:
-        config = layered_config(args.config, course, args.set)
+        config = layered_config(args.config, course, args.set, courses=COURSES)
         a = _cached(cache, f"{course}-a", config,
                     lambda: _run_maps(course, None, None, config, 1000))
         g0, size = a["g0"], float(a["size"])

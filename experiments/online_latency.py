@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax.config import layered_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.driver import slam
 from gslam_jax.driver.machine import environment
@@ -58,7 +59,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     config = layered_config(args.config, args.course,  # with the course's own tables
                             [f"filter.particles={args.particles}", f"map.store={args.store}",
-                             *args.set])
+                             *args.set], courses=COURSES)
     run, _ = simulate_run(args.course, seed=args.seed, params=localmap_params(config),
                           max_frames=args.frames or None)
     # with --batch, the batch run's map extent, so that the two differ only in the filter

@@ -60,6 +60,7 @@ from experiments.pose_grid import (  # noqa: F401  (the experiment's API)
 )
 from gslam_jax import rbpf
 from gslam_jax.config import Config, apply_overrides, layered_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.datasets.sim import simulate_run
 from gslam_jax.driver import observations, sizing
 from gslam_jax.driver.machine import environment
@@ -331,10 +332,10 @@ def main(argv: list[str] | None = None) -> int:
     grid = offset_grid(args.span_m, args.step_m, args.span_rad, args.step_rad)
     print(f"# grid {len(grid.along)} x {len(grid.across)} x {len(grid.heading)}: "
           f"+-{grid.along[-1]:.3g} m, +-{grid.heading[-1]:.3g} rad", flush=True)
-    cases = [(str(p), load_run(p), layered_config(args.config, None, args.set))
+    cases = [(str(p), load_run(p), layered_config(args.config, None, args.set, courses=COURSES))
              for p in args.run]
     for course in args.course:
-        config = layered_config(args.config, course, args.set)
+        config = layered_config(args.config, course, args.set, courses=COURSES)
         for s in args.sim_seed:
             run = _sim(course, s, config, args.max_frames, args.vo_noise_scale,
                        args.disparity_std)

@@ -46,7 +46,7 @@ def make_b(course: str, seed: int, noise_seed: int, max_frames: int | None, path
     from gslam_jax.config import layered_config
     from gslam_jax.datasets.sim import drive_course, sense_run
     from gslam_jax.run import save_run
-    from gslam_jax.sim.courses import make_course
+    from gslam_jax.sim.courses import COURSES, make_course
     from gslam_jax.sim.environments import world_for_course
     from gslam_jax.sim.vonoise import VO_PROFILES
     from gslam_jax.vo.localmap import localmap_params
@@ -54,7 +54,7 @@ def make_b(course: str, seed: int, noise_seed: int, max_frames: int | None, path
     odo = drive_course(make_course(course, seed), noise_seed, VO_PROFILES[course],
                        max_frames=max_frames)
     world = world_for_course(odo.course, seed)
-    params = localmap_params(layered_config(config, course), "points")
+    params = localmap_params(layered_config(config, course, courses=COURSES), "points")
     run, _ = sense_run(odo, world, noise_seed, params)
     save_run(path, run)
 
@@ -79,6 +79,7 @@ def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
     ``config``: a TOML config of every run, its course tables resolved for ``course`` (None:
     the defaults); ``overrides``: ``section.key=value`` settings of every run, over it."""
     from gslam_jax.config import config_to_toml, layered_config
+    from gslam_jax.sim.courses import COURSES
     from gslam_jax.run import load_run
 
     d = out / f"{course}-{seed}"
@@ -91,7 +92,8 @@ def one(course: str, seed: int, out: Path, max_frames: int | None, sigma: str,
     resolved = None
     if config is not None or overrides:  # this course's config: every run reads one file
         resolved = d / "config.toml"
-        resolved.write_text(config_to_toml(layered_config(config, course, list(overrides))))
+        resolved.write_text(config_to_toml(layered_config(config, course, list(overrides),
+                                                          courses=COURSES)))
     common = [] if resolved is None else ["--config", str(resolved)]
     t0 = time.perf_counter()
     a = gslam(["run", "--course", course, "--seed", str(seed), *frames, *common,

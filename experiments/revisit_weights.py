@@ -40,6 +40,7 @@ from scipy.stats import spearmanr
 
 from experiments.loop_paths import START_M, circle_file
 from gslam_jax.config import apply_overrides, layered_config
+from gslam_jax.sim.courses import COURSES
 from gslam_jax.datasets.sim_path import simulate_path
 from gslam_jax.driver import slam
 from gslam_jax.driver.machine import environment
@@ -160,7 +161,7 @@ def main(argv: list[str] | None = None) -> None:
 
     folder = Path(tempfile.mkdtemp())
     loop_file = circle_file(folder, args.circle, 20.0)
-    config = layered_config(args.config, args.course, args.set)
+    config = layered_config(args.config, args.course, args.set, courses=COURSES)
     config = apply_overrides(config, [f"map.margin={max(config.map.margin, 0.1 * args.circle):g}"])
     print(environment())
     out = []

@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from gslam_jax.config import Config, ConfigError, apply_overrides, config_to_toml, load_config
+from gslam_jax.sim.courses import COURSES
 
 
 def test_defaults_are_the_papers():
@@ -65,7 +66,7 @@ def test_shipped_configs_load():
         if "space" in data:
             load_space(path)
         elif "course" in data:
-            load_table_config(path)
+            load_table_config(path, COURSES)
         else:
             load_config(path)
 
@@ -76,7 +77,7 @@ def test_table1_per_course_sections_override_only_their_course(tmp_path):
     path = tmp_path / "t.toml"
     path.write_text("[filter]\nparticles = 50\n[motion]\nalpha_d = 0.04\n"
                     "[course.mars-yard-b.motion]\nalpha_theta_d = 0.03\n")
-    shared, per_course = load_table_config(path)
+    shared, per_course = load_table_config(path, COURSES)
     assert shared.motion.alpha_d == 0.04 and shared.motion.alpha_theta_d == 0.01
     b = per_course["mars-yard-b"]
     assert (b.motion.alpha_d, b.motion.alpha_theta_d, b.filter.particles) == (0.04, 0.03, 50)
@@ -94,7 +95,7 @@ def test_table1_bad_course_sections_are_named(tmp_path, text, named):
     path = tmp_path / "t.toml"
     path.write_text(text)
     with pytest.raises(ConfigError, match=re.escape(named)):
-        load_table_config(path)
+        load_table_config(path, COURSES)
 
 
 PAPER = Path(__file__).resolve().parents[2] / "shared" / "paper" / "gamma-slam-jfr2009.txt"
@@ -139,3 +140,182 @@ def test_a_coarse_resolution_is_refused_before_the_run(tmp_path, capsys, monkeyp
     err = capsys.readouterr().err
     assert "gslam: error: [map] resolution 50 m against [localmap] max_range 10 m" in err
     assert not (tmp_path / "o").exists()
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _section_changes(a: Config, b: Config) -> dict[str, tuple]:
+    """``"section.key"`` -> (a's value, b's value) where the two configs differ."""
+    import dataclasses
+
+    return {f"{name}.{key}": (getattr(getattr(a, name), key), getattr(getattr(b, name), key))
+            for name in dataclasses.asdict(a)
+            for key in dataclasses.asdict(getattr(a, name))
+            if getattr(getattr(a, name), key) != getattr(getattr(b, name), key)}
+
+
+def test_gslam_config_comments_every_key_and_reads_back(capsys):
+    """``gslam config`` prints every key with a one-line comment from its declaration, and the
+    text parses back (TOML) to the same config, for the defaults and for a changed one."""
+    import dataclasses
+    import tomllib
+
+    from gslam_jax.app.cli import main
+    from gslam_jax.config import parse_config
+
+    for sets in ([], ["filter.particles=50", "rig.matrix=[[1,0,0,0],[0,1,0,0],[0,0,1,0],"
+                      "[0,0,0,1]]", "stereo.algorithm=bm", "filter.estimate=best"]):
+        assert main(["config", *[a for s in sets for a in ("--set", s)]]) == 0
+        text = capsys.readouterr().out
+        expected = apply_overrides(Config(), sets)
+        assert parse_config(tomllib.loads(text), "<gslam config>") == expected
+        keys = {}
+        section = None
+        for line in text.splitlines():
+            if not line or line.startswith("#"):
+                continue
+            if line.startswith("["):
+                section = line.strip("[]")
+                continue
+            key, rest = line.split(" = ", 1)
+            assert "  # " in rest, line
+            keys[f"{section}.{key}"] = rest.split("  # ", 1)[1]
+        every = {f"{s}.{k}" for s, sec in dataclasses.asdict(Config()).items() for k in sec}
+        assert set(keys) == every
+        assert all(len(comment) > 10 for comment in keys.values())
+    # what 0 or "" means, for the keys where it means "automatic" or "the source's own"
+    assert "0: automatic" in keys["filter.ess_target"]
+    assert "0: the source's" in keys["stereo.num_disparities"]
+    assert '"": the source\'s' in keys["stereo.algorithm"]
+    assert "0: the source's own" in keys["rig.height"] and "metres" in keys["rig.height"]
+    assert "the paper's: \"fixed\"" in keys["filter.tempering"]
+
+
+def test_documented_differences_from_the_paper_are_the_actual_ones():
+    """docs/configuration.md's table of the defaults that are not the paper's is the difference
+    between the defaults and configs/paper.toml, the declarations' ``paper`` values and the
+    list ``gslam run --help`` gives."""
+    import tomllib
+
+    from gslam_jax.app.cli import build_parser
+    from gslam_jax.config import paper_differences
+
+    actual = _section_changes(Config(), load_config(ROOT / "configs" / "paper.toml"))
+    assert len(actual) == 5
+    text = (ROOT / "docs" / "configuration.md").read_text()
+    table = text.split("| key | default | the paper's |", 1)[1].split("\n\n", 1)[0]
+    rows = re.findall(r"^\| `(\w+\.\w+)` \| `([^`]*)` \| `([^`]*)` \|$", table, re.MULTILINE)
+    documented = {key: (tomllib.loads(f"v = {d}")["v"], tomllib.loads(f"v = {p}")["v"])
+                  for key, d, p in rows}
+    assert documented == actual
+    assert paper_differences() == actual
+    parser = build_parser()
+    run = next(a for a in parser._actions if a.choices and "run" in a.choices).choices["run"]
+    help_text = " ".join(run.format_help().split())
+    listed = re.search(r"configs/paper\.toml, except ([\w., ]+)\)", help_text)[1]
+    assert set(listed.replace(" ", "").split(",")) == set(actual)
+
+
+def test_the_filter_config_is_built_from_the_settings_by_their_keys():
+    """Every field of ``rbpf.FilterConfig`` is a config setting's (``CONFIG_KEYS``, found by
+    name) or sized from the run (``GIVEN_FIELDS``); ``from_config`` carries every setting, and
+    the filter's defaults are the settings' (an automatic one resolved as for no sensor)."""
+    import dataclasses
+
+    from gslam_jax import choices
+    from gslam_jax.config.sections import SECTION_TYPES
+    from gslam_jax.config.setting import UNSET, setting_of
+    from gslam_jax.rbpf.types import CONFIG_KEYS, GIVEN_FIELDS, FilterConfig
+
+    assert set(CONFIG_KEYS).isdisjoint(GIVEN_FIELDS)
+    assert set(CONFIG_KEYS) | set(GIVEN_FIELDS) == set(FilterConfig._fields)
+    assert len(CONFIG_KEYS) == 20
+    changed = {"particles": 9, "resampler": "systematic", "resample_ratio": 0.3,
+               "unknown_cells": "sample", "unknown_samples": 77, "particle_block": 3,
+               "tempering": "fixed", "ess_target": 0.7, "proposal": "informed",
+               "proposal_points": 5, "proposal_span": 1.5, "proposal_stages": 3,
+               "proposal_cell_stride": 4, "proposal_exponent": "normaliser",
+               "proposal_draws": "antithetic", "resolution": 0.2, "store": "shared", "tile": 16,
+               "pool_tiles": 900, "noise_spread": 3.0}
+    config = Config()
+    for field, (section, key) in CONFIG_KEYS.items():
+        value = changed[key]
+        assert value != getattr(getattr(config, section), key), key
+        config = dataclasses.replace(config, **{section: dataclasses.replace(
+            getattr(config, section), **{key: value})})
+    cfg = FilterConfig.from_config(config.validate(), map_shape=(64, 64), map_origin=(0.0, 0.0),
+                                   local_size=8).validate()
+    for field, (section, key) in CONFIG_KEYS.items():
+        assert getattr(cfg, field) == changed[key], field
+    bare = FilterConfig(1, (64, 64), (0.0, 0.0), 0.16, 8)
+    automatic = {"ess_target": choices.AUTO_ESS_TARGET["points"],
+                 "proposal_draws": choices.AUTO_PROPOSAL_DRAWS["points"]}
+    for field, (section, key) in CONFIG_KEYS.items():
+        if field in ("num_particles", "resolution"):
+            continue  # no default: given
+        default = getattr(SECTION_TYPES[section](), key)
+        if setting_of(SECTION_TYPES[section], key).resolved is not UNSET and \
+                default == setting_of(SECTION_TYPES[section], key).resolved:
+            default = automatic[field]
+        assert getattr(bare, field) == default, field
+
+
+_CANDIDATES = {int: [-1, 0, 1, 2, 3, 4, 7, 8, 12, 16, 32, 1000, 1001, 2 ** 32],
+               float: [-1.0, 0.0, 0.25, 0.5, 1.0, 1.5, 4.5, 1000.0, 1001.0],
+               str: ["other", "", "auto", "dense", "shared", "motion", "informed",
+                     "independent", "antithetic", "fixed", "adaptive", "prior", "normaliser",
+                     "multinomial", "systematic", "ignore", "sample"]}
+
+
+def test_the_config_and_the_filter_refuse_the_same_values():
+    """One rule per setting: for every setting the filter's static config takes, a value is
+    refused by ``rbpf.FilterConfig.validate`` exactly when the config refuses it (or it is the
+    automatic value the host resolves before), each naming the setting; and every rule refuses
+    some value tried here."""
+    import dataclasses
+
+    from gslam_jax.config.sections import SECTION_TYPES
+    from gslam_jax.config.setting import setting_of
+    from gslam_jax.rbpf.types import CONFIG_KEYS, FilterConfig
+
+    base = FilterConfig(4, (64, 64), (0.0, 0.0), 0.16, 8).validate()
+    for field, (section, key) in CONFIG_KEYS.items():
+        rule = setting_of(SECTION_TYPES[section], key)
+        kind = type(getattr(Config(), section).__getattribute__(key))
+        refused = 0
+        for value in _CANDIDATES[kind]:
+            try:
+                dataclasses.replace(Config(), **{section: dataclasses.replace(
+                    getattr(Config(), section), **{key: value})}).validate()
+                config_ok = True
+            except ConfigError as err:
+                assert f"[{section}] {key} " in str(err)
+                config_ok = False
+            try:
+                base._replace(**{field: value}).validate()
+                filter_ok = True
+            except ValueError as err:
+                assert str(err).startswith(f"{field} "), (field, value, err)
+                filter_ok = False
+            assert filter_ok == (config_ok and value != rule.resolved), (field, value)
+            refused += not config_ok
+        assert refused, f"no value tried here breaks [{section}] {key}'s rule: add one"
+
+
+def test_course_tables_need_the_course_names_given():
+    """The config layer knows no course names: the caller passes them (``sim.courses``)."""
+    from gslam_jax.config import load_table_config
+
+    path = ROOT / "configs" / "table1.toml"
+    with pytest.raises(ConfigError, match=r"unknown course \[course\.\S+\]; known courses: none"):
+        load_table_config(path)
+    assert set(load_table_config(path, COURSES)[1]) <= set(COURSES)
+
+
+def test_every_proposal_has_one_rule():
+    """``rbpf.proposal.select`` knows every ``[filter] proposal`` value, and only those."""
+    from gslam_jax import choices
+    from gslam_jax.rbpf import proposal
+
+    assert tuple(proposal.RULES) == choices.PROPOSALS

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gslam_jax.datasets.euroc import EurocParams, euroc_frontend, euroc_rig, read_sensor_yaml
-from gslam_jax.datasets.kitti import read_image
+from gslam_jax.datasets.reading import read_image
 from gslam_jax.vo.calib import CalibrationError
 from gslam_jax.vo.frontend import FrontEndParams
 from gslam_jax.vo.geometry import invert, rotation_angle

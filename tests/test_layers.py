@@ -16,7 +16,7 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "gslam_jax"
 
 LAYERS = {
-    "errors": 0, "choices": 0, "io": 0, "sim.courses": 0, "version": 0,
+    "errors": 0, "choices": 0, "io": 0, "version": 0,
     "config": 1,
     "rbpf": 2, "run": 2,
     "vo": 3, "tiled": 3, "gridmap": 3,
@@ -82,7 +82,7 @@ def test_imports_only_go_down_the_layers():
         for target in imported:
             other = _room(target)
             if other == room or other.startswith(room + ".") or room.startswith(other + "."):
-                continue  # within one room (sim.courses belongs to the simulator's package)
+                continue  # within one room
             if LAYERS[other] >= LAYERS[room]:
                 wrong.append(f"{module} ({room}, layer {LAYERS[room]}) imports {target} "
                              f"({other}, layer {LAYERS[other]})")

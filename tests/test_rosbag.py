@@ -20,10 +20,10 @@ from bagwriter import BagWriter  # noqa: E402
 
 from gslam_jax.app.cli import main  # noqa: E402
 from gslam_jax.config import Config, ConfigError, apply_overrides  # noqa: E402
-from gslam_jax.datasets.euroc import (EurocParams, euroc_frontend, quat_to_matrix,  # noqa: E402
-                                      read_sensor_yaml)
+from gslam_jax.datasets.euroc import EurocParams, euroc_frontend, read_sensor_yaml  # noqa: E402
 from gslam_jax.datasets.kitti import KittiParams, kitti_frontend, read_kitti_poses  # noqa: E402
 from gslam_jax.datasets.mount import camera_mount  # noqa: E402
+from gslam_jax.datasets.reading import quat_to_matrix  # noqa: E402
 from gslam_jax.datasets.rosbag import (MissingExtraError, RosbagParams,  # noqa: E402
                                        rosbag_frontend)
 from gslam_jax.datasets.rosbag_msgs import TfTree  # noqa: E402

@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from gslam_jax.datasets.kitti import read_image, read_kitti_calib, read_kitti_poses
+from gslam_jax.datasets.kitti import read_kitti_calib, read_kitti_poses
+from gslam_jax.datasets.reading import read_image
 from gslam_jax.vo.estimate import Camera
 from gslam_jax.vo.geometry import invert, rotation_angle
 from gslam_jax.vo.odometry import StereoVO

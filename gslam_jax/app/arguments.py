@@ -12,7 +12,7 @@ from pathlib import Path
 
 from gslam_jax import choices
 from gslam_jax.app.progress import ProgressBar
-from gslam_jax.config import ConfigError
+from gslam_jax.config import ConfigError, paper_differences
 from gslam_jax.datasets.registry import Source, get_source, source_names
 from gslam_jax.sim.courses import COURSES
 
@@ -130,7 +130,7 @@ def load_config(args: argparse.Namespace):
     from gslam_jax.config import layered_config
 
     simulated = getattr(args, "run_file", None) is None and get_source(args.source).simulated
-    return layered_config(args.config, args.course if simulated else None, args.set)
+    return layered_config(args.config, args.course if simulated else None, args.set, COURSES)
 
 
 def config_and_run(args: argparse.Namespace):
@@ -177,6 +177,7 @@ def add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--on-bad-frame", choices=choices.BAD_FRAME_POLICIES, default="error",
                    help="a missing/corrupt image stops the run (error) or is counted and bridged "
                    "by the fallback odometry")
-    p.add_argument("--config", type=Path, help="TOML config (defaults: the paper's settings)")
+    p.add_argument("--config", type=Path, help="TOML config (defaults: the paper's settings, "
+                   "configs/paper.toml, except " + ", ".join(paper_differences()) + ")")
     p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
                    help="override one config value (repeatable)")

@@ -68,7 +68,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from gslam_jax.app.compare import compare
 
     # A Table I config works too: its shared settings are used, its [course.*] tables are not.
-    config, per_course = load_table_config(args.config)
+    config, per_course = load_table_config(args.config, COURSES)
     if per_course:
         print(f"note: {args.config}: compare uses the shared settings; the [course.<name>.*] "
               f"tables ({', '.join(per_course)}) are not applied")

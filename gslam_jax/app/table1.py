@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from gslam_jax.app.outfile import check_output_file, write_text_atomic
-from gslam_jax.config import Config, ConfigError, apply_overrides, config_to_toml, load_table_config
+from gslam_jax.config import (Config, ConfigError, apply_overrides, config_to_toml,
+                              load_table_config)
 from gslam_jax.driver import slam
 from gslam_jax.evaluation import metrics
+from gslam_jax.sim.courses import COURSES
 
 __all__ = ["PAPER_TABLE1", "run_course", "main"]
 
@@ -59,7 +61,7 @@ def main(courses: list[str], seeds: list[int], particles: int | None = None,
     from gslam_jax.app.pipeline import Source, check_inputs
     from gslam_jax.driver.machine import environment
 
-    shared, per_course = load_table_config(config_path)
+    shared, per_course = load_table_config(config_path, COURSES)
     if quick:
         courses, seeds = ["mars-yard-a"], [0]
 

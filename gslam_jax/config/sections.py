@@ -1,96 +1,120 @@
-"""The settings: one frozen dataclass per TOML section, with the paper's values as defaults,
+"""The settings: one frozen dataclass per TOML section, each field a setting declared once
+(``setting``: default, one-line meaning, rule, the paper's value where the default differs),
 and ``Config.validate``, whose errors name the source, section and key. Enumerated settings
-take their allowed values from ``choices``."""
+take their allowed values from ``choices``; why each default is what it is:
+docs/appendix/settings-rationale.md."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
 from gslam_jax import choices
+from gslam_jax.config.setting import UNSET, setting, settings_of
 from gslam_jax.errors import InputError
 
 __all__ = ["ConfigError", "FilterSection", "MotionSection", "MapSection", "LocalMapSection",
-           "StereoSection", "RigSection", "Config", "SECTION_TYPES"]
+           "StereoSection", "RigSection", "Config", "SECTION_TYPES", "paper_differences"]
 
 
 class ConfigError(InputError):
     """A configuration problem; the message names the file, section and key."""
 
 
+def _at_least(low: int) -> Callable[[Any], bool]:
+    return lambda v: v >= low
+
+
+def _positive(v: float) -> bool:
+    return v > 0
+
+
+def _non_negative(v: float) -> bool:
+    return v >= 0
+
+
 @dataclass(frozen=True)
 class FilterSection:
     """Particle filter (paper 6.1-6.2)."""
 
-    particles: int = 200
-    resampler: str = "multinomial"
-    resample_ratio: float = 0.5
-    # eq. 30 ("ignore"), as the paper ran the Mars Yard courses; "sample" is eq. 31 (an unknown
-    # cell scored against a random known cell), which closes long loops more often but was no
-    # better on the simulator's courses (it broke one of five default maze runs) and is 2-3x
-    # slower per run (docs/results.md, "Unknown cells: eq. 30 against eq. 31").
-    unknown_cells: str = "ignore"
-    unknown_samples: int = 1024
-    beta_prev: float = 0.05
-    beta_new: float = 0.05
-    # "fixed": every update's log importance factors tempered by beta alone, as in the paper;
-    # "adaptive": also by the largest exponent <= 1 that keeps the conditional ESS of the
-    # update at ess_target * J (adaptive SMC, gslam_jax/rbpf/tempering.py). Adaptive
-    # is the default: the paper's beta collapsed the particles on real stereo, and on the
-    # simulated Table I courses adaptive was within 2% of fixed or better (docs/results.md)
-    tempering: str = "adaptive"
-    # 0: automatic, by how the run's local maps were made (``choices.AUTO_ESS_TARGET``): 0.5
-    # for the simulator's point sensor, 0.99 for stereo, whose correlated cells make eq. 26
-    # overconfident (0.5 resampled at every update on KITTI and rendered stereo, and the
-    # filter was worse than VO-only with the default motion noise; docs/real-data.md)
-    ess_target: float = 0.0
-    # the reported trajectory (slam.SlamResult.path): "best", the final best particle's path
-    # through its ancestry (the paper); "mean", each frame's weighted mean pose (filtering);
-    # "smoothed", the final weights' mean over every final particle's ancestral path (the
-    # default until 2026-12-05); "steps", the path of those paths' mean steps
-    # (rbpf.smoothed_step_path; the default until 2026-12-06): the same on the simulator's
-    # Table I (within 0.3 mm), but where the particles' headings spread under stereo's flat
-    # weights the smoothed path comes out shorter than any particle's, a scale error that made
-    # most of the KITTI clip's gain over VO-only (docs/real-data.md, "What the gain over VO is
-    # made of"); "mode", the ancestral path of the final particle with the most weight within
-    # 1 m; "mode_mean", the smoother's mean over the final particles within 1 m of that one
-    # (rbpf.mode_mean_path); "local_steps" (default), the mean steps each weighed only by the
-    # factors of the updates whose maps reach back to it (rbpf.local_step_path): "steps" to
-    # 0.1 mm on Table I, where resampling leaves few factors to split; on stereo's flat
-    # weights it drops the Monte Carlo error of the others (docs/real-data.md, "Where the
-    # seeds' spread comes from")
-    estimate: str = "local_steps"
-    # "motion": each particle's pose drawn from the motion model alone (eq. 24, the paper);
-    # "informed": at a local map, drawn from a Gaussian fitted to its map score times its
-    # motion prior, with the exact importance weight (rbpf/proposal.py)
-    proposal: str = "motion"
-    proposal_points: int = 3    # "informed": candidates per axis of each grid (odd)
-    proposal_span: float = 2.0  # "informed": half-width of the first grid, in prior stds
-    proposal_stages: int = 2    # "informed": grids, each in the previous fit's coordinates
-    # "informed": the fit scores every n-th observed cell (as GMapping's lskip skips beams in
-    # its scan matching); the weights always use every cell
-    proposal_cell_stride: int = 1
-    # "informed" with adaptive tempering: the exponent keeps the conditional ESS of the scores
-    # spread over the motion prior ("prior") or of each particle's normaliser ("normaliser":
-    # only the spread the proposal leaves in the weights; rbpf/tempering.py)
-    proposal_exponent: str = "prior"
-    # the proposals' standard normals: "independent" per particle (the paper), or "antithetic"
-    # pairs (particle j + ceil(J/2) moves by the negated draw of particle j), so that where the
-    # weights are flat the particles' mean heading is the VO's; "auto": by the run's sensor,
-    # antithetic for stereo, independent for the simulator's point sensor
-    # (choices.AUTO_PROPOSAL_DRAWS; why: docs/real-data.md)
-    proposal_draws: str = "auto"
-    # "none": eq. 26 as in the paper; "profile": a cell seen from afar has the measurement
-    # variance of its range added to what its map cell predicts (observations.
-    # range_noise_profile, from the run's own local maps; rbpf.importance)
-    range_noise: str = "none"
-    seed: int = 0
-    # particles per pass of the update's read-weigh-write; 0: automatic (cache-sized blocks on
-    # a CPU, all particles on an accelerator; resolved on the host, sizing.filter_config)
-    particle_block: int = 0
+    particles: int = setting(200, "J, the number of particles", _at_least(1),
+                             "must be at least 1")
+    resampler: str = setting("multinomial", "resampling scheme (multinomial: the paper's)",
+                             one_of=choices.RESAMPLERS)
+    resample_ratio: float = setting(0.5, "resample when the ESS < resample_ratio * J (eq. 23)",
+                                    lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]")
+    unknown_cells: str = setting(
+        "ignore", "cells a particle's map does not know: ignore (eq. 30, the paper's) or "
+        "sample (eq. 31: scored against a random known cell of its map)",
+        one_of=choices.UNKNOWN_CELLS, note="eq. 30, eq. 31")
+    unknown_samples: int = setting(1024, "sample: known-cell draws per particle per update",
+                                   _at_least(1), "must be at least 1")
+    beta_prev: float = setting(0.05, "tempering of the map's prior cells (eqs. 29-31)",
+                               _positive, "must be positive")
+    beta_new: float = setting(0.05, "tempering of the new observation (eqs. 29-31)",
+                              _positive, "must be positive")
+    tempering: str = setting(
+        "adaptive", "fixed: the log importance factors tempered by beta alone (the paper); "
+        "adaptive: also by the largest exponent <= 1 that keeps the update's conditional ESS "
+        "at ess_target * J (rbpf.tempering)", one_of=choices.TEMPERING,
+        note="the paper's beta, or an ESS-targeted exponent on it", paper="fixed")
+    ess_target: float = setting(
+        0.0, "adaptive: the conditional-ESS fraction each update keeps; 0: automatic by the "
+        "run's sensor (" + ", ".join(f"{v:g} for {k}" for k, v in
+                                     choices.AUTO_ESS_TARGET.items()) + ")",
+        lambda v: 0.0 <= v <= 1.0, "must be in [0, 1] (0: automatic by the run's sensor)",
+        resolved=0.0)
+    estimate: str = setting(
+        "local_steps", "the reported trajectory: best (the final best particle's path, the "
+        "paper), mean (each frame's weighted mean), smoothed (the smoother's mean path), steps "
+        "(its mean steps), mode (the densest final particle's path), mode_mean (the smoother's "
+        "mean within 1 m of it), local_steps (mean steps each weighed by the updates that bear "
+        "on it)", one_of=choices.ESTIMATES,
+        note="final best particle's path, each frame's weighted mean pose, the smoother's mean "
+        "path or mean steps, the path of the final cloud's densest particle, the smoother's "
+        "mean over its 1 m neighbourhood, or mean steps each weighed by the factors that bear "
+        "on it", paper="best")
+    proposal: str = setting(
+        "motion", "motion: each pose drawn from the motion model alone (eq. 24, the paper); "
+        "informed: at a local map, from a Gaussian fitted to its map score times its motion "
+        "prior (rbpf.proposal)", one_of=choices.PROPOSALS,
+        note="the motion model alone, or informed by the local map")
+    proposal_points: int = setting(
+        3, "informed: candidates per axis of each scoring grid (odd; 1: the prior itself)",
+        lambda v: v >= 1 and v % 2 == 1, "must be odd and >= 1 (1: the prior itself)")
+    proposal_span: float = setting(
+        2.0, "informed: half-width of the first grid, in standard deviations of the prior",
+        _positive, "must be positive")
+    proposal_stages: int = setting(
+        2, "informed: grids scored, each in the coordinates of the previous fit",
+        _at_least(1), "must be at least 1")
+    proposal_cell_stride: int = setting(
+        1, "informed: the grids score every n-th observed cell (the weights use every cell)",
+        _at_least(1), "must be at least 1")
+    proposal_exponent: str = setting(
+        "prior", "informed with adaptive tempering: the exponent keeps the conditional ESS of "
+        "the scores over the motion prior (prior) or of each particle's normaliser (normaliser)",
+        one_of=choices.PROPOSAL_EXPONENTS,
+        note="the score's spread over the prior, or each particle's normaliser's")
+    proposal_draws: str = setting(
+        "auto", "the proposals' standard normals: independent per particle (the paper) or "
+        "antithetic pairs; auto: by the run's sensor (" + ", ".join(
+            f"{v} for {k}" for k, v in choices.AUTO_PROPOSAL_DRAWS.items()) + ")",
+        one_of=choices.PROPOSAL_DRAWS, resolved="auto", paper="independent")
+    range_noise: str = setting(
+        "none", "none: eq. 26 as in the paper; profile: the measurement variance of a cell's "
+        "range, estimated from the run's local maps, added to what its map cell predicts",
+        one_of=choices.RANGE_NOISE)
+    seed: int = setting(0, "PRNG seed of the filter", lambda v: 0 <= v < 2 ** 32,
+                        "must be in [0, 2**32), got {value}")
+    particle_block: int = setting(
+        0, "particles per pass of the update's read-weigh-write; 0: automatic (cache-sized "
+        "blocks on a CPU, all particles on an accelerator)", _non_negative,
+        "must be >= 0 (0: automatic)")
 
 
 @dataclass(frozen=True)
@@ -98,55 +122,77 @@ class MotionSection:
     """VO error constants of eqs. 2-3, the cross-track one, and the fallback odometry's scale
     on them (``rbpf.motion``)."""
 
-    alpha_d: float = 0.05
-    alpha_theta_d: float = 0.01
-    alpha_theta: float = 0.05
-    # cross-track std per metre travelled (rbpf.motion); 0: the paper's eq. 1, which has none
-    alpha_cross: float = 0.0
-    # every std above times this on frames whose control came from the fallback odometry
-    # (Run.vo_failed: wheels and IMU where VO failed, "less accurate than those from VO",
-    # paper 4); 1: weighed as VO
-    fallback_scale: float = 1.0
-    # The particles' own motion noise: each particle's stds are the ones above times its own
-    # factor, spread over (1 / noise_spread, noise_spread) at the start, half of them near 1,
-    # and resampled with it, so the filter weighs noise levels as it weighs poses
-    # (rbpf.motion.particle_scales); 1: every particle the alphas above (the paper)
-    noise_spread: float = 1.0
+    alpha_d: float = setting(0.05, "along-track noise std per metre travelled (eq. 2)",
+                             _non_negative, "must be non-negative")
+    alpha_theta_d: float = setting(0.01, "heading noise std, rad per metre travelled (eq. 3)",
+                                   _non_negative, "must be non-negative")
+    alpha_theta: float = setting(0.05, "heading noise std per radian turned (eq. 3)",
+                                 _non_negative, "must be non-negative")
+    alpha_cross: float = setting(
+        0.0, "cross-track noise std per metre travelled; 0: none, the paper's eq. 1",
+        _non_negative, "must be non-negative")
+    fallback_scale: float = setting(
+        1.0, "every std above times this on frames whose control came from the fallback "
+        "odometry (Run.vo_failed); 1: weighed as VO", lambda v: 0 < v <= 1000,
+        "must be in (0, 1000] (1: the fallback's frames weighed as VO's)")
+    noise_spread: float = setting(
+        1.0, "> 1: each particle its own factor on the stds above, spread over "
+        "(1 / noise_spread, noise_spread) and resampled with it; 1: every particle the alphas "
+        "above (the paper)", lambda v: 1 <= v <= 1000,
+        "must be in [1, 1000] (1: every particle the alphas given)")
 
 
 @dataclass(frozen=True)
 class MapSection:
     """Global variance grid map."""
 
-    resolution: float = 0.16
-    margin: float = 10.0
-    min_variance: float = 1e-6
-    # degrees of freedom per local-map cell as a fraction of n - 1 (cells.obs_from_stats)
-    obs_weight: float = 1.0
-    min_points: int = 2  # heights a local-map cell needs to be used (at least 2)
-    # Particle map storage: "dense" (a whole map per particle), "shared" (copy-on-write tiles
-    # of tile x tile cells in a pool of pool_tiles tiles; 0: sized automatically) or "auto"
-    # (dense when it fits in memory, shared otherwise); rbpf.tilestore.
-    store: str = "dense"
-    tile: int = 32
-    pool_tiles: int = 0
-    # The lattice's axes: the robot's at its start pose ("start": the filter runs on those axes
-    # and turns its paths back; the map keeps them, map.npz's heading), so the result does not
-    # depend on the angle of the frame the run is given in; or the frame's ("frame": the
-    # paper's, and the default before; e.g. a map on a GPS frame's axes). choices.MAP_AXES
-    axes: str = "start"
+    resolution: float = setting(0.16, "cell side, metres (a Run file's must equal it)",
+                                _positive, "must be positive")
+    margin: float = setting(10.0, "metres added around the VO path's extent for drift",
+                            _non_negative, "must be non-negative")
+    # S = 0 with k > 0 would make log S = -inf and every log weight NaN
+    min_variance: float = setting(1e-6, "floor of S / k, m^2", _positive,
+                                  "must be positive (a floor of S / k)")
+    obs_weight: float = setting(
+        1.0, "degrees of freedom per local-map cell as a fraction of n - 1 (1: independent "
+        "heights, the paper; cells.obs_from_stats)", _positive, "must be positive")
+    min_points: int = setting(2, "heights a local-map cell needs to be used (at least 2)",
+                              _at_least(2), "must be at least 2")
+    store: str = setting(
+        "dense", "particle maps: dense (a whole map per particle), shared (copy-on-write tiles "
+        "in one pool) or auto (dense when it fits in memory, shared otherwise)",
+        one_of=choices.MAP_STORES, resolved="auto")
+    tile: int = setting(32, "shared store: tile side, cells (a multiple of 8)",
+                        lambda v: v >= 8 and v % 8 == 0, "must be a positive multiple of 8")
+    pool_tiles: int = setting(0, "shared store: tiles in the pool; 0: automatic, grown as the "
+                              "run needs", _non_negative, "must be >= 0 (0: automatic)")
+    axes: str = setting(
+        "start", "the map lattice's axes: start (the robot's at its start pose, the result "
+        "independent of the run frame's angle) or frame (the run frame's, the paper's)",
+        one_of=choices.MAP_AXES, note="the run's frame's axes, or the robot's at its start",
+        paper="frame")
 
 
 @dataclass(frozen=True)
 class LocalMapSection:
     """Local-map observations (paper 6.3); see localmap.LocalMapParams."""
 
-    max_range: float = 10.0
-    min_height: float = -2.0
-    max_height: float = 2.0
-    travel: float = 2.0
-    cells: int = 0
-    lattice: str = "auto"
+    max_range: float = setting(10.0, "range gate, metres (the paper: 5 or 10)", _positive,
+                               "must be positive")
+    min_height: float = setting(-2.0, "lowest point height kept, metres (below max_height)")
+    max_height: float = setting(2.0, "highest point height kept, metres; points above are "
+                                "overhangs")
+    travel: float = setting(2.0, "metres of travel fused into one local map", _positive,
+                            "must be positive")
+    cells: int = setting(0, "local map side, cells (even); 0: the smallest multiple of 8 "
+                         "covering max_range", lambda v: v >= 0 and v % 2 == 0,
+                         "must be even and >= 0")
+    lattice: str = setting(
+        "auto", "the axes local maps are binned on: robot (the robot's, the paper's), map (the "
+        "map's at the VO pose) or auto (by the sensor: " + ", ".join(
+            f"{v} for {k}" for k, v in choices.AUTO_LOCALMAP_LATTICE.items()) + ")",
+        one_of=choices.LOCALMAP_LATTICES,
+        note="the robot's axes, the map's at the VO pose, or by the sensor", paper="robot")
 
 
 def _given_keys(section: object) -> list[str]:
@@ -157,18 +203,34 @@ def _given_keys(section: object) -> list[str]:
 
 @dataclass(frozen=True)
 class StereoSection:
-    """Dense stereo of the image sources (sim-stereo, kitti, euroc; vo.stereo.DenseStereoParams).
-    0 or "" keeps the source's own setting (64 disparities, KITTI 128; block 5; stride 2;
-    "sgbm"; every point, whatever its depth error; 0.25 px of disparity noise; points at depth
-    edges dropped where a 5 x 5 window spans over half the pixel's disparity)."""
+    """Dense stereo of the image sources (sim-stereo, kitti, euroc;
+    vo.stereo.DenseStereoParams). 0 or "" keeps the source's own setting."""
 
-    num_disparities: int = 0
-    block: int = 0
-    stride: int = 0
-    algorithm: str = ""
-    max_depth_error: float = 0.0
-    disparity_std: float = 0.0
-    edge_ratio: float = 0.0
+    num_disparities: int = setting(
+        0, "dense stereo search range, pixels (a multiple of 16); 0: the source's (64; KITTI "
+        "128)", lambda v: v >= 0 and v % 16 == 0,
+        "must be a multiple of 16 (0: the source's default)")
+    block: int = setting(0, "SGBM window side, pixels (odd); 0: the source's (5)",
+                         lambda v: v == 0 or (v >= 1 and v % 2 == 1),
+                         "must be odd (0: the source's default)")
+    stride: int = setting(0, "every stride-th pixel made a point; 0: the source's (2)",
+                          _non_negative, "must be >= 0 (0: the source's default)")
+    algorithm: str = setting(
+        "", "stereo matcher, " + " or ".join(choices.STEREO_ALGORITHMS) + "; \"\": the "
+        "source's (sgbm)", lambda v: v in ("", *choices.STEREO_ALGORITHMS),
+        f"must be one of {', '.join(choices.STEREO_ALGORITHMS)} (\"\": the source's default)")
+    max_depth_error: float = setting(
+        0.0, "metres: no point whose depth error (to first order in the measured disparity "
+        "noise) exceeds it; 0: the source's (no limit)", _non_negative,
+        "must be >= 0 (0: the source's default)")
+    disparity_std: float = setting(
+        0.0, "pixels of disparity noise max_depth_error assumes until measured; 0: the "
+        "source's (0.25)", lambda v: 0 <= v <= 4,
+        "must be in [0, 4] px (0: the source's default; SGBM's is 0.1-1 px)")
+    edge_ratio: float = setting(
+        0.0, "no point of a pixel whose 5 x 5 disparities span more than this fraction of its "
+        "own (depth edges); 0: the source's (0.5)", _non_negative,
+        "must be >= 0 (0: the source's default)")
 
     def is_default(self) -> bool:
         return self == StereoSection()
@@ -182,19 +244,26 @@ class StereoSection:
 class RigSection:
     """The camera mount of the image sources (kitti, euroc, sim-stereo, stereo;
     ``datasets.mount.camera_mount``): the left camera on the robot (x forward, y left, z up,
-    origin on the ground under the robot). ``height`` (m, camera above the ground), ``pitch``
-    (deg, nose down positive), ``roll`` (deg, about the forward axis, right side down
-    positive), ``yaw`` (deg, left positive), ``forward`` and ``lateral`` (m, robot x and y);
-    or ``matrix``, the full 4x4 camera-to-robot transform (16 numbers, or 4 rows of 4), not
-    both. 0 or empty keeps the source's own value (KITTI: 1.65 m, level)."""
+    origin on the ground under the robot), by its values or by ``matrix``, not both. 0 or
+    empty keeps the source's own value (KITTI: 1.65 m, level)."""
 
-    height: float = 0.0
-    pitch: float = 0.0
-    roll: float = 0.0
-    yaw: float = 0.0
-    forward: float = 0.0
-    lateral: float = 0.0
-    matrix: tuple[float, ...] = ()
+    height: float = setting(0.0, "metres of the camera above the ground; 0: the source's own",
+                            _non_negative, "must be >= 0 (0: the source's own)")
+    pitch: float = setting(0.0, "degrees, nose down positive, in [-90, 90]; 0: the source's "
+                           "own", lambda v: abs(v) <= 90,
+                           "must be in [-90, 90] degrees (0: the source's own)")
+    roll: float = setting(0.0, "degrees about the forward axis, right side down positive; 0: "
+                          "the source's own", lambda v: abs(v) <= 180,
+                          "must be in [-180, 180] degrees (0: the source's own)")
+    yaw: float = setting(0.0, "degrees, left positive; 0: the source's own",
+                         lambda v: abs(v) <= 180,
+                         "must be in [-180, 180] degrees (0: the source's own)")
+    forward: float = setting(0.0, "metres along the robot's x axis; 0: the source's own")
+    lateral: float = setting(0.0, "metres along the robot's y axis, left positive; 0: the "
+                             "source's own")
+    matrix: tuple[float, ...] = setting(
+        (), "the full 4x4 camera-to-robot transform, 4 rows of 4, instead of the values above; "
+        "[]: the source's own")
 
     def is_default(self) -> bool:
         return self == RigSection()
@@ -204,12 +273,8 @@ class RigSection:
         return _given_keys(self)
 
     def check(self) -> tuple[str, str] | None:
-        """(key, problem) of the first bad value, or None."""
-        if not self.height >= 0:
-            return "height", "must be >= 0 (0: the source's own)"
-        for key, limit in (("pitch", 90.0), ("roll", 180.0), ("yaw", 180.0)):
-            if not abs(getattr(self, key)) <= limit:
-                return key, f"must be in [-{limit:g}, {limit:g}] degrees (0: the source's own)"
+        """(key, problem) of the first bad value the keys' own rules do not catch (the matrix
+        against the values, and as a rigid transform), or None."""
         if not self.matrix:
             return None
         others = [k for k in self.given() if k != "matrix"]
@@ -239,94 +304,22 @@ class Config:
     def validate(self, source: str = "<config>") -> "Config":
         """Check every value; a ConfigError names the source, section and key at fault.
 
-        Every float must be finite (TOML accepts ``inf`` and ``nan``), then meet its range.
+        Every float must be finite (TOML accepts ``inf`` and ``nan``), then meet the rule its
+        setting declares, then the rules between keys (the height band, the rig's matrix).
         """
         for name in SECTION_TYPES:
             section = getattr(self, name)
             for key, value in dataclasses.asdict(section).items():
                 if isinstance(value, float) and not math.isfinite(value):
                     raise ConfigError(f"{source}: [{name}] {key} must be finite, got {value}")
-        f, m, lm, st = self.filter, self.map, self.localmap, self.stereo
-        checks = [
-            (f.particles >= 1, "filter", "particles", "must be at least 1"),
-            (f.resampler in choices.RESAMPLERS, "filter", "resampler",
-             f"must be one of {', '.join(choices.RESAMPLERS)}"),
-            (0.0 <= f.resample_ratio <= 1.0, "filter", "resample_ratio", "must be in [0, 1]"),
-            (f.unknown_cells in choices.UNKNOWN_CELLS, "filter", "unknown_cells",
-             f"must be one of {', '.join(choices.UNKNOWN_CELLS)} (eq. 30, eq. 31)"),
-            (f.unknown_samples >= 1, "filter", "unknown_samples", "must be at least 1"),
-            (f.beta_prev > 0, "filter", "beta_prev", "must be positive"),
-            (f.beta_new > 0, "filter", "beta_new", "must be positive"),
-            (f.tempering in choices.TEMPERING, "filter", "tempering",
-             f"must be one of {', '.join(choices.TEMPERING)} (the paper's beta, or an "
-             "ESS-targeted exponent on it)"),
-            (0.0 <= f.ess_target <= 1.0, "filter", "ess_target",
-             "must be in [0, 1] (0: automatic by the run's sensor)"),
-            (f.estimate in choices.ESTIMATES, "filter", "estimate",
-             f"must be one of {', '.join(choices.ESTIMATES)} (final best particle's path, "
-             "each frame's weighted mean pose, the smoother's mean path or mean steps, the "
-             "path of the final cloud's densest particle, the smoother's mean over its "
-             "1 m neighbourhood, or mean steps each weighed by the factors that bear on it)"),
-            (f.proposal in choices.PROPOSALS, "filter", "proposal",
-             f"must be one of {', '.join(choices.PROPOSALS)} (the motion model alone, or "
-             "informed by the local map)"),
-            (f.proposal_points >= 1 and f.proposal_points % 2 == 1, "filter",
-             "proposal_points", "must be odd and >= 1 (1: the prior itself)"),
-            (f.proposal_span > 0, "filter", "proposal_span", "must be positive"),
-            (f.proposal_stages >= 1, "filter", "proposal_stages", "must be at least 1"),
-            (f.proposal_cell_stride >= 1, "filter", "proposal_cell_stride", "must be at least 1"),
-            (f.proposal_exponent in choices.PROPOSAL_EXPONENTS, "filter", "proposal_exponent",
-             f"must be one of {', '.join(choices.PROPOSAL_EXPONENTS)} (the score's spread over "
-             "the prior, or each particle's normaliser's)"),
-            (f.proposal_draws in choices.PROPOSAL_DRAWS, "filter", "proposal_draws",
-             f"must be one of {', '.join(choices.PROPOSAL_DRAWS)}"),
-            (f.range_noise in choices.RANGE_NOISE, "filter", "range_noise",
-             f"must be one of {', '.join(choices.RANGE_NOISE)}"),
-            (0 <= f.seed < 2 ** 32, "filter", "seed", f"must be in [0, 2**32), got {f.seed}"),
-            (f.particle_block >= 0, "filter", "particle_block", "must be >= 0 (0: automatic)"),
-            *((getattr(self.motion, k) >= 0, "motion", k, "must be non-negative")
-              for k in ("alpha_d", "alpha_theta_d", "alpha_theta", "alpha_cross")),
-            (0 < self.motion.fallback_scale <= 1000, "motion", "fallback_scale",
-             "must be in (0, 1000] (1: the fallback's frames weighed as VO's)"),
-            (1 <= self.motion.noise_spread <= 1000, "motion", "noise_spread",
-             "must be in [1, 1000] (1: every particle the alphas given)"),
-            (m.resolution > 0, "map", "resolution", "must be positive"),
-            (m.margin >= 0, "map", "margin", "must be non-negative"),
-            # S = 0 with k > 0 would make log S = -inf and every log weight NaN
-            (m.min_variance > 0, "map", "min_variance", "must be positive (a floor of S / k)"),
-            (m.obs_weight > 0, "map", "obs_weight", "must be positive"),
-            (m.min_points >= 2, "map", "min_points", "must be at least 2"),
-            (m.store in choices.MAP_STORES, "map", "store",
-             f"must be one of {', '.join(choices.MAP_STORES)}"),
-            (m.tile >= 8 and m.tile % 8 == 0, "map", "tile", "must be a positive multiple of 8"),
-            (m.pool_tiles >= 0, "map", "pool_tiles", "must be >= 0 (0: automatic)"),
-            (m.axes in choices.MAP_AXES, "map", "axes",
-             f"must be one of {', '.join(choices.MAP_AXES)} (the run's frame's axes, or the "
-             "robot's at its start)"),
-            (lm.max_range > 0, "localmap", "max_range", "must be positive"),
-            (lm.min_height < lm.max_height, "localmap", "min_height", "must be below max_height"),
-            (lm.travel > 0, "localmap", "travel", "must be positive"),
-            (lm.lattice in choices.LOCALMAP_LATTICES, "localmap", "lattice",
-             f"must be one of {', '.join(choices.LOCALMAP_LATTICES)} (the robot's axes, the "
-             "map's at the VO pose, or by the sensor)"),
-            (lm.cells >= 0 and lm.cells % 2 == 0, "localmap", "cells", "must be even and >= 0"),
-            (st.num_disparities >= 0 and st.num_disparities % 16 == 0, "stereo",
-             "num_disparities", "must be a multiple of 16 (0: the source's default)"),
-            (st.block == 0 or (st.block >= 1 and st.block % 2 == 1), "stereo", "block",
-             "must be odd (0: the source's default)"),
-            (st.stride >= 0, "stereo", "stride", "must be >= 0 (0: the source's default)"),
-            (st.max_depth_error >= 0, "stereo", "max_depth_error",
-             "must be >= 0 (0: the source's default)"),
-            (st.edge_ratio >= 0, "stereo", "edge_ratio", "must be >= 0 (0: the source's default)"),
-            (0 <= st.disparity_std <= 4, "stereo", "disparity_std",
-             "must be in [0, 4] px (0: the source's default; SGBM's is 0.1-1 px)"),
-            (st.algorithm in ("", *choices.STEREO_ALGORITHMS), "stereo", "algorithm",
-             f"must be one of {', '.join(choices.STEREO_ALGORITHMS)} (\"\": the source's "
-             "default)"),
-        ]
-        for ok, section, key, msg in checks:
-            if not ok:
-                raise ConfigError(f"{source}: [{section}] {key} {msg}")
+        for name in SECTION_TYPES:
+            section = getattr(self, name)
+            for key, _, rule in settings_of(section):
+                value = getattr(section, key)
+                if not rule.allows(value):
+                    raise ConfigError(f"{source}: [{name}] {key} {rule.refusal(value)}")
+        if not self.localmap.min_height < self.localmap.max_height:
+            raise ConfigError(f"{source}: [localmap] min_height must be below max_height")
         bad = self.rig.check()
         if bad is not None:
             raise ConfigError(f"{source}: [rig] {bad[0]} {bad[1]}")
@@ -335,3 +328,11 @@ class Config:
 
 SECTION_TYPES = {"filter": FilterSection, "motion": MotionSection, "map": MapSection,
                   "localmap": LocalMapSection, "stereo": StereoSection, "rig": RigSection}
+
+
+def paper_differences() -> dict[str, tuple[Any, Any]]:
+    """``"section.key"`` -> (default, the paper's value) of every setting whose default is not
+    the paper's (``configs/paper.toml`` holds the paper's), in declaration order."""
+    return {f"{name}.{key}": (default, rule.paper)
+            for name, cls in SECTION_TYPES.items()
+            for key, default, rule in settings_of(cls) if rule.paper is not UNSET}

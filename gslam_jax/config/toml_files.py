@@ -6,13 +6,16 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
 from gslam_jax.config.sections import SECTION_TYPES, Config, ConfigError
+from gslam_jax.config.setting import UNSET, Setting, settings_of
 
 __all__ = ["read_toml", "load_config", "parse_config", "apply_overrides", "section_to_toml",
-           "config_to_toml", "load_table_config", "layered_config"]
+           "config_to_toml", "key_comment", "COMMENTED_HEADER", "load_table_config",
+           "layered_config"]
 
 
 def _coerce(value: Any, expected: type, where: str) -> Any:
@@ -108,36 +111,57 @@ def apply_overrides(config: Config, overrides: list[str]) -> Config:
     return parse_config(data, "--set", base=config)
 
 
-def section_to_toml(config: Config, name: str) -> str:
-    """One section of the config (``name``: filter, motion, ...) as a TOML table."""
+def _toml_value(value: Any) -> str:
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):  # a matrix: 4 rows of 4, or []
+        rows = [value[i:i + 4] for i in range(0, len(value), 4)]
+        return f"[{', '.join(str(list(r)) for r in rows)}]"
+    return repr(value)
+
+
+def key_comment(rule: Setting) -> str:
+    """The one-line comment ``gslam config`` prints beside a key: its declared meaning, and the
+    paper's value where the default is another."""
+    paper = "" if rule.paper is UNSET else f"; the paper's: {_toml_value(rule.paper)}"
+    return rule.doc + paper
+
+
+def section_to_toml(config: Config, name: str, comments: bool = False) -> str:
+    """One section of the config (``name``: filter, motion, ...) as a TOML table; with
+    ``comments`` each key followed by its ``key_comment``."""
+    section = getattr(config, name)
     lines = [f"[{name}]"]
-    for key, value in dataclasses.asdict(getattr(config, name)).items():
-        if isinstance(value, str):
-            lines.append(f'{key} = "{value}"')
-        elif isinstance(value, bool):
-            lines.append(f"{key} = {'true' if value else 'false'}")
-        elif isinstance(value, tuple):  # a matrix: 4 rows of 4, or []
-            rows = [value[i:i + 4] for i in range(0, len(value), 4)]
-            lines.append(f"{key} = [{', '.join(str(list(r)) for r in rows)}]")
-        else:
-            lines.append(f"{key} = {value!r}")
+    for key, _, rule in settings_of(section):
+        line = f"{key} = {_toml_value(getattr(section, key))}"
+        lines.append(f"{line}  # {key_comment(rule)}" if comments else line)
     return "\n".join(lines) + "\n"
 
 
-def config_to_toml(config: Config) -> str:
-    """The full config as TOML text (written beside every run's results)."""
-    return "\n".join(section_to_toml(config, name) for name in SECTION_TYPES)
+def config_to_toml(config: Config, comments: bool = False) -> str:
+    """The full config as TOML text (written bare beside every run's results; with
+    ``comments``, as ``gslam config`` prints it, each key with its one-line meaning)."""
+    text = "\n".join(section_to_toml(config, name, comments) for name in SECTION_TYPES)
+    return (COMMENTED_HEADER + text) if comments else text
 
 
-def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config]]:
+COMMENTED_HEADER = ("# gslam's settings, each key with what it means (docs/configuration.md);\n"
+                    "# where a default is not the paper's, its comment gives the paper's value\n"
+                    "# (configs/paper.toml).\n")
+"""The lines ``config_to_toml(..., comments=True)`` starts with."""
+
+
+def load_table_config(path: str | Path | None, courses: Collection[str] = ()
+                      ) -> tuple[Config, dict[str, Config]]:
     """The shared config and per-course configs of a Table I TOML file.
 
     Besides the usual sections, the file may hold ``[course.<name>.<section>]`` tables whose
     keys override the shared settings for that course only, as the paper tuned its noise
-    parameters per environment (7.3). Unknown course names are errors that name the file.
+    parameters per environment (7.3); ``courses``: the names such a table may have (the
+    simulator's, ``sim.courses.COURSES``). Other names are errors that name the file.
     """
-    from gslam_jax.sim.courses import COURSES  # here: config stays below every other layer
-
     if path is None:
         return Config(), {}
     data = read_toml(path)
@@ -145,22 +169,23 @@ def load_table_config(path: str | Path | None) -> tuple[Config, dict[str, Config
     base = parse_config(data, str(path))
     if not isinstance(per_course, dict):
         raise ConfigError(f"{path}: [course] must be a table of [course.<name>.<section>] tables")
-    courses = {}
+    configs = {}
     for name, table in per_course.items():
-        if name not in COURSES:
-            raise ConfigError(f"{path}: unknown course [course.{name}]; known courses: "
-                              f"{', '.join(COURSES)}")
+        if name not in courses:
+            known = ", ".join(courses) or "none (this command reads no course tables)"
+            raise ConfigError(f"{path}: unknown course [course.{name}]; known courses: {known}")
         if not isinstance(table, dict):
             raise ConfigError(f"{path}: [course.{name}] must be a table of sections")
-        courses[name] = parse_config(table, f"{path} [course.{name}]", base=base)
-    return base, courses
+        configs[name] = parse_config(table, f"{path} [course.{name}]", base=base)
+    return base, configs
 
 
 def layered_config(path: str | Path | None, course: str | None = None,
-                   overrides: list[str] | None = None) -> Config:
+                   overrides: list[str] | None = None, courses: Collection[str] = ()) -> Config:
     """The config a command runs with: defaults, the file at ``path`` (its shared sections and,
     for the simulated ``course``, that course's ``[course.<name>.*]`` tables; None: no course
-    tables), then the ``section.key=value`` ``overrides``."""
-    shared, per_course = load_table_config(path)
+    tables), then the ``section.key=value`` ``overrides``. ``courses``: the names a
+    ``[course.<name>]`` table may have (``load_table_config``)."""
+    shared, per_course = load_table_config(path, courses)
     config = per_course.get(course, shared) if course is not None else shared
     return apply_overrides(config, overrides or [])

@@ -32,8 +32,9 @@ import numpy as np
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.calib_yaml import numbers, open_yaml
-from gslam_jax.datasets.kitti import first_not_increasing, read_image, read_table
 from gslam_jax.datasets.mount import camera_mount
+from gslam_jax.datasets.reading import (first_not_increasing, quat_to_matrix, read_image,
+                                        read_table)
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.errors import DatasetError
 from gslam_jax.run import Run
@@ -43,8 +44,8 @@ from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, SensorAids, ru
 from gslam_jax.vo.geometry import invert, make_transform, pose_to_2d
 from gslam_jax.vo.localmap import localmap_params
 
-__all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "quat_to_matrix",
-           "find_mav0", "euroc_frontend", "load_euroc"]
+__all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "find_mav0",
+           "euroc_frontend", "load_euroc"]
 
 
 @dataclass(frozen=True)
@@ -120,14 +121,6 @@ def euroc_rig(cam0: CameraYaml, cam1: CameraYaml) -> RectifiedRig:
     t_10 = invert(cam1.t_bs) @ cam0.t_bs
     return RectifiedRig.from_raw(cam0.k, cam0.dist, cam1.k, cam1.dist, t_10[:3, :3], t_10[:3, 3],
                                  cam0.size, source)
-
-
-def quat_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (w, x, y, z)."""
-    w, x, y, z = np.asarray(q_wxyz, dtype=np.float64) / np.linalg.norm(q_wxyz)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def _frames(cam_dir: Path) -> tuple[np.ndarray, list[Path]]:

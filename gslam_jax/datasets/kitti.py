@@ -19,11 +19,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, NamedTuple
 
-import cv2
 import numpy as np
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.mount import camera_mount
+from gslam_jax.datasets.reading import first_not_increasing, read_image, read_table
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.errors import DatasetError
 from gslam_jax.run import Run
@@ -33,9 +33,8 @@ from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pos
 from gslam_jax.vo.localmap import localmap_params
 from gslam_jax.vo.stereo import DenseStereoParams
 
-__all__ = ["KittiParams", "KittiFrame", "Table", "read_table", "find_sequence",
-           "read_kitti_calib", "read_kitti_poses", "read_image", "robot_from_camera",
-           "kitti_frame", "camera_poses", "kitti_frontend", "load_kitti"]
+__all__ = ["KittiParams", "KittiFrame", "find_sequence", "read_kitti_calib", "read_kitti_poses",
+           "robot_from_camera", "kitti_frame", "camera_poses", "kitti_frontend", "load_kitti"]
 
 
 @dataclass(frozen=True)
@@ -54,16 +53,6 @@ class KittiParams:
     max_frames: int | None = None
     frontend: FrontEndParams = field(default_factory=lambda: FrontEndParams(
         stereo=DenseStereoParams(num_disparities=128)))
-
-
-def read_image(path: Path) -> np.ndarray:
-    """Grey image or ImageError naming the file."""
-    if not path.is_file():
-        raise ImageError(f"{path}: image file is missing")
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise ImageError(f"{path}: not a readable image (corrupt or unknown format)")
-    return img
 
 
 def read_kitti_calib(path: Path, size: tuple[int, int]) -> RectifiedRig:
@@ -86,66 +75,6 @@ def read_kitti_calib(path: Path, size: tuple[int, int]) -> RectifiedRig:
             raise CalibrationError(f"{path}: field '{key}' has {fields[key].size} numbers, "
                                    "expected 12")
     return RectifiedRig.from_projections(fields["P0"], fields["P1"], size, str(path))
-
-
-class Table(NamedTuple):
-    """Numbers of a text table: ``data`` [rows, columns] float64, ``lines`` [rows] 1-based line
-    number of each row, ``stamps`` [rows] int64 first column (exact; only when asked)."""
-
-    data: np.ndarray
-    lines: np.ndarray
-    stamps: np.ndarray | None = None
-
-
-def read_table(path: Path, columns: int, delimiter: str | None = None, *, at_least: bool = False,
-               int_first: bool = False) -> Table:
-    """Rows of finite numbers ('#' starts a comment; blank lines are skipped).
-
-    Every row has ``columns`` numbers (``at_least``: that many or more, the same in every row);
-    ``int_first``: the first column is an integer (e.g. nanoseconds), also returned exactly in
-    ``stamps``. ValueError naming the file and line of the first bad row.
-    """
-    rows: list[list[float]] = []
-    lines: list[int] = []
-    stamps: list[int] = []
-    for n, line in enumerate(Path(path).read_text(errors="replace").splitlines(), 1):
-        body = line.split("#", 1)[0].strip()
-        if not body:
-            continue
-        fields = [f.strip() for f in body.split(delimiter)]
-        if rows and len(fields) != len(rows[0]):
-            raise DatasetError(f"{path}:{n}: {len(fields)} numbers, but {len(rows[0])} on line "
-                               f"{lines[0]}")
-        if not rows and (len(fields) < columns if at_least else len(fields) != columns):
-            raise DatasetError(f"{path}:{n}: expected {columns}{' or more' if at_least else ''} "
-                               f"numbers, got {len(fields)}")
-        row = []
-        for f in fields:
-            try:
-                row.append(float(f))
-            except ValueError:
-                raise DatasetError(f"{path}:{n}: {f!r} is not a number") from None
-        if not np.all(np.isfinite(row)):
-            raise DatasetError(f"{path}:{n}: non-finite number in {body!r}")
-        if int_first:
-            try:
-                stamps.append(int(fields[0]))
-            except ValueError:
-                raise DatasetError(f"{path}:{n}: {fields[0]!r} is not an integer "
-                                   "timestamp") from None
-        rows.append(row)
-        lines.append(n)
-    if not rows:
-        raise DatasetError(f"{path}: no data rows")
-    return Table(np.array(rows, np.float64), np.array(lines, np.int64),
-                 np.array(stamps, np.int64) if int_first else None)
-
-
-def first_not_increasing(values: np.ndarray) -> int | None:
-    """Index i >= 1 of the first value not after values[i - 1], or None when strictly
-    increasing (time stamps of a log, in file order)."""
-    back = np.flatnonzero(np.diff(values) <= 0)
-    return int(back[0]) + 1 if back.size else None
 
 
 def read_kitti_poses(path: Path) -> np.ndarray:

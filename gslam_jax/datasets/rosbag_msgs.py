@@ -14,7 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from gslam_jax.datasets.euroc import quat_to_matrix
+from gslam_jax.datasets.reading import quat_to_matrix
 from gslam_jax.vo.calib import CalibrationError, CameraModel, ImageError
 from gslam_jax.vo.geometry import invert, make_transform
 

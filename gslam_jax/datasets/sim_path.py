@@ -26,7 +26,8 @@ from typing import NamedTuple
 import numpy as np
 
 from gslam_jax.config import Config, ConfigError
-from gslam_jax.datasets.kitti import KittiParams, read_table
+from gslam_jax.datasets.kitti import KittiParams
+from gslam_jax.datasets.reading import quat_to_matrix, read_table
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source
 from gslam_jax.datasets.sim import Odometry, ProgressFn, SimInfo, drive_course, sense_run
 from gslam_jax.errors import DatasetError
@@ -55,16 +56,6 @@ class PlanarPath(NamedTuple):
     format: str
 
 
-def _quaternion_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices [N, 3, 3] of unit quaternions [N, 4] (x, y, z, w)."""
-    x, y, z, w = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
-
-
 def read_path(path: str | Path) -> PlanarPath:
     """The planar robot path of a TUM or KITTI pose file (see the module docstring).
 
@@ -89,7 +80,7 @@ def read_path(path: str | Path) -> PlanarPath:
         if not np.all(norm > 1e-9):
             bad = int(np.flatnonzero(~(norm > 1e-9))[0])
             raise DatasetError(f"{path}:{table.lines[bad]}: quaternion of zero length")
-        poses[:, :3, :3] = _quaternion_matrix(q / norm[:, None])
+        poses[:, :3, :3] = quat_to_matrix(q, scalar_last=True)
         poses[:, :3, 3] = data[:, 1:4]
         times = data[:, 0].copy()
     else:

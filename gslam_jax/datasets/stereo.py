@@ -37,9 +37,9 @@ from scipy.spatial.transform import Rotation
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.calib_yaml import field_node, numbers, open_yaml, text
-from gslam_jax.datasets.kitti import (first_not_increasing, read_image, read_kitti_calib,
-                                      read_table)
+from gslam_jax.datasets.kitti import read_kitti_calib
 from gslam_jax.datasets.mount import camera_mount
+from gslam_jax.datasets.reading import first_not_increasing, read_image, read_table
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.errors import DatasetError
 from gslam_jax.vo.calib import CalibrationError, CameraModel, ImageError, RectifiedRig

@@ -123,10 +123,8 @@ def filter_config(config: Config, run: Run, prior: PriorMap | None = None
         raise ConfigError(f"run resolution {run.resolution} m differs from [map] resolution "
                          f"{config.map.resolution} m; rebuild the local maps or change the config")
     L = int(run.local_maps.shape[1]) if run.num_local_maps else 8
-    f = config.filter
-    probe = rbpf.FilterConfig(num_particles=f.particles, map_shape=(8, 8), map_origin=(0.0, 0.0),
-                              resolution=config.map.resolution, local_size=L,
-                              unknown_cells=f.unknown_cells)
+    probe = rbpf.FilterConfig.from_config(config, map_shape=(8, 8), map_origin=(0.0, 0.0),
+                                          local_size=L)
     margin, lattice, cover = config.map.margin, None, None
     if prior is not None:
         check_prior(prior, config)
@@ -156,19 +154,11 @@ def extent_filter_config(config: Config, extent: MapExtent, local_size: int,
     ``proposal_draws = "auto"`` for the local maps' ``sensor`` (``resolve_ess_target``,
     ``resolve_proposal_draws``). The memory check is the caller's."""
     f = config.filter
-    cfg = rbpf.FilterConfig(
-        num_particles=f.particles, map_shape=tuple(extent.shape), map_origin=tuple(extent.origin),
-        resolution=config.map.resolution, local_size=local_size, resampler=f.resampler,
-        resample_ratio=f.resample_ratio, unknown_cells=f.unknown_cells,
-        unknown_samples=f.unknown_samples, observed_cells=observed,
-        particle_block=f.particle_block, tempering=f.tempering,
+    cfg = rbpf.FilterConfig.from_config(
+        config, map_shape=tuple(extent.shape), map_origin=tuple(extent.origin),
+        local_size=local_size, observed_cells=observed,
         ess_target=resolve_ess_target(f.ess_target, sensor),
-        store=config.map.store, tile=config.map.tile, pool_tiles=config.map.pool_tiles,
-        proposal=f.proposal, proposal_points=f.proposal_points, proposal_span=f.proposal_span,
-        proposal_stages=f.proposal_stages, proposal_cell_stride=f.proposal_cell_stride,
-        proposal_exponent=f.proposal_exponent,
-        proposal_draws=resolve_proposal_draws(f.proposal_draws, sensor),
-        noise_spread=config.motion.noise_spread)
+        proposal_draws=resolve_proposal_draws(f.proposal_draws, sensor))
     available, what = map_memory()
     cfg = maps.choose_store(cfg, available, what).validate()
     return cfg._replace(particle_block=cfg.update_block)

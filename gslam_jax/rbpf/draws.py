@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from gslam_jax.rbpf import resampling
+from gslam_jax.rbpf import proposal, resampling
 from gslam_jax.rbpf.types import FilterConfig, UpdateNoise
 
 __all__ = ["standard_normals", "motion_noise", "update_noise", "frame_keys"]
@@ -52,7 +52,7 @@ def update_noise(key: Array, cfg: FilterConfig) -> UpdateNoise:
     k_unknown, k_resample = jax.random.split(key)
     n = cfg.unknown_samples if cfg.unknown_cells == "sample" else 0
     z = (standard_normals(jax.random.fold_in(key, 1), (cfg.num_particles, 3),
-                          cfg.proposal_draws) if cfg.proposal == "informed" else None)
+                          cfg.proposal_draws) if proposal.select(cfg).normals else None)
     return UpdateNoise(
         unknown_u=jax.random.uniform(k_unknown, (cfg.num_particles, n), jnp.float32),
         resample_u=resampling.draw_uniforms(k_resample, cfg.num_particles),

@@ -2,7 +2,8 @@
 
 One frame (``step``) is:
 
-* a proposal at every frame: sample the motion model (eqs. 1-3, 24) (``propagate``), each
+* a proposal at every frame: sample the motion model (eqs. 1-3, 24), or with the informed
+  proposal move by its mean and draw at the update (``proposal.select`` decides, once), each
   particle with its own factor on the noise where the state carries one
   (``FilterState.noise_scale``, ``[motion] noise_spread``);
 * at frames that carry a local map, ``update``: for each particle, the log-gamma importance
@@ -34,18 +35,15 @@ from jax import Array, lax
 from gslam_jax.rbpf import cells, maps, proposal, resampling, tempering
 from gslam_jax.rbpf.draws import frame_keys, motion_noise, update_noise
 from gslam_jax.rbpf.motion import apply_motion, particle_scales, scaled
+from gslam_jax.rbpf.proposal import Proposal
 from gslam_jax.rbpf.paths import backtrack_path, weighted_mean_pose
 from gslam_jax.rbpf.footprint import compact_observation, read_footprints
 from gslam_jax.rbpf.importance import cell_noise, log_lambda
 from gslam_jax.rbpf.types import (FilterConfig, FilterParams, FilterState, Observation,
                                   RunOutput, StepInfo, UpdateInfo, UpdateNoise)
 
-__all__ = ["Proposal", "Resampler", "init", "predict", "propagate", "propagate_mean", "update",
-           "ancestors", "resample", "observe", "step", "scan_frames", "run_filter", "best_slot",
-           "mean_noise_scale"]
-
-Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
-"""(state, u [3], standard-normal draws [J, 2], params) -> state with the particles moved."""
+__all__ = ["Proposal", "Resampler", "init", "predict", "update", "ancestors", "resample",
+           "observe", "step", "scan_frames", "run_filter", "best_slot", "mean_noise_scale"]
 
 Resampler = Callable[[FilterState, Array, FilterConfig], tuple[FilterState, Array, Array]]
 """(state, uniforms [J], cfg) -> (state, ancestors [J], resampled []): ESS-gated resampling."""
@@ -62,23 +60,13 @@ def init(cfg: FilterConfig, start_pose: Array | None = None,
     drawn from ``key``; a sigma of None draws nothing (every particle at ``start_pose``).
     With the "informed" proposal that spread is not drawn here but starts every particle's
     prior covariance, so that the first update draws the start together with the motion,
-    from the map's score times that prior (``proposal``): the same prior, drawn where the
-    prior map agrees with the first local map."""
+    from the map's score times that prior (``proposal.select``): the same prior, drawn where
+    the prior map agrees with the first local map."""
     cfg.validate()
     J = cfg.num_particles
     start = (jnp.zeros(3, jnp.float32) if start_pose is None
              else jnp.asarray(start_pose, jnp.float32))
-    pose = jnp.broadcast_to(start, (J, 3))
-    informed = cfg.proposal == "informed"
-    cov = jnp.zeros((J, 3, 3), jnp.float32) if informed else None
-    if start_sigma is not None:
-        sigma = jnp.asarray(start_sigma, jnp.float32)
-        if informed:
-            cov = jnp.broadcast_to(jnp.diag(sigma * sigma), (J, 3, 3))
-        elif key is None:
-            raise ValueError("init: a start_sigma needs a PRNG key to draw the start poses")
-        else:
-            pose = pose + jax.random.normal(key, (J, 3), jnp.float32) * sigma
+    pose, cov = proposal.select(cfg).start(jnp.broadcast_to(start, (J, 3)), start_sigma, key)
     noise = particle_scales(J, cfg.noise_spread) if cfg.noise_spread > 1 else None
     return FilterState(pose=pose, log_w=jnp.full((J,), -math.log(J), jnp.float32),
                        maps=maps.init(cfg, prior_map), best=jnp.int32(0), prior_cov=cov,
@@ -88,20 +76,6 @@ def init(cfg: FilterConfig, start_pose: Array | None = None,
 def predict(pose: Array, u: Array, eps: Array, params: FilterParams) -> Array:
     """Prediction step (eq. 24) for all particles, given their standard-normal draws."""
     return apply_motion(pose, u, eps, params.motion)
-
-
-def propagate_mean(state: FilterState, u: Array, eps: Array, params: FilterParams
-                   ) -> FilterState:
-    """The "informed" proposal's frame (a ``Proposal``; ``eps`` unused): every particle moved
-    by the motion model's mean, its motion covariance accumulated (``proposal.propagate_mean``);
-    the pose is drawn at the next update (``update``)."""
-    pose, cov = proposal.propagate_mean(state.pose, state.prior_cov, u, params.motion)
-    return state._replace(pose=pose, prior_cov=cov)
-
-
-def propagate(state: FilterState, u: Array, eps: Array, params: FilterParams) -> FilterState:
-    """The filter's proposal (a ``Proposal``): every particle moved by ``predict``."""
-    return state._replace(pose=predict(state.pose, u, eps, params))
 
 
 class _Weighed(NamedTuple):
@@ -160,15 +134,6 @@ def best_slot(log_w: Array, ancestors: Array) -> Array:
     return jnp.argmax(log_w[ancestors]).astype(jnp.int32)
 
 
-def _informed_draw(state: FilterState, obs: Observation, unknown_u: Array, z: Array,
-                   params: FilterParams, cfg: FilterConfig) -> tuple[FilterState, proposal.Draw]:
-    """The "informed" proposal's draw of every particle's pose at this update (``proposal``),
-    its prior covariance spent."""
-    d = proposal.draw(state.maps, state.pose, state.prior_cov, z,
-                      proposal.update_exponent(state.log_w, cfg), unknown_u, obs, params, cfg)
-    return state._replace(pose=d.pose, prior_cov=jnp.zeros_like(state.prior_cov)), d
-
-
 def update(state: FilterState, local_obs: Array, unknown_u: Array, params: FilterParams,
            cfg: FilterConfig, proposal_z: Array | None = None,
            lattice_heading: Array | float = 0.0) -> tuple[FilterState, UpdateInfo]:
@@ -177,10 +142,11 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     factors are first scaled by ``tempering.adaptive_exponent``) and normalised. No resampling
     (``resample``).
 
-    With ``cfg.proposal == "informed"`` each particle's pose is first drawn from its informed
-    proposal (``proposal.draw``, standard normals ``proposal_z`` [J, 3]) and its weight takes
-    the proposal's exact correction; with more than one candidate the exponent is the one the
-    proposal was fitted with (chosen from the scores at the prior means).
+    The proposal's rule (``proposal.select``) draws the poses first: with ``cfg.proposal ==
+    "informed"`` each particle's from its informed proposal (standard normals ``proposal_z``
+    [J, 3]), its weight taking the proposal's exact correction, and with more than one
+    candidate the exponent the proposal was fitted with (chosen from the scores at the prior
+    means).
 
     local_obs: [L, L, 2] observation (k, S) of the local map, robot-centred, on a lattice
     turned by ``lattice_heading`` against the robot (``Run.lattice_headings``); unknown_u:
@@ -188,12 +154,8 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     """
     J = cfg.num_particles
     obs = compact_observation(local_obs, cfg, lattice_heading)
-    correction = jnp.zeros((J,), state.log_w.dtype)
-    fitted_phi = None
-    if cfg.proposal == "informed":
-        state, d = _informed_draw(state, obs, unknown_u, proposal_z, params, cfg)
-        correction = d.log_correction
-        fitted_phi = d.phi if cfg.proposal_points > 1 else None
+    state, correction, fitted_phi = proposal.select(cfg).draw(state, obs, unknown_u, proposal_z,
+                                                              params, cfg)
     w = _weigh_and_write(state, obs, unknown_u, params, cfg)
     phi = (tempering.exponent(state.log_w, w.log_lam, cfg.tempering, cfg.ess_target)
            if fitted_phi is None else fitted_phi)
@@ -300,15 +262,15 @@ def step(key: Array, state: FilterState, u: Array, local_obs: Array | None,
     ``local_obs`` None: no update (a Python-level choice); else ``has_obs`` says whether the
     frame has one: True (Python) updates, a traced bool chooses under ``lax.cond``. The key is
     split once into the motion draws and the update's draws (``update_noise``). ``propose``
-    None: ``propagate`` (the motion proposal) or, with ``cfg.proposal == "informed"``,
-    ``propagate_mean``. ``lattice_heading``: the local map's (``update``). ``fallback``: the
+    None: the configured proposal's move (``proposal.select``: ``move_by_motion``, eq. 24, or
+    ``move_by_mean`` for "informed"). ``lattice_heading``: the local map's (``update``). ``fallback``: the
     control came from the fallback odometry, so the motion noise's stds are
     ``params.motion.fallback_scale`` times the VO's (``scaled``); a Python False leaves the
     frame's motion model untouched (no scaling in the program). A state with particle noise
     scales (``FilterState.noise_scale``) moves each particle with its own.
     """
     if propose is None:
-        propose = propagate_mean if cfg.proposal == "informed" else propagate
+        propose = proposal.select(cfg).move
     k_motion, k_update = jax.random.split(key)
     scale = state.noise_scale  # [J] or None
     if fallback is not False:

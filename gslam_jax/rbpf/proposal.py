@@ -52,12 +52,13 @@ from gslam_jax.rbpf import cells, maps, tempering
 from gslam_jax.rbpf.footprint import footprint_at, read_borrowed
 from gslam_jax.rbpf.importance import cell_noise, log_lambda
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds, world_step
-from gslam_jax.rbpf.types import FilterConfig, FilterParams, Observation
+from gslam_jax.rbpf.types import FilterConfig, FilterParams, FilterState, Observation
 
 __all__ = ["Draw", "Score", "Exponent", "propagate_mean", "motion_covariance_step",
            "candidate_grid", "candidate_window", "WINDOW_BYTES", "thin_observation",
            "score_candidates", "candidate_scorer", "update_exponent", "fit_proposal", "draw",
-           "quadratic_design", "quadratic_hessian", "JITTER"]
+           "quadratic_design", "quadratic_hessian", "JITTER", "Proposal", "move_by_motion",
+           "move_by_mean", "UpdateDraw", "ProposalRule", "RULES", "select"]
 
 # Variance floor added to the accumulated prior (m^2, m^2, rad^2): one step of the motion model
 # moves the position along-track only (with alpha_cross = 0), so the covariance is singular
@@ -331,3 +332,100 @@ def draw(store: maps.Maps, mean: Array, cov: Array, z: Array,
     eye = jnp.broadcast_to(jnp.eye(3, dtype=mean.dtype), q_chol.shape)
     correction = _log_normal(g, jnp.zeros_like(mu), eye) - _log_normal(g, mu, q_chol)
     return Draw(mean + jnp.einsum("jab,jb->ja", chol, g), correction, phi)
+
+
+# The selector: what the configured proposal does at each point of the filter, chosen once.
+
+Proposal = Callable[[FilterState, Array, Array, FilterParams], FilterState]
+"""(state, u [3], standard-normal draws [J, 3], params) -> state with the particles moved: a
+frame's move (``kernel.step``'s ``propose``)."""
+
+
+def move_by_motion(state: FilterState, u: Array, eps: Array, params: FilterParams
+                   ) -> FilterState:
+    """The motion proposal's frame (a ``Proposal``): every particle moved by the motion model
+    with its draws ``eps`` (eq. 24)."""
+    return state._replace(pose=apply_motion(state.pose, u, eps, params.motion))
+
+
+def move_by_mean(state: FilterState, u: Array, eps: Array, params: FilterParams
+                 ) -> FilterState:
+    """The informed proposal's frame (a ``Proposal``; ``eps`` unused): every particle moved by
+    the motion model's mean, its motion covariance accumulated (``propagate_mean``); the pose
+    is drawn at the next update (``ProposalRule.draw``)."""
+    pose, cov = propagate_mean(state.pose, state.prior_cov, u, params.motion)
+    return state._replace(pose=pose, prior_cov=cov)
+
+
+def _start_by_motion(pose: Array, start_sigma: Array | None, key: Array | None
+                     ) -> tuple[Array, Array | None]:
+    """The motion proposal's start: the spread ``start_sigma`` drawn now from ``key``."""
+    if start_sigma is None:
+        return pose, None
+    if key is None:
+        raise ValueError("init: a start_sigma needs a PRNG key to draw the start poses")
+    sigma = jnp.asarray(start_sigma, jnp.float32)
+    return pose + jax.random.normal(key, pose.shape, jnp.float32) * sigma, None
+
+
+def _start_by_prior(pose: Array, start_sigma: Array | None, key: Array | None
+                    ) -> tuple[Array, Array | None]:
+    """The informed proposal's start: the spread ``start_sigma`` not drawn but every particle's
+    prior covariance, drawn at the first update together with the motion."""
+    J = pose.shape[0]
+    if start_sigma is None:
+        return pose, jnp.zeros((J, 3, 3), jnp.float32)
+    sigma = jnp.asarray(start_sigma, jnp.float32)
+    return pose, jnp.broadcast_to(jnp.diag(sigma * sigma), (J, 3, 3))
+
+
+class UpdateDraw(NamedTuple):
+    """What a proposal does at an update, before the particles are weighed."""
+
+    state: FilterState    # the particles at their poses for this update
+    log_correction: Array  # [J] added to each log weight (0: the motion proposal)
+    phi: Array | None      # [] the tempering exponent the proposal was fitted with (None: the
+                           # update chooses it from the weights)
+
+
+def _draw_none(state: FilterState, obs: Observation, unknown_u: Array, z: Array | None,
+               params: FilterParams, cfg: FilterConfig) -> UpdateDraw:
+    """The motion proposal at an update: the particles stay where the frame moved them."""
+    return UpdateDraw(state, jnp.zeros((cfg.num_particles,), state.log_w.dtype), None)
+
+
+def _draw_informed(state: FilterState, obs: Observation, unknown_u: Array, z: Array | None,
+                   params: FilterParams, cfg: FilterConfig) -> UpdateDraw:
+    """The informed proposal at an update: every particle's pose drawn from its proposal
+    (``draw``, standard normals ``z`` [J, 3]), its prior covariance spent; with more than one
+    candidate the exponent is the one the proposal was fitted with."""
+    d = draw(state.maps, state.pose, state.prior_cov, z,
+             update_exponent(state.log_w, cfg), unknown_u, obs, params, cfg)
+    state = state._replace(pose=d.pose, prior_cov=jnp.zeros_like(state.prior_cov))
+    return UpdateDraw(state, d.log_correction, d.phi if cfg.proposal_points > 1 else None)
+
+
+class ProposalRule(NamedTuple):
+    """One proposal at each point of the filter where it matters (``select``)."""
+
+    start: Callable[[Array, Array | None, Array | None], tuple[Array, Array | None]]
+    """(start poses [J, 3], start_sigma [3] or None, key or None) -> (poses, prior covariance
+    [J, 3, 3] or None): ``kernel.init``."""
+    move: Proposal
+    """Every frame's move: ``kernel.step``'s default ``propose``."""
+    draw: Callable[..., UpdateDraw]
+    """(state, observation, unknown_u, z, params, cfg) -> ``UpdateDraw``: ``kernel.update``."""
+    normals: bool
+    """An update draws standard normals [J, 3] for it (``draws.update_noise``)."""
+
+
+RULES: dict[str, ProposalRule] = {
+    "motion": ProposalRule(_start_by_motion, move_by_motion, _draw_none, normals=False),
+    "informed": ProposalRule(_start_by_prior, move_by_mean, _draw_informed, normals=True),
+}
+"""``[filter] proposal`` (``choices.PROPOSALS``) -> its rule."""
+
+
+def select(cfg: FilterConfig) -> ProposalRule:
+    """The rule of ``cfg.proposal``: the one place the filter decides on its proposal."""
+    return RULES[cfg.proposal]

@@ -1,12 +1,15 @@
 """The filter's data: static settings, tunable parameters, the particle set, random numbers and
 per-frame outputs (NamedTuple pytrees).
 
-The defaults of the settings a config file also holds are the config's own
-(``config.FilterSection``, ``MotionSection``, ``MapSection``): one place for each default.
+The settings a config file also holds are the config's own (``config.FilterSection``,
+``MotionSection``, ``MapSection``): their defaults, their rules (``FilterConfig.validate``) and
+the values a ``FilterConfig`` is built with (``FilterConfig.from_config``), one declaration
+each.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, NamedTuple
 
@@ -14,12 +17,15 @@ import jax
 from jax import Array
 
 from gslam_jax import choices
-from gslam_jax.config import FilterSection, MapSection, MotionSection
+from gslam_jax.config import Config, FilterSection, MapSection, MotionSection
+from gslam_jax.config.sections import SECTION_TYPES
+from gslam_jax.config.setting import UNSET, setting_of
 from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf.motion import MotionParams
 
 __all__ = ["FilterConfig", "FilterParams", "FilterState", "UpdateNoise", "UpdateInfo",
-           "StepInfo", "RunOutput", "Observation", "CPU_BLOCK_CELLS", "STORES"]
+           "StepInfo", "RunOutput", "Observation", "CPU_BLOCK_CELLS", "STORES", "CONFIG_KEYS",
+           "GIVEN_FIELDS"]
 
 CPU_BLOCK_CELLS = 102_400  # footprint cells per update pass on CPU (FilterConfig.update_block)
 STORES = tuple(s for s in choices.MAP_STORES if s != "auto")  # "auto" is resolved before
@@ -31,7 +37,8 @@ class FilterConfig(NamedTuple):
 
     map_origin is the world (x, y) of the corner of cell (0, 0); cell (i, j) covers
     x in [x0 + i res, x0 + (i+1) res), y likewise with j. map_shape entries are multiples of 8.
-    ``sizing.filter_config`` builds it from a ``Config``.
+    ``from_config`` builds it from a ``Config``'s settings (``CONFIG_KEYS``) and the fields
+    the run sizes (``GIVEN_FIELDS``; ``sizing.filter_config``).
     """
 
     num_particles: int
@@ -107,14 +114,27 @@ class FilterConfig(NamedTuple):
         side = 2 * (self.reach + self.block)
         return int(unknown.BLOCK * math.ceil(side / unknown.BLOCK))
 
+    @classmethod
+    def from_config(cls, config: Config, **given: Any) -> "FilterConfig":
+        """The config's settings by their keys (``CONFIG_KEYS``), with ``given`` over them:
+        the ``GIVEN_FIELDS`` the run sizes, and the automatic values resolved on the host
+        (``ess_target``, ``proposal_draws``, ``store``)."""
+        values = {name: getattr(getattr(config, section), key)
+                  for name, (section, key) in CONFIG_KEYS.items()}
+        return cls(**{**values, **given})
+
     def validate(self) -> "FilterConfig":
+        """The rule each setting declares (``config.setting``) on the fields taken from the
+        config, its automatic value refused (resolved on the host before), then the map's
+        shape against the update's window."""
+        for name, (section, key) in CONFIG_KEYS.items():
+            rule, value = setting_of(SECTION_TYPES[section], key), getattr(self, name)
+            if rule.resolved is not UNSET and value == rule.resolved:
+                raise ValueError(f"{name} {value!r} is resolved before the filter (by the run's "
+                                 "sensor or the machine's memory, ``sizing``)")
+            if not rule.allows(value):
+                raise ValueError(f"{name} {value!r} {rule.refusal(value)}")
         H, W = self.map_shape
-        if self.resampler not in choices.RESAMPLERS:
-            raise ValueError(f"resampler '{self.resampler}' unknown; choose one of "
-                             f"{list(choices.RESAMPLERS)}")
-        if self.unknown_cells not in choices.UNKNOWN_CELLS:
-            raise ValueError(f"unknown_cells '{self.unknown_cells}' unknown; choose one of "
-                             f"{list(choices.UNKNOWN_CELLS)}")
         if H % unknown.BLOCK or W % unknown.BLOCK:
             raise ValueError(f"map_shape {self.map_shape} must be multiples of {unknown.BLOCK}")
         if min(H, W) < self.window:
@@ -123,41 +143,25 @@ class FilterConfig(NamedTuple):
         if not 0 <= self.observed_cells <= self.local_size ** 2:
             raise ValueError(f"observed_cells {self.observed_cells} must lie in [0, "
                              f"{self.local_size ** 2}] (0: every local cell)")
-        if self.unknown_samples < 1:
-            raise ValueError("unknown_samples must be at least 1")
-        if self.num_particles < 1:
-            raise ValueError("num_particles must be at least 1")
-        if self.particle_block < 0:
-            raise ValueError(f"particle_block {self.particle_block} must be >= 0 (0: auto)")
-        if self.store not in STORES:
-            raise ValueError(f"store '{self.store}' unknown; choose one of {list(STORES)}")
-        if self.proposal not in choices.PROPOSALS:
-            raise ValueError(f"proposal '{self.proposal}' unknown; choose one of "
-                             f"{list(choices.PROPOSALS)}")
-        if self.proposal_draws not in DRAWS:
-            raise ValueError(f"proposal_draws '{self.proposal_draws}' unknown; choose one of "
-                             f"{list(DRAWS)} (\"auto\" is resolved by the run's sensor before)")
-        if self.proposal_points < 1 or self.proposal_points % 2 == 0:
-            raise ValueError(f"proposal_points {self.proposal_points} must be odd and >= 1")
-        if not self.proposal_span > 0 or self.proposal_stages < 1:
-            raise ValueError("proposal_span must be positive and proposal_stages at least 1")
-        if self.proposal_cell_stride < 1:
-            raise ValueError(f"proposal_cell_stride {self.proposal_cell_stride} must be >= 1")
-        if self.proposal_exponent not in choices.PROPOSAL_EXPONENTS:
-            raise ValueError(f"proposal_exponent '{self.proposal_exponent}' unknown; choose one "
-                             f"of {list(choices.PROPOSAL_EXPONENTS)}")
-        if self.tile < unknown.BLOCK or self.tile % unknown.BLOCK:
-            raise ValueError(f"tile {self.tile} must be a positive multiple of {unknown.BLOCK}")
-        if self.pool_tiles < 0:
-            raise ValueError(f"pool_tiles {self.pool_tiles} must be >= 0 (0: auto)")
-        if self.tempering not in choices.TEMPERING:
-            raise ValueError(f"tempering '{self.tempering}' unknown; choose one of "
-                             f"{list(choices.TEMPERING)}")
-        if not self.noise_spread >= 1.0:
-            raise ValueError(f"noise_spread {self.noise_spread} must be >= 1 (1: none)")
-        if not 0.0 < self.ess_target <= 1.0:
-            raise ValueError(f"ess_target {self.ess_target} must lie in (0, 1]")
         return self
+
+
+def _config_keys() -> dict[str, tuple[str, str]]:
+    """FilterConfig field -> (section, key) of the setting it takes: the field of the same name
+    in [filter], [map] or [motion], and ``num_particles`` from [filter] particles."""
+    keys = {"num_particles": ("filter", "particles")}
+    for section in ("filter", "map", "motion"):
+        for f in dataclasses.fields(SECTION_TYPES[section]):
+            if f.name in FilterConfig._fields:
+                keys[f.name] = (section, f.name)
+    return keys
+
+
+CONFIG_KEYS = _config_keys()
+"""FilterConfig field -> (section, key) of the config setting it is built from."""
+
+GIVEN_FIELDS = ("map_shape", "map_origin", "local_size", "update_map", "observed_cells")
+"""FilterConfig fields no setting holds: sized from the run (or a test's switch)."""
 
 
 class FilterParams(NamedTuple):
