@@ -41,10 +41,11 @@ __all__ = ["KittiParams", "KittiFrame", "Table", "read_table", "find_sequence",
 @dataclass(frozen=True)
 class KittiParams:
     """sequence: folder name under ``sequences/`` (and ``poses/<sequence>.txt``); None picks the
-    only one. max_frames: process at most this many frames (None: all). The dense stereo searches
-    128 disparities: KITTI's fx * baseline is 380 px m, so the default 64 would cover depths
-    from 5.9 m only, and nearer surfaces (parked cars) would be matched wrongly as far points;
-    128 covers from 3 m, at some extra stereo time per frame. mount: the 4x4 camera-0-to-robot
+    only one. max_frames: process at most this many frames (None: all). The dense stereo search
+    range comes from the calibration (``vo.stereo.with_calibrated_range``: depths from 3 m on,
+    as for any stereo folder): KITTI's fx * baseline of 380 px m gives 128 disparities, where
+    the generic default 64 would cover depths from 5.9 m only and nearer surfaces (parked cars)
+    would be matched wrongly as far points. mount: the 4x4 camera-0-to-robot
     transform (None: level, ``camera_height`` above the ground; see :func:`robot_from_camera`)."""
 
     sequence: str | None = None
@@ -53,7 +54,7 @@ class KittiParams:
     frame_period: float = 0.1
     max_frames: int | None = None
     frontend: FrontEndParams = field(default_factory=lambda: FrontEndParams(
-        stereo=DenseStereoParams(num_disparities=128)))
+        stereo=DenseStereoParams(num_disparities=0)))
 
 
 def read_image(path: Path) -> np.ndarray:
