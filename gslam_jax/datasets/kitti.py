@@ -35,7 +35,7 @@ from gslam_jax.vo.stereo import DenseStereoParams
 
 __all__ = ["KittiParams", "KittiFrame", "Table", "read_table", "find_sequence",
            "read_kitti_calib", "read_kitti_poses", "read_image", "robot_from_camera",
-           "kitti_frame", "camera_poses", "kitti_frontend", "load_kitti"]
+           "kitti_frame", "off_plane", "camera_poses", "kitti_frontend", "load_kitti"]
 
 
 @dataclass(frozen=True)
@@ -159,11 +159,32 @@ def read_kitti_poses(path: Path) -> np.ndarray:
 
 class KittiFrame(NamedTuple):
     """Where a KITTI run's robot frame sits in KITTI's: ``t_robot_cam`` (4x4, camera 0 to
-    robot, the mount the adapter used) and ``first_camera`` (4x4, ``poses/NN.txt``'s pose of
-    the run's first frame; the identity without a poses file)."""
+    robot, the mount the adapter used), ``first_camera`` (4x4, ``poses/NN.txt``'s pose of
+    the run's first frame; the identity without a poses file) and ``off_plane`` ([T, 4, 4] or
+    None: what the VO's 6-DoF pose of each frame adds to its planar projection, its height,
+    roll and pitch, :func:`off_plane`; None: level, at the first frame's height)."""
 
     t_robot_cam: np.ndarray
     first_camera: np.ndarray
+    off_plane: np.ndarray | None = None
+
+
+def _planar_matrix(path: np.ndarray) -> np.ndarray:
+    """[T, 4, 4] of planar poses [T, 3] (x, y, yaw; z = 0, level)."""
+    out = np.tile(np.eye(4), (len(path), 1, 1))
+    c, s = np.cos(path[:, 2]), np.sin(path[:, 2])
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s, s, c
+    out[:, 0, 3], out[:, 1, 3] = path[:, 0], path[:, 1]
+    return out
+
+
+def off_plane(poses: np.ndarray) -> np.ndarray:
+    """[T, 4, 4] ``inv(P_t) W_t`` of 6-DoF robot poses ``W_t`` [T, 4, 4] (z up) and their planar
+    projections ``P_t`` (``pose_to_2d``): a height (translation (0, 0, z)) and a tilt (roll
+    and pitch, no yaw). The part of the VO's motion that the filter's planar path lacks."""
+    poses = np.asarray(poses, np.float64)
+    planar = _planar_matrix(np.stack([pose_to_2d(w) for w in poses]))
+    return np.stack([invert(p) @ w for p, w in zip(planar, poses)])
 
 
 def robot_from_camera(params: KittiParams) -> np.ndarray:
@@ -189,13 +210,15 @@ def camera_poses(path: np.ndarray, start: np.ndarray, frame: KittiFrame) -> np.n
     planar robot ``path`` [T, 3] whose world is the robot frame at ``start`` (the Run's start
     pose): the inverse of the adapter's change of the ground truth into the robot frame,
     ``C_t = first_camera inv(T_rc) inv(S) P_t T_rc`` with P_t, S the planar poses as 4x4 (z = 0)
-    and T_rc = ``t_robot_cam``. What the planar path lacks (height, pitch, roll) stays that
-    of the mount."""
+    and T_rc = ``t_robot_cam``. What the planar path lacks (height, pitch, roll) is the VO's,
+    ``P_t`` followed by ``frame.off_plane[t]``, where the frame has it; else that of the mount
+    (level, at the first camera's height)."""
     path = np.asarray(path, np.float64)
-    planar = np.tile(np.eye(4), (len(path), 1, 1))
-    c, s = np.cos(path[:, 2]), np.sin(path[:, 2])
-    planar[:, 0, 0], planar[:, 0, 1], planar[:, 1, 0], planar[:, 1, 1] = c, -s, s, c
-    planar[:, 0, 3], planar[:, 1, 3] = path[:, 0], path[:, 1]
+    planar = _planar_matrix(path)
+    if frame.off_plane is not None:
+        if len(frame.off_plane) != len(path):
+            raise ValueError(f"off_plane has {len(frame.off_plane)} poses, the path {len(path)}")
+        planar = planar @ frame.off_plane
     x, y, th = np.asarray(start, np.float64)
     s0 = make_transform([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0],
                          [0.0, 0.0, 1.0]], [x, y, 0.0])
@@ -360,8 +383,8 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
                          stereo=stereo_settings(config, fe.stereo)))
     result = kitti_frontend(src.path, params, progress=progress)
     print(result.summary.text())
-    return LoadedSource(result.run, f"KITTI {src.path} sequence {sequence}",
-                        kitti_frame=kitti_frame(src.path, params))
+    frame = kitti_frame(src.path, params)._replace(off_plane=off_plane(result.poses))
+    return LoadedSource(result.run, f"KITTI {src.path} sequence {sequence}", kitti_frame=frame)
 
 
 SOURCE = DataSource(name="kitti", help="KITTI odometry layout (sequences/NN, poses/NN.txt)",
