@@ -33,7 +33,7 @@ from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pos
 from gslam_jax.vo.localmap import localmap_params
 from gslam_jax.vo.stereo import DenseStereoParams
 
-__all__ = ["KittiParams", "KittiFrame", "Table", "read_table", "find_sequence",
+__all__ = ["KittiParams", "KittiFrame", "Table", "read_table", "find_sequence", "pose_jump",
            "read_kitti_calib", "read_kitti_poses", "read_image", "robot_from_camera",
            "kitti_frame", "off_plane", "camera_poses", "kitti_frontend", "load_kitti"]
 
@@ -86,6 +86,10 @@ def read_kitti_calib(path: Path, size: tuple[int, int]) -> RectifiedRig:
         if fields[key].size != 12:
             raise CalibrationError(f"{path}: field '{key}' has {fields[key].size} numbers, "
                                    "expected 12")
+        bad = np.flatnonzero(~np.isfinite(fields[key]))
+        if bad.size:
+            raise CalibrationError(f"{path}: field '{key}' number {bad[0] + 1} of 12 is "
+                                   f"{fields[key][bad[0]]} (a projection matrix must be finite)")
     return RectifiedRig.from_projections(fields["P0"], fields["P1"], size, str(path))
 
 
@@ -147,6 +151,27 @@ def first_not_increasing(values: np.ndarray) -> int | None:
     increasing (time stamps of a log, in file order)."""
     back = np.flatnonzero(np.diff(values) <= 0)
     return int(back[0]) + 1 if back.size else None
+
+
+def pose_jump(xy: np.ndarray, lines: np.ndarray, path: Path | str, factor: float = 50.0,
+              at_least: float = 10.0) -> str | None:
+    """A note naming the first step of a pose file's positions ``xy`` [N, 2|3] (rows at file
+    ``lines``) longer than ``factor`` times the median moving step and ``at_least`` metres (a
+    spike, or a clock gap, in a recorded path), or None. Informational: such a file is read
+    as it is."""
+    steps = np.linalg.norm(np.diff(np.asarray(xy, np.float64), axis=0), axis=1)
+    moving = steps[steps > 1e-6]
+    if not moving.size:
+        return None
+    limit = max(factor * float(np.median(moving)), at_least)
+    far = np.flatnonzero(steps > limit)
+    if not far.size:
+        return None
+    i = int(far[0]) + 1
+    more = f" ({far.size - 1} more such steps)" if far.size > 1 else ""
+    return (f"{path}:{int(lines[i])}: pose {i} is {steps[i - 1]:.1f} m from the one before, "
+            f"where the median step is {float(np.median(moving)):.3g} m{more}: a spike or a gap "
+            "in the file? It is used as it is")
 
 
 def read_kitti_poses(path: Path) -> np.ndarray:
@@ -383,6 +408,14 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
                          stereo=stereo_settings(config, fe.stereo)))
     result = kitti_frontend(src.path, params, progress=progress)
     print(result.summary.text())
+    pose_file = Path(src.path) / "poses" / f"{sequence}.txt"
+    if pose_file.is_file():  # the ground truth of the frames read
+        frames = [int(p.stem) for p in _check_frames(find_sequence(Path(src.path), sequence),
+                                                      src.max_frames)]
+        table = read_table(pose_file, 12)
+        jump = pose_jump(table.data[frames][:, [3, 7, 11]], table.lines[frames], pose_file)
+        if jump is not None:
+            print(f"note: {jump}, as the ground truth that scores this run")
     frame = kitti_frame(src.path, params)._replace(off_plane=off_plane(result.poses))
     return LoadedSource(result.run, f"KITTI {src.path} sequence {sequence}", kitti_frame=frame)
 

@@ -87,14 +87,19 @@ def find_pairs(root: Path) -> list[tuple[Path, Path]]:
     """The (left, right) image paths of the folder, in natural order of the file names.
 
     FileNotFoundError for a missing folder or layout (naming what is expected, and the source
-    of a KITTI or EuRoC folder); ImageError naming an image whose partner is missing."""
+    of a KITTI or EuRoC folder); DatasetError for a folder holding both layouts; ImageError
+    naming an image whose partner is missing."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such folder")
-    for left_name, right_name in LAYOUTS:
+    present = [(l, r) for l, r in LAYOUTS if (root / l).is_dir() or (root / r).is_dir()]
+    if len(present) > 1:
+        raise DatasetError(f"{root}: holds both {present[0][0]}/ {present[0][1]}/ and "
+                           f"{present[1][0]}/ {present[1][1]}/ image folders; which pairs to "
+                           "read is ambiguous: keep one layout (move the other out)")
+    for left_name, right_name in present:
         left_dir, right_dir = root / left_name, root / right_name
-        if left_dir.is_dir() or right_dir.is_dir():
-            break
+        break
     else:
         hint = ("; it looks like a KITTI odometry folder (sequences/): --source kitti"
                 if (root / "sequences").is_dir() else
