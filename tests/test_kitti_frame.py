@@ -56,6 +56,29 @@ def test_camera_poses_are_kittis_convention_written_out():
     np.testing.assert_allclose(got, first @ want, atol=1e-9)
 
 
+def test_camera_poses_carry_the_vos_height_and_tilt():
+    """With ``off_plane`` of 6-DoF robot poses W_t, the planar path of those poses turns back
+    into exactly the cameras inv(T_rc) W_t T_rc (world = the first camera): the height, roll and
+    pitch the planar path lacks are W_t's."""
+    from scipy.spatial.transform import Rotation
+
+    from gslam_jax.datasets.kitti import off_plane
+
+    rng = np.random.default_rng(5)
+    n = 12
+    world = np.tile(np.eye(4), (n, 1, 1))
+    world[:, :3, :3] = Rotation.from_euler(
+        "zyx", np.column_stack([rng.uniform(-3, 3, n), rng.normal(0, 0.05, n),
+                                rng.normal(0, 0.05, n)])).as_matrix()
+    world[:, :3, 3] = rng.normal(0, [20, 20, 1], (n, 3))
+    yaw = np.arctan2(world[:, 1, 0], world[:, 0, 0])
+    path = np.column_stack([world[:, 0, 3], world[:, 1, 3], yaw])
+    t_rc = robot_from_camera(KittiParams(camera_height=1.65))
+    got = camera_poses(path, np.zeros(3), KittiFrame(t_rc, np.eye(4), off_plane(world)))
+    want = np.linalg.inv(t_rc) @ world @ t_rc
+    np.testing.assert_allclose(got, want, atol=1e-9)
+
+
 @pytest.fixture()
 def kitti_clip(tmp_path: Path) -> Path:
     """The first 6 real frames in a KITTI layout (the whole poses file, as KITTI ships it)."""
