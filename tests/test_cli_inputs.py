@@ -342,3 +342,54 @@ def test_course_path_is_the_sim_path_source(tmp_path, capsys, monkeypatch):
         assert main(["run", "--course-path", str(poses), *extra, "--out", out]) == 2
         assert message in capsys.readouterr().err
     assert len(seen) == 2
+
+
+def _procrustes(b: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R (proper) and shift l minimising sum |R b_i + l - a_i|^2 (equal weights)."""
+    mb, ma = b.mean(0), a.mean(0)
+    u, _, vt = np.linalg.svd((a - ma).T @ (b - mb))
+    d = np.diag([1.0, np.sign(np.linalg.det(u @ vt))])
+    rot = u @ d @ vt
+    return rot, ma - rot @ mb
+
+
+def test_a_gps_reading_far_beyond_its_epe_is_dropped_and_named(tmp_path, capsys):
+    """One reading of a 1 m EPE log moved 1.1 km: the alignment leaves it out, names its line
+    and time in a warning and in summary.json, and the UTM path is the fit to the other
+    readings (an independent Procrustes fit of trajectory_tum.txt here)."""
+    run, path = _run_file(tmp_path)
+    times = np.arange(10) * 0.5
+    gt = np.asarray(run.ground_truth)
+    t = np.asarray(run.timestamps)
+    xy = np.stack([np.interp(times, t, gt[:, k]) for k in range(2)], -1) + SITE
+    xy[4, 0] += 1100.0
+    lat, lon = gps.utm_to_latlon(xy[:, 0], xy[:, 1], 11, True)
+    log = tmp_path / "gps.csv"
+    gps.write_gps_log(log, times, lat, lon, np.ones(len(times)))
+    out = tmp_path / "out"
+    assert main(["run", str(path), *RUN_SETTINGS, "--gps", str(log), "--out", str(out)]) == 0
+    stdout = capsys.readouterr().out
+    assert "1 GPS reading(s) lie far beyond their EPE" in stdout
+    assert "line 6, time 2.000 s, 110" in stdout, stdout
+    report = _strict_json(out / "summary.json")["gps"]
+    assert report["used"] == 9 and [o["line"] for o in report["outliers"]] == [6]
+    assert report["outliers"][0]["residual_m"] > 1000 and report["residual_rms_m"] < 5.0
+    est = np.loadtxt(out / "trajectory_tum.txt")
+    at = np.stack([np.interp(times, est[:, 0], est[:, k]) for k in (1, 2)], -1)
+    clean = np.arange(10) != 4
+    rot, shift = _procrustes(at[clean], xy[clean] - SITE)
+    want = est[:, 1:3] @ rot.T + shift + SITE
+    utm = np.loadtxt(out / "trajectory_utm.txt")
+    np.testing.assert_allclose(utm[:, 1:3], want, atol=5e-3)
+
+
+def test_outlier_test_keeps_a_drifting_path_and_three_readings():
+    from gslam_jax.gps.georeference import outlier
+
+    epe = np.ones(8)
+    used = np.ones(8, bool)
+    assert outlier(np.array([0.5, 0.4, 0.6, 0.5, 9.0, 0.5, 0.3, 0.4]), epe, used) == 4
+    # every residual wide (a drifting path): 9 m is under 5 times the typical 4 m
+    assert outlier(np.array([4.0, 3.5, 4.5, 4.0, 9.0, 4.2, 3.8, 4.1]), epe, used) is None
+    assert outlier(np.array([0.5, 0.4, 60.0, 0.0, 0, 0, 0, 0]), epe, used & (np.arange(8) < 3)) \
+        is None

@@ -335,3 +335,37 @@ def test_the_kitti_clip_as_a_stereo_folder_gives_the_kitti_run(tmp_path):
     assert np.allclose(a.local_maps, b.local_maps, atol=1e-6)
     assert a.resolution == b.resolution and b.time_origin_ns is None
     assert isinstance(read_stereo_calib(tmp_path, (1226, 370)), RectifiedRig)
+
+
+def test_disparity_range_from_the_calibration():
+    """Multiples of 16 that reach disparity fx * baseline / 3 m, never fewer than 64."""
+    from gslam_jax.vo.stereo import disparities_from_depth
+
+    assert disparities_from_depth(707.0912, 379.8145 / 707.0912) == 128  # KITTI: 126.6 px
+    assert disparities_from_depth(718.856, 0.5372) == 144  # KITTI 00-02: 128.7 px
+    assert disparities_from_depth(458.0, 0.11) == 64  # EuRoC: 16.8 px, the floor
+    assert disparities_from_depth(960.0, 0.3) == 96  # exactly 96 px
+
+
+@pytest.mark.skipif(not KITTI.is_dir(), reason=f"real KITTI frames not found at {KITTI}")
+def test_the_kitti_clip_through_a_ros_yaml_folder_gives_kittis_vo(tmp_path):
+    """The clip's images as left/ right/ with a per-camera ROS calib.yaml (K and P from calib.txt,
+    D = 0, R = I) and no [stereo] settings: the same VO path as --source kitti (both readers
+    take the dense search range from the calibration, 128 disparities here)."""
+    seq, n = KITTI / "sequences" / "seq1", 5
+    for src, dst in (("image_0", "left"), ("image_1", "right")):
+        (tmp_path / dst).mkdir()
+        for k in range(n):
+            (tmp_path / dst / f"{k:06d}.png").symlink_to((seq / src / f"{k:06d}.png").resolve())
+    proj = {}
+    for line in (seq / "calib.txt").read_text().splitlines():
+        key, _, rest = line.partition(":")
+        proj[key.strip()] = np.array(rest.split(), float).reshape(3, 4)
+    cams = [(p[:, :3], np.zeros(5), np.eye(3), p) for p in (proj["P0"], proj["P1"])]
+    (tmp_path / "calib.yaml").write_text(_ros_yaml(cams, size=(1226, 370)))
+    a = get_source("kitti").load(Source(source="kitti", path=KITTI, max_frames=n), Config(),
+                                 None).run
+    b = get_source("stereo").load(Source(source="stereo", path=tmp_path),
+                                  apply_overrides(Config(), ["rig.height=1.65"]), None).run
+    np.testing.assert_allclose(b.controls, a.controls, atol=1e-6)
+    np.testing.assert_allclose(b.vo_poses(), a.vo_poses(), atol=1e-6)

@@ -135,3 +135,27 @@ def test_reader_errors_name_file_and_line(tmp_path, text, pattern):
 def test_reader_missing_file(tmp_path):
     with pytest.raises(gps.GpsLogError, match="nope.csv: cannot read"):
         gps.read_gps_log(tmp_path / "nope.csv")
+
+
+@pytest.mark.parametrize("text,pattern", [
+    # lat and lon swapped: the first reading names the line and asks
+    ("time,lat,lon,epe\n0,-118.17,34.2,3\n1,-118.17,34.2,3\n",
+     r"gps.csv:2: latitude -118.17 is out of range \(-90 to 90\); are latitude and longitude "
+     r"swapped\? \(the columns are time, lat, lon, epe\)"),
+    ("0,34.2,-118.17,3\n1,34.2,-118.17,3\n2,95.5,200.0,3\n",
+     r"gps.csv:3: latitude 95.5 is out of range \(-90 to 90\)$"),
+    ("0,34.2,-118.17,3\n1,34.2,-400.0,3\n", r"gps.csv:2: longitude -400.0 is out of range"),
+    # every reading skipped: the count and the first one's reason
+    ("0,nan,-118.17,3\n1,34.2,-118.17,0\n", r"found 0 \(2 skipped\); the first skipped, line 1: "
+                                            r"non-finite coordinate"),
+])
+def test_reader_names_out_of_range_coordinates_and_why_readings_were_skipped(tmp_path, text,
+                                                                             pattern):
+    with pytest.raises(gps.GpsLogError, match=pattern):
+        gps.read_gps_log(_write(tmp_path, text))
+
+
+def test_reader_keeps_each_readings_line(tmp_path):
+    p = _write(tmp_path, "time,lat,lon,epe\n# comment\n0,34.2,-118.17,3\n1,nan,-118.17,3\n\n"
+                         "2,34.2001,-118.17,3\n")
+    assert gps.read_gps_log(p).lines.tolist() == [3, 6]

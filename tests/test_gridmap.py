@@ -354,3 +354,54 @@ def test_merge_refuses_a_map_its_own_run_found_doubled(maps, align, tmp_path, ca
     (doubled / "summary.json").write_text(json.dumps({"map_consistency": {
         "consistent": True, "revisits_checked": 5, "doubled": [], "worst_offset_m": 0.0}}))
     merge_mod.check_consistent(merge_mod.load_run_folder(doubled))
+
+
+def test_merge_refuses_a_run_merged_with_itself(maps, tmp_path, capsys) -> None:
+    """``gslam merge A A``, or A and a copy of it under another name, would add A's map to
+    itself (every cell's evidence doubled): refused before any alignment or folder, naming both;
+    the API refuses it too."""
+    import shutil
+
+    from gslam_jax.app.cli import main
+
+    copy = tmp_path / "a-copy"
+    shutil.copytree(maps.folder / "a", copy)
+    for second in (maps.folder / "a", copy, copy / "map.npz"):
+        out = tmp_path / "refused"
+        assert main(["merge", str(maps.folder / "a"), str(second), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert f"{second.name} holds the same map as a" in err and "double" in err, err
+        assert not out.exists()
+    with pytest.raises(merge_mod.SameMap):
+        merge_mod.merge_runs([merge_mod.load_run_folder(maps.folder / "a"),
+                              merge_mod.load_run_folder(copy)])
+
+
+def test_merge_says_which_runs_it_cannot_self_check(maps, tmp_path) -> None:
+    """A bare map.npz, a folder without summary.json (or without COMPLETE) and a summary without
+    map_consistency each carry the reason their self-check is unknown (printed by gslam merge);
+    a complete folder whose summary holds the check carries none."""
+    import shutil
+
+    bare = merge_mod.load_run_folder(maps.folder / "a" / "map.npz")
+    assert "bare map file" in bare.unchecked
+    folder = merge_mod.load_run_folder(maps.folder / "a")
+    assert "has no summary.json" in folder.unchecked and "no COMPLETE" in folder.unchecked
+    done = tmp_path / "done"
+    shutil.copytree(maps.folder / "a", done)
+    (done / "summary.json").write_text(json.dumps({"distance_m": 1.0}))
+    (done / "COMPLETE").write_text("{}")
+    assert "records no map self-check" in merge_mod.load_run_folder(done).unchecked
+    (done / "summary.json").write_text(json.dumps({"map_consistency": {
+        "consistent": True, "revisits_checked": 2, "doubled": [], "worst_offset_m": 0.0}}))
+    assert merge_mod.load_run_folder(done).unchecked is None
+
+
+def test_gslam_merge_prints_the_skipped_self_checks(maps, align, tmp_path, capsys) -> None:
+    from gslam_jax.app.cli import main
+
+    out = tmp_path / "merged"
+    assert main(["merge", str(maps.folder / "a"), str(maps.folder / "b" / "map.npz"),
+                 "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "note: a: " in err and "note: map.npz: " in err and "check is skipped" in err

@@ -142,7 +142,15 @@ def test_stereo_settings_reach_the_front_end(tmp_path, capsys, monkeypatch, run_
     del seen["stereo"]
     assert main(["run", "--source", "kitti", "--path", str(tmp_path), "--out",
                  str(tmp_path / "o")]) == 2
-    assert seen["stereo"].num_disparities == 128  # KITTI's default stays
+    # KITTI's default stays: the range from the calibration, 128 for KITTI's 380 px m
+    from gslam_jax.vo.calib import RectifiedRig
+    from gslam_jax.vo.stereo import with_calibrated_range
+    kitti_rig = RectifiedRig.from_projections(
+        np.array([707.0912, 0, 601.8873, 0, 0, 707.0912, 183.1104, 0, 0, 0, 1, 0]),
+        np.array([707.0912, 0, 601.8873, -379.8145, 0, 707.0912, 183.1104, 0, 0, 0, 1, 0]),
+        (1226, 370), "calib.txt")
+    assert seen["stereo"].num_disparities == 0
+    assert with_calibrated_range(seen["stereo"], kitti_rig).num_disparities == 128
     assert seen["stereo"].edge_ratio == 0.5  # and the front-end's
     capsys.readouterr()
     assert main(["run", str(run_file), "--set", "stereo.num_disparities=128"]) == 2

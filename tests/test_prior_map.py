@@ -282,3 +282,27 @@ def test_a_shared_pool_smaller_than_the_prior_is_a_config_error():
                                           r"pool_tiles = 3"):
         slam.run_slam(run, config, prior=map_reuse.PriorMap(grid, np.zeros(3), np.zeros(3)))
     assert unknown.BLOCK == 8  # the bit layout _np_bits mirrors
+
+
+def test_a_start_the_prior_map_does_not_reach_is_refused_before_the_filter(tmp_path, capsys):
+    """--start 1000,1000,0 against a map around the origin: the run's VO path never comes within
+    a local map's reach of the map's known cells, so it would never see the prior (two disjoint
+    maps): refused after the front-end, before the filter, naming the start and the map's
+    extent; a start inside the map passes the check."""
+    known = np.zeros((100, 100))
+    known[20:80, 20:80] = 40.0  # known cells from -2.4 to 7.2 m around the origin
+    grid = GridMap(known, np.where(known > 0, 0.4, 0.0), (-5.6, -5.6), 0.16)
+    save_map(tmp_path / "map.npz", grid)
+    out = tmp_path / "out"
+    assert cli.main(["run", "--max-frames", "5", "--prior-map", str(tmp_path), "--start",
+                     "1000,1000,0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--start 1000,1000,0" in err and "x -2.4 to 7.2 m, y -2.4 to 7.2 m" in err, err
+    assert "never see the prior map" in err and not out.exists()
+    run = Run(controls=np.tile([0.5, 0.0, 0.0], (5, 1)), obs_index=np.array([-1, 0, -1, -1, -1]),
+              local_maps=np.zeros((1, 20, 20, 3)), resolution=0.16,
+              timestamps=np.arange(5) * 0.2)
+    prior = map_reuse.PriorMap(grid, np.array([-10.0, 0.0, 0.0]), np.zeros(3))
+    with pytest.raises(ConfigError, match="comes no nearer than 5.1 m"):
+        map_reuse.check_start_reaches(prior, run)  # drives 2.5 m towards the map: 5.1 m short
+    map_reuse.check_start_reaches(prior._replace(start=np.array([-6.0, 0.0, 0.0])), run)

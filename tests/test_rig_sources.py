@@ -28,7 +28,8 @@ def _recorder(module, monkeypatch) -> dict:
 
     def fake(load, n, rig, t_robot_cam, times, params, **kw):
         seen.update(mount=t_robot_cam, rig=rig, n=n, **kw)
-        return SimpleNamespace(run="run", summary=SimpleNamespace(text=lambda: ""))
+        return SimpleNamespace(run="run", summary=SimpleNamespace(text=lambda: ""),
+                               poses=np.tile(np.eye(4), (n, 1, 1)))
 
     monkeypatch.setattr(module, "run_frontend", fake)
     return seen

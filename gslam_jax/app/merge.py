@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -39,12 +40,18 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
     if len(args.runs) < 2:
         raise SystemExit("gslam merge: error: give at least two runs")
-    from gslam_jax.gridmap.merge import check_consistent
+    from gslam_jax.gridmap.merge import check_consistent, check_distinct
 
     runs = [load_run_folder(r) for r in args.runs]
-    if not args.allow_inconsistent:  # before any folder is made
+    check_distinct(runs)  # before any folder is made
+    if not args.allow_inconsistent:
         for run in runs:
             check_consistent(run)
+    for run in runs:
+        if run.unchecked is not None:
+            print(f"note: {run.name}: {run.unchecked}: whether its map is consistent with "
+                  "itself is not known, so that check is skipped for it (merge its complete "
+                  "results folder to have it checked)", file=sys.stderr)
     with results_folder(args.out, "merge", overwrite=args.overwrite,
                         command="gslam merge") as folder:
         merged = merge_runs(runs, use_gps=not args.no_gps,

@@ -185,6 +185,8 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
                   f"the first {found['frames']} frames, z {found['z']:.1f} against runner-up "
                   f"{found['runner_up_z']:.1f}); particles spread by "
                   f"{[round(float(v), 3) for v in prior.start_sigma]}")
+        if prior is not None:
+            map_reuse.check_start_reaches(prior, run)
         result = slam.run_slam(run, config, progress=bar("gamma-slam"), prior=prior,
                                on_chunk=on_chunk, **({"chunk": chunk} if chunk else {}))
         consistency = None

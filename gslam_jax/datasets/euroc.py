@@ -43,6 +43,7 @@ from gslam_jax.vo.fallback import GRAVITY
 from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
 from gslam_jax.vo.geometry import invert, make_transform, pose_to_2d
 from gslam_jax.vo.localmap import localmap_params
+from gslam_jax.vo.stereo import DenseStereoParams
 
 __all__ = ["EurocParams", "CameraYaml", "read_sensor_yaml", "euroc_rig", "find_mav0",
            "euroc_frontend", "load_euroc"]
@@ -367,7 +368,7 @@ def load_euroc(root: str | Path, params: EurocParams = EurocParams()) -> Run:
 
 def _load(src: Source, config: Config, progress: Callable[[int, int], None] | None = None
           ) -> LoadedSource:
-    default = FrontEndParams()
+    default = FrontEndParams(stereo=DenseStereoParams(num_disparities=0))  # from the calibration
     result = euroc_frontend(src.path, EurocParams(
         max_frames=src.max_frames,
         mount=lambda default: camera_mount(config, default, f"--source euroc {src.path}"),

@@ -23,7 +23,7 @@ import numpy as np
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.mount import camera_mount
-from gslam_jax.datasets.reading import first_not_increasing, read_image, read_table
+from gslam_jax.datasets.reading import first_not_increasing, pose_jump, read_image, read_table
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source, stereo_settings
 from gslam_jax.errors import DatasetError
 from gslam_jax.run import Run
@@ -34,16 +34,18 @@ from gslam_jax.vo.localmap import localmap_params
 from gslam_jax.vo.stereo import DenseStereoParams
 
 __all__ = ["KittiParams", "KittiFrame", "find_sequence", "read_kitti_calib", "read_kitti_poses",
-           "robot_from_camera", "kitti_frame", "camera_poses", "kitti_frontend", "load_kitti"]
+           "robot_from_camera", "kitti_frame", "off_plane", "camera_poses", "kitti_frontend",
+           "load_kitti"]
 
 
 @dataclass(frozen=True)
 class KittiParams:
     """sequence: folder name under ``sequences/`` (and ``poses/<sequence>.txt``); None picks the
-    only one. max_frames: process at most this many frames (None: all). The dense stereo searches
-    128 disparities: KITTI's fx * baseline is 380 px m, so the default 64 would cover depths
-    from 5.9 m only, and nearer surfaces (parked cars) would be matched wrongly as far points;
-    128 covers from 3 m, at some extra stereo time per frame. mount: the 4x4 camera-0-to-robot
+    only one. max_frames: process at most this many frames (None: all). The dense stereo search
+    range comes from the calibration (``vo.stereo.with_calibrated_range``: depths from 3 m on,
+    as for any stereo folder): KITTI's fx * baseline of 380 px m gives 128 disparities, where
+    the generic default 64 would cover depths from 5.9 m only and nearer surfaces (parked cars)
+    would be matched wrongly as far points. mount: the 4x4 camera-0-to-robot
     transform (None: level, ``camera_height`` above the ground; see :func:`robot_from_camera`)."""
 
     sequence: str | None = None
@@ -52,7 +54,7 @@ class KittiParams:
     frame_period: float = 0.1
     max_frames: int | None = None
     frontend: FrontEndParams = field(default_factory=lambda: FrontEndParams(
-        stereo=DenseStereoParams(num_disparities=128)))
+        stereo=DenseStereoParams(num_disparities=0)))
 
 
 def read_kitti_calib(path: Path, size: tuple[int, int]) -> RectifiedRig:
@@ -74,6 +76,10 @@ def read_kitti_calib(path: Path, size: tuple[int, int]) -> RectifiedRig:
         if fields[key].size != 12:
             raise CalibrationError(f"{path}: field '{key}' has {fields[key].size} numbers, "
                                    "expected 12")
+        bad = np.flatnonzero(~np.isfinite(fields[key]))
+        if bad.size:
+            raise CalibrationError(f"{path}: field '{key}' number {bad[0] + 1} of 12 is "
+                                   f"{fields[key][bad[0]]} (a projection matrix must be finite)")
     return RectifiedRig.from_projections(fields["P0"], fields["P1"], size, str(path))
 
 
@@ -87,11 +93,32 @@ def read_kitti_poses(path: Path) -> np.ndarray:
 
 class KittiFrame(NamedTuple):
     """Where a KITTI run's robot frame sits in KITTI's: ``t_robot_cam`` (4x4, camera 0 to
-    robot, the mount the adapter used) and ``first_camera`` (4x4, ``poses/NN.txt``'s pose of
-    the run's first frame; the identity without a poses file)."""
+    robot, the mount the adapter used), ``first_camera`` (4x4, ``poses/NN.txt``'s pose of
+    the run's first frame; the identity without a poses file) and ``off_plane`` ([T, 4, 4] or
+    None: what the VO's 6-DoF pose of each frame adds to its planar projection, its height,
+    roll and pitch, :func:`off_plane`; None: level, at the first frame's height)."""
 
     t_robot_cam: np.ndarray
     first_camera: np.ndarray
+    off_plane: np.ndarray | None = None
+
+
+def _planar_matrix(path: np.ndarray) -> np.ndarray:
+    """[T, 4, 4] of planar poses [T, 3] (x, y, yaw; z = 0, level)."""
+    out = np.tile(np.eye(4), (len(path), 1, 1))
+    c, s = np.cos(path[:, 2]), np.sin(path[:, 2])
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s, s, c
+    out[:, 0, 3], out[:, 1, 3] = path[:, 0], path[:, 1]
+    return out
+
+
+def off_plane(poses: np.ndarray) -> np.ndarray:
+    """[T, 4, 4] ``inv(P_t) W_t`` of 6-DoF robot poses ``W_t`` [T, 4, 4] (z up) and their planar
+    projections ``P_t`` (``pose_to_2d``): a height (translation (0, 0, z)) and a tilt (roll
+    and pitch, no yaw). The part of the VO's motion that the filter's planar path lacks."""
+    poses = np.asarray(poses, np.float64)
+    planar = _planar_matrix(np.stack([pose_to_2d(w) for w in poses]))
+    return np.stack([invert(p) @ w for p, w in zip(planar, poses)])
 
 
 def robot_from_camera(params: KittiParams) -> np.ndarray:
@@ -117,13 +144,15 @@ def camera_poses(path: np.ndarray, start: np.ndarray, frame: KittiFrame) -> np.n
     planar robot ``path`` [T, 3] whose world is the robot frame at ``start`` (the Run's start
     pose): the inverse of the adapter's change of the ground truth into the robot frame,
     ``C_t = first_camera inv(T_rc) inv(S) P_t T_rc`` with P_t, S the planar poses as 4x4 (z = 0)
-    and T_rc = ``t_robot_cam``. What the planar path lacks (height, pitch, roll) stays that
-    of the mount."""
+    and T_rc = ``t_robot_cam``. What the planar path lacks (height, pitch, roll) is the VO's,
+    ``P_t`` followed by ``frame.off_plane[t]``, where the frame has it; else that of the mount
+    (level, at the first camera's height)."""
     path = np.asarray(path, np.float64)
-    planar = np.tile(np.eye(4), (len(path), 1, 1))
-    c, s = np.cos(path[:, 2]), np.sin(path[:, 2])
-    planar[:, 0, 0], planar[:, 0, 1], planar[:, 1, 0], planar[:, 1, 1] = c, -s, s, c
-    planar[:, 0, 3], planar[:, 1, 3] = path[:, 0], path[:, 1]
+    planar = _planar_matrix(path)
+    if frame.off_plane is not None:
+        if len(frame.off_plane) != len(path):
+            raise ValueError(f"off_plane has {len(frame.off_plane)} poses, the path {len(path)}")
+        planar = planar @ frame.off_plane
     x, y, th = np.asarray(start, np.float64)
     s0 = make_transform([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0],
                          [0.0, 0.0, 1.0]], [x, y, 0.0])
@@ -288,8 +317,16 @@ def _load(src: Source, config: Config, progress: Callable[[int, int], None] | No
                          stereo=stereo_settings(config, fe.stereo)))
     result = kitti_frontend(src.path, params, progress=progress)
     print(result.summary.text())
-    return LoadedSource(result.run, f"KITTI {src.path} sequence {sequence}",
-                        kitti_frame=kitti_frame(src.path, params))
+    pose_file = Path(src.path) / "poses" / f"{sequence}.txt"
+    if pose_file.is_file():  # the ground truth of the frames read
+        frames = [int(p.stem) for p in _check_frames(find_sequence(Path(src.path), sequence),
+                                                      src.max_frames)]
+        table = read_table(pose_file, 12)
+        jump = pose_jump(table.data[frames][:, [3, 7, 11]], table.lines[frames], pose_file)
+        if jump is not None:
+            print(f"note: {jump}, as the ground truth that scores this run")
+    frame = kitti_frame(src.path, params)._replace(off_plane=off_plane(result.poses))
+    return LoadedSource(result.run, f"KITTI {src.path} sequence {sequence}", kitti_frame=frame)
 
 
 SOURCE = DataSource(name="kitti", help="KITTI odometry layout (sequences/NN, poses/NN.txt)",

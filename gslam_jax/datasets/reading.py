@@ -12,7 +12,8 @@ import numpy as np
 from gslam_jax.errors import DatasetError
 from gslam_jax.vo.calib import ImageError
 
-__all__ = ["Table", "read_table", "read_image", "first_not_increasing", "quat_to_matrix"]
+__all__ = ["Table", "read_table", "read_image", "first_not_increasing", "quat_to_matrix",
+           "pose_jump"]
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -99,3 +100,24 @@ def quat_to_matrix(q: np.ndarray, scalar_last: bool = False) -> np.ndarray:
         np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
         np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
     ], axis=-2)
+
+
+def pose_jump(xy: np.ndarray, lines: np.ndarray, path: Path | str, factor: float = 50.0,
+              at_least: float = 10.0) -> str | None:
+    """A note naming the first step of a pose file's positions ``xy`` [N, 2|3] (rows at file
+    ``lines``) longer than ``factor`` times the median moving step and ``at_least`` metres (a
+    spike, or a clock gap, in a recorded path), or None. Informational: such a file is read
+    as it is."""
+    steps = np.linalg.norm(np.diff(np.asarray(xy, np.float64), axis=0), axis=1)
+    moving = steps[steps > 1e-6]
+    if not moving.size:
+        return None
+    limit = max(factor * float(np.median(moving)), at_least)
+    far = np.flatnonzero(steps > limit)
+    if not far.size:
+        return None
+    i = int(far[0]) + 1
+    more = f" ({far.size - 1} more such steps)" if far.size > 1 else ""
+    return (f"{path}:{int(lines[i])}: pose {i} is {steps[i - 1]:.1f} m from the one before, "
+            f"where the median step is {float(np.median(moving)):.3g} m{more}: a spike or a gap "
+            "in the file? It is used as it is")

@@ -52,6 +52,7 @@ from gslam_jax.vo.calib import CameraModel, RectifiedRig
 from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
 from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, increments_2d, make_transform
 from gslam_jax.vo.localmap import localmap_params
+from gslam_jax.vo.stereo import DenseStereoParams
 
 __all__ = ["RosbagParams", "RosbagFrontEnd", "MissingExtraError", "rosbag_frontend",
            "load_rosbag", "DEFAULT_MOUNT", "ROBOT_FRAMES"]
@@ -363,7 +364,7 @@ def _given(topics: tuple[tuple[str, str], ...]) -> dict[str, str | None]:
 def _load(src: Source, config: Config, progress: Callable[[int, int], None] | None = None
           ) -> LoadedSource:
     where = f"--source rosbag {src.path}"
-    default = FrontEndParams()
+    default = FrontEndParams(stereo=DenseStereoParams(num_disparities=0))  # from the calibration
     params = RosbagParams(
         topics=_given(src.topics), max_frames=src.max_frames,
         frontend=FrontEndParams(local_map=localmap_params(config, "stereo"),

@@ -9,7 +9,8 @@ along it through a world of one of the off-road kinds, so that real path and loo
   z forward), told apart by the number of columns; both become planar robot poses the way the
   KITTI adapter does it (robot axes, world = the first pose's frame, then x, y and yaw);
 - the robot follows the path's tangent at its own speeds (``sim.trajectory``: the file's times
-  are not used), stopping only at the start and the end;
+  are not used, and the source says so, ``path_notes``; a rover's speeds, not a car's, suit
+  the simulated sensing), stopping only at the start and the end;
 - the world kind is ``course`` when it names one (``sim.environments.WORLD_KINDS``) or that of
   the Table I course it names; the VO noise is that course's profile (for a bare kind, its
   first course's); terrain exists only in a corridor around the path (``sim.corridor``), so a
@@ -27,7 +28,7 @@ import numpy as np
 
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.datasets.kitti import KittiParams
-from gslam_jax.datasets.reading import quat_to_matrix, read_table
+from gslam_jax.datasets.reading import pose_jump, quat_to_matrix, read_table
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source
 from gslam_jax.datasets.sim import Odometry, ProgressFn, SimInfo, drive_course, sense_run
 from gslam_jax.errors import DatasetError
@@ -41,7 +42,7 @@ from gslam_jax.sim.vonoise import VO_PROFILES, VONoiseParams
 from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, invert, make_transform, pose_to_2d
 from gslam_jax.vo.localmap import LocalMapParams, localmap_params
 
-__all__ = ["PlanarPath", "read_path", "world_kind", "drive_path", "simulate_path"]
+__all__ = ["PlanarPath", "read_path", "path_notes", "world_kind", "drive_path", "simulate_path"]
 
 _KIND_COURSE = {"mars-yard": "mars-yard-a", "arroyo": "arroyo-a", "maze": "maze"}
 _FORMATS = {8: "TUM", 12: "KITTI", 13: "KITTI"}
@@ -49,11 +50,13 @@ _FORMATS = {8: "TUM", 12: "KITTI", 13: "KITTI"}
 
 class PlanarPath(NamedTuple):
     """A trajectory file's poses in the plane: [N, 3] (x, y, yaw; yaw unwrapped), the first at
-    the origin heading along x; the file's times [N] (None where it has none) and format."""
+    the origin heading along x; the file's times [N] (None where it has none) and format;
+    the file's line of each pose [N]."""
 
     poses: np.ndarray
     times: np.ndarray | None
     format: str
+    lines: np.ndarray | None = None
 
 
 def read_path(path: str | Path) -> PlanarPath:
@@ -92,7 +95,7 @@ def read_path(path: str | Path) -> PlanarPath:
     rel = invert(poses[0]) @ poses  # world = the first pose's frame
     planar = np.stack([pose_to_2d(p) for p in rel])
     planar[:, 2] = np.unwrap(planar[:, 2])
-    return PlanarPath(planar, times, _FORMATS[cols])
+    return PlanarPath(planar, times, _FORMATS[cols], table.lines)
 
 
 def world_kind(course: str) -> tuple[str, VONoiseParams]:
@@ -148,7 +151,29 @@ def simulate_path(path: str | Path, seed: int = 0, course: str = "mars-yard",
                      t0=t0)
 
 
+def path_notes(path: str | Path, planar: PlanarPath, drive_params: DriveParams | None = None
+               ) -> list[str]:
+    """What a user should know about how a trajectory file is driven: a jump far beyond the
+    file's median step (``datasets.reading.pose_jump``), and, where the file has times, that the
+    simulated robot keeps its own speeds instead (the file's duration and mean speed)."""
+    notes = []
+    jump = pose_jump(planar.poses[:, :2], planar.lines, path)
+    if jump is not None:
+        notes.append(jump)
+    if planar.times is not None and len(planar.times) > 1:
+        span = float(planar.times[-1] - planar.times[0])
+        length = float(np.sum(np.hypot(*np.diff(planar.poses[:, :2], axis=0).T)))
+        speed = f", {length / span:.2f} m/s on average" if span > 0 else ""
+        top = (drive_params or DriveParams()).max_speed
+        notes.append(f"{path}: the file's clock ({span:.1f} s for {length:.0f} m{speed}) is not "
+                     f"used: the simulated robot drives the path at its own speeds (up to "
+                     f"{top:g} m/s), so the run's times and its number of frames are its own")
+    return notes
+
+
 def _load(src: Source, config: Config, progress: ProgressFn | None = None) -> LoadedSource:
+    for note in path_notes(src.path, read_path(src.path)):
+        print(f"note: {note}")
     run, info = simulate_path(src.path, seed=src.sim_seed, course=src.course,
                               params=localmap_params(config), max_frames=src.max_frames,
                               progress=progress)

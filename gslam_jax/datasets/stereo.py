@@ -46,6 +46,7 @@ from gslam_jax.vo.calib import CalibrationError, CameraModel, ImageError, Rectif
 from gslam_jax.vo.frontend import FrontEndParams, FrontEndResult, SensorAids, run_frontend
 from gslam_jax.vo.geometry import increments_2d, make_transform
 from gslam_jax.vo.localmap import localmap_params
+from gslam_jax.vo.stereo import DenseStereoParams
 
 __all__ = ["StereoParams", "LAYOUTS", "IMAGE_SUFFIXES", "find_pairs", "read_calib_yaml",
            "read_stereo_calib", "read_tum_poses", "poses_at", "stereo_frontend"]
@@ -58,7 +59,9 @@ MAX_BASELINE = 5.0  # metres; beyond it a calibration is likely in millimetres
 @dataclass(frozen=True)
 class StereoParams:
     """mount: 4x4 left-camera-to-robot transform (the raw camera; see the module docstring).
-    max_frames: the first pairs only (None: all); frame_period: seconds between pairs without
+    max_frames: the first pairs only (None: all); the dense stereo search range comes from the
+    calibration unless ``frontend.stereo.num_disparities`` gives one
+    (``vo.stereo.with_calibrated_range``, the same rule as the KITTI reader's); frame_period: seconds between pairs without
     times.txt; max_gap: seconds between the odometry or ground-truth rows around a frame beyond
     which that frame has none."""
 
@@ -66,7 +69,8 @@ class StereoParams:
     max_frames: int | None = None
     frame_period: float = 0.1
     max_gap: float = 1.0
-    frontend: FrontEndParams = field(default_factory=FrontEndParams)
+    frontend: FrontEndParams = field(default_factory=lambda: FrontEndParams(
+        stereo=DenseStereoParams(num_disparities=0)))
 
 
 def _natural(name: str) -> list:
@@ -83,14 +87,19 @@ def find_pairs(root: Path) -> list[tuple[Path, Path]]:
     """The (left, right) image paths of the folder, in natural order of the file names.
 
     FileNotFoundError for a missing folder or layout (naming what is expected, and the source
-    of a KITTI or EuRoC folder); ImageError naming an image whose partner is missing."""
+    of a KITTI or EuRoC folder); DatasetError for a folder holding both layouts; ImageError
+    naming an image whose partner is missing."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such folder")
-    for left_name, right_name in LAYOUTS:
+    present = [(l, r) for l, r in LAYOUTS if (root / l).is_dir() or (root / r).is_dir()]
+    if len(present) > 1:
+        raise DatasetError(f"{root}: holds both {present[0][0]}/ {present[0][1]}/ and "
+                           f"{present[1][0]}/ {present[1][1]}/ image folders; which pairs to "
+                           "read is ambiguous: keep one layout (move the other out)")
+    for left_name, right_name in present:
         left_dir, right_dir = root / left_name, root / right_name
-        if left_dir.is_dir() or right_dir.is_dir():
-            break
+        break
     else:
         hint = ("; it looks like a KITTI odometry folder (sequences/): --source kitti"
                 if (root / "sequences").is_dir() else
@@ -340,7 +349,7 @@ def stereo_frontend(root: str | Path, params: StereoParams, *,
 def _load(src: Source, config: Config, progress: Callable[[int, int], None] | None = None
           ) -> LoadedSource:
     mount = camera_mount(config, None, f"--source stereo {src.path}")
-    default = FrontEndParams()
+    default = StereoParams(mount=mount).frontend
     params = StereoParams(mount=mount, max_frames=src.max_frames, frontend=FrontEndParams(
         local_map=localmap_params(config, "stereo"), on_bad_frame=src.on_bad_frame,
         stereo=stereo_settings(config, default.stereo)))

@@ -17,7 +17,8 @@ from gslam_jax.rbpf import maps
 from gslam_jax.run import Run
 from gslam_jax.run.checks import check_start_pose
 
-__all__ = ["PriorMap", "START_STREAM", "check_prior", "locate_prior_start", "rebase",
+__all__ = ["PriorMap", "START_STREAM", "check_prior", "check_start_reaches",
+           "locate_prior_start", "rebase",
            "known_box", "prior_state"]
 
 START_STREAM = 0x57A7  # folded into the filter's key for the start poses drawn around a prior
@@ -79,6 +80,31 @@ def locate_prior_start(prior: PriorMap, run: Run, config: Config) -> PriorMap:
     prior = prior._replace(start=found.start, start_sigma=sigma, located=located)
     check_prior(prior, config)
     return prior
+
+
+def check_start_reaches(prior: PriorMap, run: Run) -> None:
+    """ConfigError when ``run``'s VO path, started at ``prior.start``, never comes within a
+    local map's reach (half its diagonal) of the box around the prior's known cells: the run
+    would never see the prior map, and the result would be two disjoint maps. A prior without
+    known cells, or without a start yet, is not checked."""
+    box = known_box(prior.grid)
+    if box is None or prior.start is None or run.local_maps.shape[0] == 0:
+        return
+    lo, hi = box
+    reach = run.local_maps.shape[1] * float(run.resolution) * math.sqrt(2.0) / 2.0
+    xy = rebase(run, prior.start).vo_poses()[:, :2]
+    c, s = math.cos(prior.grid.heading), math.sin(prior.grid.heading)
+    lattice = xy @ np.array([[c, -s], [s, c]])  # R(heading)^T p: the map's lattice axes
+    gap = np.linalg.norm(np.maximum(np.maximum(lo - lattice, lattice - hi), 0.0), axis=1)
+    if gap.min() > reach:
+        x, y, th = (float(v) for v in prior.start)
+        turned = f" on its lattice's axes, turned {prior.grid.heading:.3f} rad" if c != 1 else ""
+        raise ConfigError(
+            f"--start {x:g},{y:g},{th:g}: this run's VO path, started there, comes no nearer "
+            f"than {gap.min():.1f} m to the prior map's known cells (x {lo[0]:.1f} to "
+            f"{hi[0]:.1f} m, y {lo[1]:.1f} to {hi[1]:.1f} m{turned}), beyond a local map's "
+            f"reach of {reach:.1f} m: the run would never see the prior map. Give --start in the "
+            f"prior map's frame (or leave it out to locate the start)")
 
 
 def rebase(run: Run, start: np.ndarray) -> Run:

@@ -195,10 +195,11 @@ def interpolate_path(times: ArrayLike, xy: ArrayLike, query: ArrayLike) -> tuple
 
 
 def align_to_gps(slam_times: ArrayLike, paths: ArrayLike, gps_time: ArrayLike,
-                 gps_xy: ArrayLike, gps_epe: ArrayLike) -> tuple[Alignment, Array]:
+                 gps_xy: ArrayLike, gps_epe: ArrayLike,
+                 keep: ArrayLike | None = None) -> tuple[Alignment, Array]:
     """Align SLAM paths [T,2] or [J,T,2] (times [T], same clock as the GPS) to GPS readings in
     the site frame; paths are interpolated at the GPS times and readings outside the SLAM time
-    span (``readings_in_span``) are masked. Returns (Alignment, aligned paths) like
+    span (``readings_in_span``), or not in ``keep`` [N] (default all), are masked. Returns (Alignment, aligned paths) like
     ``align_particles``: ``Alignment.n_used`` counts the readings in the fit and ``cost`` is its
     weighted residual. Raises ValueError if fewer than two readings are usable or the path does
     not move."""
@@ -209,8 +210,9 @@ def align_to_gps(slam_times: ArrayLike, paths: ArrayLike, gps_time: ArrayLike,
     t0 = float(np.asarray(slam_times)[0])
     st = jnp.asarray(np.asarray(slam_times, np.float64) - t0, jnp.float32)
     gt = jnp.asarray(np.asarray(gps_time, np.float64) - t0, jnp.float32)
+    keep = jnp.ones(gt.shape, bool) if keep is None else jnp.asarray(keep, bool)
     al, aligned = _align_interpolated(st, paths, gt, jnp.asarray(gps_xy, jnp.float32),
-                                      jnp.asarray(gps_epe, jnp.float32))
+                                      jnp.asarray(gps_epe, jnp.float32), keep)
     n_used = int(np.max(np.asarray(al.n_used)))
     if n_used < 2:
         raise ValueError(f"GPS alignment needs at least 2 usable readings within the SLAM time "
@@ -234,8 +236,8 @@ def readings_in_span(slam_times: ArrayLike, gps_time: ArrayLike) -> np.ndarray:
 
 @jax.jit
 def _align_interpolated(st: Array, paths: Array, gt: Array, a: Array,
-                        epe: Array) -> tuple[Alignment, Array]:
+                        epe: Array, keep: Array) -> tuple[Alignment, Array]:
     b = jax.vmap(lambda p: interpolate_path(st, p, gt)[0])(paths)
-    inside = (gt >= st[0]) & (gt <= st[-1])
+    inside = (gt >= st[0]) & (gt <= st[-1]) & keep
     al = jax.vmap(align, in_axes=(0, None, None, None))(b, a, epe, inside)
     return al, jax.vmap(transform_points)(al, paths)

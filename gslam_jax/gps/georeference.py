@@ -20,7 +20,7 @@ from gslam_jax.config import ConfigError
 from gslam_jax.gps.log import GpsLog, GpsLogError
 from gslam_jax.run import known_positions
 
-__all__ = ["GpsInput", "gps_input", "write_gps_outputs"]
+__all__ = ["GpsInput", "gps_input", "write_gps_outputs", "outlier", "OUTLIER_EPE"]
 
 
 class GpsInput(NamedTuple):
@@ -81,6 +81,28 @@ def gps_input(name: str, run, seed: int = 0, log: GpsLog | None = None) -> GpsIn
     return GpsInput(name, log, truth_xy, inside)
 
 
+OUTLIER_EPE = 5.0  # residual (in EPEs, and in typical residuals) beyond which a reading is dropped
+
+
+def outlier(resid: np.ndarray, epe: np.ndarray, used: np.ndarray) -> int | None:
+    """Index of the reading to drop from the GPS fit, or None: the ``used`` reading with the
+    largest residual in EPEs, u = resid / epe, when u exceeds OUTLIER_EPE times the larger of 1
+    and the used readings' typical u (1.4826 times their median: a path that drifts widens
+    every residual, and is not an outlier). At least 3 readings are always kept."""
+    idx = np.flatnonzero(used)
+    if len(idx) <= 3:
+        return None
+    u = resid[idx] / epe[idx]
+    scale = max(1.0, 1.4826 * float(np.median(u)))
+    worst = int(np.argmax(u))
+    return int(idx[worst]) if u[worst] > OUTLIER_EPE * scale else None
+
+
+def _describe(log: GpsLog, i: int, resid: float) -> str:
+    where = f"line {int(log.lines[i])}, " if log.lines is not None else ""
+    return (f"{where}time {log.time[i]:.3f} s, {resid:.1f} m off (EPE {log.epe[i]:.1f} m)")
+
+
 def write_gps_outputs(out: Path, readings: GpsInput, run, result,
                       std: np.ndarray | None = None) -> dict:
     """Align the reported path of ``result`` (``SlamResult.path``) to the readings (weighted
@@ -89,11 +111,26 @@ def write_gps_outputs(out: Path, readings: GpsInput, run, result,
     used, residuals, map corners).
     ``std``: the map's expected std when the caller has it already (else computed here)."""
     log, truth_xy = readings.log, readings.truth_xy
-    try:
-        al, aligned = gps.align_to_gps(run.timestamps, result.path[:, :2], log.time, log.xy,
-                                       log.epe)
-    except ValueError as err:
-        raise GpsLogError(f"{readings.name}: {err}") from err
+    used = readings.inside & np.isfinite(log.xy).all(axis=1)
+    t0 = float(run.timestamps[0])
+    t, gt = np.asarray(run.timestamps, np.float64) - t0, np.asarray(log.time, np.float64) - t0
+    keep = np.ones(len(log.time), bool)
+    while True:  # the fit, less the worst outlier, until none is left (``outlier_limit``)
+        try:
+            al, aligned = gps.align_to_gps(run.timestamps, result.path[:, :2], log.time,
+                                           log.xy, log.epe, keep)
+        except ValueError as err:
+            raise GpsLogError(f"{readings.name}: {err}") from err
+        # residuals of the fit at the readings, in metres (float64 host interpolation)
+        aligned = np.asarray(aligned, np.float64)
+        at_gps = np.stack([np.interp(gt, t, aligned[:, k]) for k in range(2)], -1)
+        resid = np.linalg.norm(at_gps - np.where(used[:, None], log.xy, 0.0), axis=1)
+        worst = outlier(resid, log.epe, used & keep)
+        if worst is None:
+            break
+        keep[worst] = False
+    dropped = np.flatnonzero(used & ~keep)
+    used = used & keep
     path_gps = np.asarray(gps.transform_poses(al, result.path), np.float64)
     path_gps[:, :2] += np.asarray(log.origin, np.float64)
     np.savetxt(out / "trajectory_utm.txt", np.column_stack([run.timestamps, path_gps]),
@@ -111,22 +148,28 @@ def write_gps_outputs(out: Path, readings: GpsInput, run, result,
     np.savez(out / "gps_alignment.npz", R=np.asarray(al.R), l=np.asarray(al.l),
              site_origin=np.asarray(log.origin), zone=log.zone, epsg=log.epsg,
              map_corners_utm=corners)
-    # Residuals of the fit at the readings it used, in metres (float64 host interpolation).
-    t0 = float(run.timestamps[0])
-    t, gt = np.asarray(run.timestamps, np.float64) - t0, np.asarray(log.time, np.float64) - t0
-    aligned = np.asarray(aligned, np.float64)
-    at_gps = np.stack([np.interp(gt, t, aligned[:, k]) for k in range(2)], -1)
-    used = readings.inside & np.isfinite(log.xy).all(axis=1)
-    resid = np.linalg.norm(at_gps[used] - log.xy[used], axis=1)
     n, n_used, cost = int(len(log.time)), int(al.n_used), float(al.cost)
     report = {"readings": n, "skipped": int(log.n_skipped),
               "inside_run": int(readings.inside.sum()), "used": n_used,
-              "weighted_residual": cost, "residual_rms_m": float(np.sqrt(np.mean(resid ** 2))),
+              "weighted_residual": cost,
+              "residual_rms_m": float(np.sqrt(np.mean(resid[used] ** 2))),
               "epsg": log.epsg, "map_corners_utm": corners.tolist()}
     skipped = f", {report['skipped']} skipped by the reader" if report["skipped"] else ""
+    outliers = f", {len(dropped)} dropped as outliers" if len(dropped) else ""
     print(f"GPS: {n_used} of {n} readings used ({n - report['inside_run']} outside the run's time "
-          f"span{skipped}); weighted residual {cost:.3g} ({cost / max(n_used, 1):.3g} per "
-          f"reading), residual RMS {report['residual_rms_m']:.2f} m")
+          f"span{skipped}{outliers}); weighted residual {cost:.3g} ({cost / max(n_used, 1):.3g} "
+          f"per reading), residual RMS {report['residual_rms_m']:.2f} m")
+    if len(dropped):
+        report["outliers"] = [
+            {**({"line": int(log.lines[i])} if log.lines is not None else {}),
+             "time": float(log.time[i]), "residual_m": float(resid[i]),
+             "epe_m": float(log.epe[i])} for i in dropped]
+        print(f"WARNING: {readings.name}: {len(dropped)} GPS reading(s) lie far beyond their EPE "
+              f"from the fit of the others (residual over {OUTLIER_EPE:g} EPE and over "
+              f"{OUTLIER_EPE:g} times the readings' typical residual) and were left out of the "
+              "alignment: " + "; ".join(_describe(log, i, resid[i]) for i in dropped[:5])
+              + (f"; and {len(dropped) - 5} more (summary.json's gps.outliers)"
+                 if len(dropped) > 5 else ""))
     if truth_xy is not None:
         ok = used & np.isfinite(truth_xy).all(axis=1)
         err_slam = np.linalg.norm(at_gps[ok] - truth_xy[ok], axis=1)

@@ -29,7 +29,8 @@ class GpsLog(NamedTuple):
 
     time [N] s; lat, lon [N] degrees; epe [N] m; xy [N,2] = UTM (E, N) - origin; origin (2,)
     the site-frame origin in UTM metres; zone, north the UTM zone; n_skipped the readings
-    dropped while reading (NaN or out-of-range coordinates, EPE <= 0 or not finite).
+    dropped while reading (NaN coordinates, EPE <= 0 or not finite); lines [N] the 1-based
+    line of each reading in its file (None for simulated readings).
     """
 
     time: np.ndarray
@@ -41,6 +42,7 @@ class GpsLog(NamedTuple):
     zone: int
     north: bool
     n_skipped: int = 0
+    lines: np.ndarray | None = None
 
     @property
     def epsg(self) -> int:
@@ -68,15 +70,17 @@ def read_gps_log(path: str | Path, origin: ArrayLike | None = None, zone: int | 
     Separators: comma, semicolon, tab or whitespace; '#' starts a comment. An optional header
     line names the columns (e.g. ``time,lat,lon,epe``; common aliases accepted, extra columns
     ignored); without one the first four columns are taken in that order. Readings with a NaN
-    or out-of-range coordinate or a non-positive/non-finite EPE are skipped and counted
-    (``strict=True`` raises instead). The UTM zone comes from the first reading unless given;
-    ``origin`` (UTM E, N) defaults to the first reading rounded to 100 m. Raises GpsLogError
-    naming the file and line for unparsable lines, decreasing time, or < 2 usable readings.
+    coordinate or a non-positive/non-finite EPE are skipped and counted (``strict=True``
+    raises instead). The UTM zone comes from the first reading unless given; ``origin`` (UTM
+    E, N) defaults to the first reading rounded to 100 m. Raises GpsLogError naming the file
+    and line for unparsable lines, decreasing time, a latitude or longitude out of range (or
+    outside UTM's latitudes), or < 2 usable readings (with the first skipped reading's reason).
     """
     path = Path(path)
     cols = {"time": 0, "lat": 1, "lon": 2, "epe": 3}
     rows: list[tuple[float, float, float, float]] = []
-    skipped, seen_data = 0, False
+    lines: list[int] = []
+    skipped, seen_data, first_skip = 0, False, ""
     try:
         text = path.read_text()
     except OSError as err:
@@ -117,7 +121,12 @@ def read_gps_log(path: str | Path, origin: ArrayLike | None = None, zone: int | 
         if not (math.isfinite(la) and math.isfinite(lo)):
             bad = "non-finite coordinate"
         elif not (-90.0 <= la <= 90.0 and -180.0 <= lo <= 360.0):
-            bad = f"coordinate out of range (lat {la}, lon {lo})"
+            swapped = -90.0 <= lo <= 90.0 and -180.0 <= la <= 360.0
+            what = (f"latitude {la} is out of range (-90 to 90)" if not -90.0 <= la <= 90.0
+                    else f"longitude {lo} is out of range (-180 to 360)")
+            raise GpsLogError(f"{path}:{lineno}: {what}"
+                              + ("; are latitude and longitude swapped? (the columns are "
+                                 f"{_column_order(cols)})" if swapped else ""))
         elif not (math.isfinite(ep) and ep > 0):
             bad = f"EPE must be positive and finite, got {ep}"
         if bad is None and not UTM_LATITUDES[0] <= la <= UTM_LATITUDES[1]:
@@ -128,18 +137,26 @@ def read_gps_log(path: str | Path, origin: ArrayLike | None = None, zone: int | 
             if strict:
                 raise GpsLogError(f"{path}:{lineno}: {bad}")
             skipped += 1
+            first_skip = first_skip or f"; the first skipped, line {lineno}: {bad}"
             continue
         rows.append((t, la, lo, ep))
+        lines.append(lineno)
     if len(rows) < 2:
         raise GpsLogError(f"{path}: need at least 2 usable GPS readings, found {len(rows)} "
-                          f"({skipped} skipped)")
+                          f"({skipped} skipped){first_skip}")
     arr = np.asarray(rows, np.float64)
     E, N, zone, north = latlon_to_utm(arr[:, 1], arr[:, 2], zone=zone)
     if origin is None:
         origin = np.round(np.array([E[0], N[0]]) / 100.0) * 100.0
     origin = np.asarray(origin, np.float64)
     xy = np.stack([E, N], -1) - origin
-    return GpsLog(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], xy, origin, zone, north, skipped)
+    return GpsLog(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], xy, origin, zone, north, skipped,
+                  np.asarray(lines, np.int64))
+
+
+def _column_order(cols: dict[str, int]) -> str:
+    """The columns read, in file order (e.g. 'time, lat, lon, epe')."""
+    return ", ".join(sorted(cols, key=cols.get))
 
 
 def _is_number(s: str) -> bool:

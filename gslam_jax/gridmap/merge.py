@@ -21,8 +21,8 @@ from gslam_jax.gridmap.align import (AlignParams, Alignment, AlignmentRefused, P
 from gslam_jax.gridmap.grid import (GridMap, MapFileError, add, compose, invert_pose, load_map,
                                     transform)
 
-__all__ = ["MapRun", "Merged", "InconsistentMap", "check_consistent", "consistency_problem",
-           "load_run_folder", "gps_prior", "merge_maps", "merge_runs", "place_path"]
+__all__ = ["MapRun", "Merged", "InconsistentMap", "SameMap", "check_distinct", "check_consistent",
+           "consistency_problem", "load_run_folder", "gps_prior", "merge_maps", "merge_runs", "place_path"]
 
 
 class MapRun(NamedTuple):
@@ -30,7 +30,7 @@ class MapRun(NamedTuple):
     poses [T, 3]; None when the folder has none), when it was aligned to GPS, the pose of its
     map frame in the GPS site frame with the fit's residual RMS (metres), and its own run's
     check of the map against itself (``summary.json``'s ``map_consistency``, written by
-    ``consistency``; None when not checked)."""
+    ``consistency``; None when not checked, and ``unchecked`` says why)."""
 
     name: str
     grid: GridMap
@@ -39,11 +39,20 @@ class MapRun(NamedTuple):
     gps_frame: np.ndarray | None = None
     gps_rms_m: float | None = None
     consistency: dict | None = None
+    unchecked: str | None = None  # why its own run's self-check is not known (None: it is)
 
 
 class InconsistentMap(AlignmentRefused):
     """A run's map failed its own run's consistency check (terrain mapped twice): merging it
     would carry the doubled terrain into the merge."""
+
+    def __init__(self, message: str):
+        super().__init__(message, None)
+
+
+class SameMap(AlignmentRefused):
+    """Two of the runs hold the same map (a run merged with itself, or a copy of it): the
+    merge would count every cell's evidence twice."""
 
     def __init__(self, message: str):
         super().__init__(message, None)
@@ -67,6 +76,8 @@ def load_run_folder(folder: str | Path) -> MapRun:
     folder = Path(folder)
     grid = load_map(folder)
     times = path = gps_frame = gps_rms = consistency = None
+    unchecked = (f"{folder} is a bare map file, without its run's summary.json" if not
+                 folder.is_dir() else None)
     if folder.is_dir():
         tum = folder / "trajectory_tum.txt"
         if tum.is_file():
@@ -90,7 +101,33 @@ def load_run_folder(folder: str | Path) -> MapRun:
             consistency = summary.get("map_consistency")
             if gps_frame is not None:
                 gps_rms = summary.get("gps", {}).get("residual_rms_m")
-    return MapRun(folder.name, grid, times, path, gps_frame, gps_rms, consistency)
+            if consistency is None:
+                unchecked = (f"{summary_file} records no map self-check (map_consistency; "
+                             "its run was made with --no-map-check, or by an older version)")
+        else:
+            unchecked = f"{folder} has no summary.json"
+        if unchecked is not None and not (folder / "COMPLETE").is_file():
+            unchecked += " and no COMPLETE marker (not a finished gslam results folder)"
+    return MapRun(folder.name, grid, times, path, gps_frame, gps_rms, consistency, unchecked)
+
+
+def _same_grid(a: GridMap, b: GridMap) -> bool:
+    """Whether two maps hold the same statistics on the same lattice."""
+    return (a.k.shape == b.k.shape and a.resolution == b.resolution
+            and float(a.heading) == float(b.heading)
+            and np.array_equal(np.asarray(a.origin), np.asarray(b.origin))
+            and np.array_equal(a.k, b.k) and np.array_equal(a.S, b.S))
+
+
+def check_distinct(runs: Sequence[MapRun]) -> None:
+    """Raise ``SameMap`` naming two runs whose maps are the same (the same folder twice, or a
+    copy): eq. 14 would add the map to itself, doubling every cell's evidence."""
+    for i, a in enumerate(runs):
+        for b in runs[i + 1:]:
+            if _same_grid(a.grid, b.grid):
+                raise SameMap(f"{b.name} holds the same map as {a.name} (every cell's k and S, "
+                              "the origin and the lattice equal): merging a run with itself "
+                              "would double every cell's evidence; refused")
 
 
 def gps_prior(a: MapRun, b: MapRun, min_std_m: float = 1.0) -> PosePrior | None:
@@ -164,7 +201,9 @@ def merge_runs(runs: Sequence[MapRun], params: AlignParams = AlignParams(),
                allow_inconsistent: bool = False) -> Merged:
     """``merge_maps`` over runs' maps, with GPS priors (``gps_prior`` against the first run)
     where both runs have a GPS alignment and ``use_gps``. A run whose map failed its own run's
-    consistency check is refused (``InconsistentMap``) unless ``allow_inconsistent``."""
+    consistency check is refused (``InconsistentMap``) unless ``allow_inconsistent``; two runs
+    with the same map always (``SameMap``)."""
+    check_distinct(runs)
     if not allow_inconsistent:
         for run in runs:
             check_consistent(run)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import warnings
 from collections import Counter, defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -24,8 +24,9 @@ from gslam_jax.vo.fallback import (correct_tilt, fallback_increment, level_rotat
                                    planar_transform, slip_ratio)
 from gslam_jax.vo.geometry import increments_2d, invert, pose_to_2d
 from gslam_jax.vo.odometry import StereoVO, VOParams, VOResult
-from gslam_jax.vo.stereo import (DenseStereoParams, dense_disparity, disparity_to_points,
-                                 drop_depth_edges, to_robot_frame)
+from gslam_jax.vo.stereo import (NEAREST_DENSE_DEPTH, DenseStereoParams, dense_disparity,
+                                 disparity_to_points, drop_depth_edges, to_robot_frame,
+                                 with_calibrated_range)
 
 __all__ = ["FrontEndParams", "FrontEndSummary", "FrontEndResult", "SensorAids", "run_frontend"]
 
@@ -33,10 +34,6 @@ PairLoader = Callable[[int], tuple[np.ndarray, np.ndarray]]
 ExtraPairs = Callable[[int], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]
 """``extra(t)`` -> [(left, right, t_robot_cam)]: more rectified pairs (same rig) seen at frame t,
 used for dense points only (e.g. the second pair of a two-pair robot)."""
-
-# run_frontend warns when the dense search range misses surfaces nearer than this (metres):
-# SGBM then matches them wrongly as far points (KITTI at 64 disparities: nearest 5.9 m).
-NEAREST_DENSE_DEPTH = 3.0
 
 
 @dataclass(frozen=True)
@@ -127,6 +124,7 @@ def run_frontend(load_pair: PairLoader, num_frames: int, rig: RectifiedRig,
     if params.on_bad_frame not in ("error", "fallback"):
         raise ValueError(f"on_bad_frame must be 'error' or 'fallback', got {params.on_bad_frame!r}")
     cam = Camera(rig.fx, rig.fy, rig.cx, rig.cy, rig.baseline)
+    params = replace(params, stereo=with_calibrated_range(params.stereo, rig))
     nearest = rig.fx * rig.baseline / max(params.stereo.num_disparities, 1)
     if params.dense and nearest > NEAREST_DENSE_DEPTH:
         warnings.warn(f"{source}: dense stereo with {params.stereo.num_disparities} disparities "

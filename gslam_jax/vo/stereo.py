@@ -6,22 +6,29 @@ camera frame; :func:`to_robot_frame` moves them into the gravity-aligned robot f
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from gslam_jax.vo.calib import RectifiedRig
 
-__all__ = ["DenseStereoParams", "dense_disparity", "drop_depth_edges", "disparity_to_points",
+__all__ = ["DenseStereoParams", "NEAREST_DENSE_DEPTH", "disparities_from_depth",
+           "with_calibrated_range", "dense_disparity", "drop_depth_edges", "disparity_to_points",
            "to_robot_frame"]
+
+# The nearest depth (metres) a source's own dense search range covers: a surface nearer than
+# fx * baseline / num_disparities is matched wrongly as a far point.
+NEAREST_DENSE_DEPTH = 3.0
 
 
 @dataclass(frozen=True)
 class DenseStereoParams:
     """StereoSGBM settings (``algorithm="bm"`` picks the faster, noisier StereoBM).
 
-    num_disparities: search range in pixels (multiple of 16); block: matching window side;
+    num_disparities: search range in pixels (multiple of 16; 0: from the calibration,
+    :func:`with_calibrated_range`); block: matching window side;
     min_disparity_px: disparities below this (far points) are dropped; stride: keep every
     ``stride``-th pixel in each direction when making points.
     max_depth_error: metres; the front-end makes no point whose depth error, to first order in
@@ -61,6 +68,24 @@ class DenseStereoParams:
             P1=8 * area, P2=32 * area, uniquenessRatio=self.uniqueness,
             speckleWindowSize=self.speckle_window, speckleRange=self.speckle_range,
             mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
+def disparities_from_depth(fx: float, baseline: float, nearest: float = NEAREST_DENSE_DEPTH,
+                           at_least: int = 64) -> int:
+    """The dense search range (pixels, a multiple of 16, at least ``at_least``) that matches
+    surfaces from ``nearest`` metres on: a point at depth Z has disparity fx * baseline / Z."""
+    need = fx * baseline / nearest
+    return max(at_least, 16 * math.ceil(need / 16 - 1e-9))
+
+
+def with_calibrated_range(params: DenseStereoParams, rig: RectifiedRig) -> DenseStereoParams:
+    """``params`` with ``num_disparities`` 0 replaced by the calibration's
+    (:func:`disparities_from_depth` of the rig's fx and baseline); any other value as given.
+    Every source that leaves the range to the calibration searches the same range for the
+    same rig (KITTI's fx * baseline of 380 px m: 128)."""
+    if params.num_disparities:
+        return params
+    return replace(params, num_disparities=disparities_from_depth(rig.fx, rig.baseline))
 
 
 def dense_disparity(left: np.ndarray, right: np.ndarray,
