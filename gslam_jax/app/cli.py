@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from gslam_jax import choices  # light (no JAX), as the next two
 from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still set XLA_FLAGS
 from gslam_jax.errors import InputError
 from gslam_jax.app.progress import ProgressBar
+from gslam_jax.app.termination import Terminated, sigterm_as_exit
 from gslam_jax.app import info, merge, tuning_commands, view
 from gslam_jax.app.arguments import (add_source_arguments, load_config, nonnegative_int, pose,
                                      pose_sigma, positive_float, positive_int, seed,
@@ -32,7 +34,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     elif args.start is not None or args.start_sigma is not None:
         raise ConfigError("--start and --start-sigma place the run in a prior map: give "
                           "--prior-map RUN_A too")
-    with view.RunWatch.open(args.viewer, args.viewer_save, args.viewer_every) as watch:
+    with view.RunWatch.open(args.viewer, args.viewer_save, args.viewer_every,
+                            overwrite=args.overwrite) as watch:
         out, _ = run_pipeline(source_request(args), config, args.out, overwrite=args.overwrite,
                               gps=args.gps, save_run=args.save_run, progress=ProgressBar,
                               prior=prior, on_chunk=watch.on_chunk, chunk=watch.chunk,
@@ -94,7 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "outside the run's time span are not used: at least 2 must fall inside it, "
                    "with a warning when fewer than half do. Or 'sim' for a simulated WAAS-like "
                    "receiver on a run with ground truth")
-    p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as .npz")
+    p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as "
+                   ".npz; an existing file is refused unless --overwrite")
     p.add_argument("--prior-map", type=Path, metavar="RUN_A", help="map reuse: start every "
                    "particle with this map (a gslam run results folder or its map.npz, same "
                    "[map] resolution), localise in it and extend it; the results are in its frame")
@@ -111,7 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "the results appear there only when complete (marker file COMPLETE); an "
                    "existing, non-empty folder is refused unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace an existing results "
-                   "folder --out as a whole once the new results are complete")
+                   "folder --out as a whole once the new results are complete (and an existing "
+                   "--save-run or --viewer-save file once the new one is)")
     view.add_run_arguments(p, positive_int)
     p.set_defaults(func=cmd_run)
 
@@ -193,9 +198,12 @@ def _out_of_memory(err: BaseException) -> bool:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        if getattr(args, "course_path", None) is not None:
-            use_course_path(args)
-        return args.func(args)
+        with sigterm_as_exit():  # every file a command stages is removed on SIGTERM too
+            if getattr(args, "course_path", None) is not None:
+                use_course_path(args)
+            return args.func(args)
+    except Terminated as err:
+        return int(err.code)
     except (InputError, FileNotFoundError) as err:
         print(f"gslam: error: {err}", file=sys.stderr)
         return 2
@@ -214,13 +222,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def console() -> None:
-    """The ``gslam`` script: ``main``, then exit. After Ctrl-C the process ends without
-    Python's teardown, which can crash (SIGSEGV) while XLA threads are still compiling."""
+    """The ``gslam`` script: ``main``, then exit. After Ctrl-C or SIGTERM the process ends
+    without Python's teardown, which can crash (SIGSEGV) while XLA threads are still compiling
+    or running (``termination``)."""
     code = main()
-    if code == 130:
+    if code in (130, 128 + signal.SIGTERM):
         sys.stdout.flush()
         sys.stderr.flush()
-        os._exit(130)
+        os._exit(code)
     sys.exit(code)
 
 
