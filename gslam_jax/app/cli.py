@@ -50,13 +50,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json,
                       course=args.course, course_particles=args.course_particles,
                       plot_path=args.plot, particle_block=args.particle_block,
-                      stores=args.store)
+                      stores=args.store, overwrite=args.overwrite)
 
 
 def cmd_table1(args: argparse.Namespace) -> int:
     from gslam_jax.app.table1 import main as table1_main
     return table1_main(args.courses, args.seeds, args.particles, args.config, args.json, args.quick,
-                       args.set or [])
+                       args.set or [], overwrite=args.overwrite)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -140,6 +140,8 @@ def _build_rest(sub) -> None:
                    default=list(choices.UNKNOWN_CELLS))
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     p.add_argument("--plot", type=Path, help="also plot us per particle against J (PNG)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --json or "
+                   "--plot file once the new one is complete")
     p.add_argument("--course", choices=COURSES, metavar="COURSE",
                    help="also time a whole simulated course after compilation "
                    "(e.g. mars-yard-a), default settings")
@@ -162,7 +164,9 @@ def _build_rest(sub) -> None:
     p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
                    help="override one config value on every course, after the config's course "
                    "tables (repeatable)")
-    p.add_argument("--json", type=Path)
+    p.add_argument("--json", type=Path, help="also write the rows and the environment as JSON")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --json file "
+                   "once the new one is complete")
     p.add_argument("--quick", action="store_true", help="Mars Yard A, one seed, J <= 100")
     p.set_defaults(func=cmd_table1)
 
