@@ -19,7 +19,7 @@ import numpy as np
 
 from gslam_jax import rbpf
 from gslam_jax.config import Config
-from gslam_jax.errors import InputError
+from gslam_jax.errors import ArgumentError, InputError, integer_argument
 from gslam_jax.gridmap import GridMap, turn_poses
 from gslam_jax.map_axes import (LatticeWarning, check_local_lattices, local_lattice_axes,
                                 map_heading, on_map_axes)
@@ -291,8 +291,16 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
 
     The filter runs on the map lattice's axes (``map_heading``); the paths are turned back
     into the run's frame and the map keeps its axes (``SlamResult.map_heading``). A prior's
-    start spread is drawn on its lattice's axes.
+    start spread is drawn on its lattice's axes. An ArgumentError names a ``run``, ``config``
+    or ``chunk`` of the wrong type.
     """
+    if not isinstance(run, Run):
+        raise ArgumentError(f"run_slam: run must be a gslam_jax.Run (load_run(path), "
+                            f"simulate_run(...)[0]), got {type(run).__name__}")
+    if not isinstance(config, Config):
+        raise ArgumentError(f"run_slam: config must be a gslam_jax.Config (Config(), or "
+                            f"load_config(path)), got {type(config).__name__}")
+    integer_argument(chunk, "run_slam: chunk", 1)
     given, heading, run = filtered_run(run, config, prior)
     check_local_lattices(given, heading)
     cfg = filter_config(config, run, prior)
