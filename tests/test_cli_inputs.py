@@ -342,3 +342,17 @@ def test_course_path_is_the_sim_path_source(tmp_path, capsys, monkeypatch):
         assert main(["run", "--course-path", str(poses), *extra, "--out", out]) == 2
         assert message in capsys.readouterr().err
     assert len(seen) == 2
+
+
+def test_start_takes_a_negative_value_without_an_equals_sign(tmp_path, capsys):
+    """Before: ``--start -5,0,0`` was a usage error ("expected one argument"): argparse took
+    the value for an option; ``--start=-5,0,0`` was needed."""
+    from gslam_jax.app.arguments import attach_negative_values
+
+    assert main(["run", "--start", "-5,0,0", "--out", str(tmp_path / "o")]) == 2
+    assert "--start and --start-sigma place the run in a prior map" in capsys.readouterr().err
+    assert attach_negative_values(["run", "--start", "-5.5,-1,0.2", "--set", "a.b=-1"]) == \
+        ["run", "--start=-5.5,-1,0.2", "--set", "a.b=-1"]
+    assert attach_negative_values(["run", "--start", "--out", "x"]) == \
+        ["run", "--start", "--out", "x"]  # a missing value stays argparse's error
+    assert list(tmp_path.iterdir()) == []

@@ -16,7 +16,8 @@ from gslam_jax.errors import InputError
 from gslam_jax.app.progress import ProgressBar
 from gslam_jax.app.termination import Terminated, sigterm_as_exit
 from gslam_jax.app import info, merge, tuning_commands, view
-from gslam_jax.app.arguments import (add_source_arguments, load_config, nonnegative_int, pose,
+from gslam_jax.app.arguments import (add_source_arguments, attach_negative_values,
+                                     load_config, nonnegative_int, pose,
                                      pose_sigma, positive_float, positive_int, seed,
                                      source_request, use_course_path)
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
@@ -103,7 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "particle with this map (a gslam run results folder or its map.npz, same "
                    "[map] resolution), localise in it and extend it; the results are in its frame")
     p.add_argument("--start", type=pose, metavar="X,Y,THETA", help="with --prior-map: the "
-                   "run's start pose in the prior map's frame (metres, radians)")
+                   "run's start pose in the prior map's frame (metres, radians; a negative X "
+                   "may follow directly: --start -5,0,0)")
     p.add_argument("--start-sigma", type=pose_sigma, metavar="SX,SY,STHETA", help="with "
                    "--prior-map: standard deviations of the start pose (metres, radians); the "
                    "particles start spread by them (default 0,0,0: all at --start)")
@@ -200,6 +202,7 @@ def _out_of_memory(err: BaseException) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = attach_negative_values(sys.argv[1:] if argv is None else list(argv))
     args = build_parser().parse_args(argv)
     try:
         with sigterm_as_exit():  # every file a command stages is removed on SIGTERM too
