@@ -393,3 +393,17 @@ def test_outlier_test_keeps_a_drifting_path_and_three_readings():
     assert outlier(np.array([4.0, 3.5, 4.5, 4.0, 9.0, 4.2, 3.8, 4.1]), epe, used) is None
     assert outlier(np.array([0.5, 0.4, 60.0, 0.0, 0, 0, 0, 0]), epe, used & (np.arange(8) < 3)) \
         is None
+
+
+def test_start_takes_a_negative_value_without_an_equals_sign(tmp_path, capsys):
+    """Before: ``--start -5,0,0`` was a usage error ("expected one argument"): argparse took
+    the value for an option; ``--start=-5,0,0`` was needed."""
+    from gslam_jax.app.arguments import attach_negative_values
+
+    assert main(["run", "--start", "-5,0,0", "--out", str(tmp_path / "o")]) == 2
+    assert "--start and --start-sigma place the run in a prior map" in capsys.readouterr().err
+    assert attach_negative_values(["run", "--start", "-5.5,-1,0.2", "--set", "a.b=-1"]) == \
+        ["run", "--start=-5.5,-1,0.2", "--set", "a.b=-1"]
+    assert attach_negative_values(["run", "--start", "--out", "x"]) == \
+        ["run", "--start", "--out", "x"]  # a missing value stays argparse's error
+    assert list(tmp_path.iterdir()) == []

@@ -265,3 +265,66 @@ def test_a_map_on_the_start_axes_is_shown_turned_and_the_poses_in_the_runs_frame
         turn = row["GridMap:rotation_axis_angle"][0]
         assert turn["axis"] == pytest.approx([0.0, 0.0, 1.0])
         assert turn["angle"] == pytest.approx(heading, abs=1e-6)
+
+
+def test_gslam_view_opens_a_merge_folder(runs, tmp_path, capsys):
+    """Before: "has no trajectory_tum.txt: give a gslam run results folder". A merge folder
+    (as ``gslam merge`` writes it) shows the merged map and each run's path in its frame."""
+    from gslam_jax.app.merge import write_merge
+    from gslam_jax.gridmap import load_map
+    from gslam_jax.gridmap.merge import MapRun, Merged
+
+    tmp, _, _ = runs
+    grid = load_map(tmp / "with")
+    times, path = read_tum(tmp / "with" / "trajectory_tum.txt")
+    pose_b = np.array([1.0, -0.5, 0.3])
+    runs_ = [MapRun("a", grid, times, path), MapRun("b", grid, times, path)]
+    write_merge(tmp_path, runs_, Merged(grid, [np.zeros(3), pose_b], [None, None]))
+    rrd = tmp_path.parent / f"{tmp_path.name}-merge.rrd"
+    assert main(["view", str(tmp_path), "--save", str(rrd)]) == 0
+    assert "2 runs merged" in capsys.readouterr().out
+    ent = _entities(rrd)
+    for entity, file in (("/world/path/run0_a", "trajectory_0_a_tum.txt"),
+                         ("/world/path/run1_b", "trajectory_1_b_tum.txt")):
+        strips = ent[entity][0]["LineStrips3D:strips"]
+        np.testing.assert_allclose(np.array(strips[0])[:, :2],
+                                   read_tum(tmp_path / file)[1][:, :2], atol=1e-5)
+    # run b placed by its pose (x, y, heading): its path is a rigid motion of a's
+    c, s = np.cos(pose_b[2]), np.sin(pose_b[2])
+    want = path[:, :2] @ np.array([[c, s], [-s, c]]) + pose_b[:2]
+    got = np.array(ent["/world/path/run1_b"][0]["LineStrips3D:strips"][0])[:, :2]
+    np.testing.assert_allclose(got, want, atol=1e-4)
+    assert [r.get("frame") for r in ent["/world/map"]] == [None]
+
+
+def test_view_save_refuses_an_existing_file_unless_overwrite(runs, tmp_path, capsys):
+    """Before: ``gslam view A --save FILE`` replaced FILE without asking."""
+    tmp, _, _ = runs
+    rrd = tmp_path / "old.rrd"
+    rrd.write_bytes(b"the user's recording")
+    assert main(["view", str(tmp / "with"), "--save", str(rrd)]) == 2
+    assert f"--save {rrd}: exists (--overwrite replaces it)" in capsys.readouterr().err
+    assert rrd.read_bytes() == b"the user's recording"
+    assert main(["view", str(tmp / "with"), "--save", str(rrd), "--overwrite"]) == 0
+    assert "/world/path/reported" in _entities(rrd)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.rrd"]  # no temporary left
+
+
+@pytest.mark.parametrize("failure", ["bad-path", "refused-out", "exists"])
+def test_viewer_save_keeps_an_existing_file_when_the_run_fails_at_once(
+        runs, tmp_path, capsys, failure):
+    """Before: --viewer-save FILE was opened (emptied) before the run's other checks, so a bad
+    --path or a refused --out replaced the user's file by an empty recording."""
+    tmp, _, _ = runs
+    rrd = tmp_path / "old.rrd"
+    rrd.write_bytes(b"the user's recording")
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("x")
+    argv = {"bad-path": ["--source", "kitti", "--path", str(tmp_path / "nothing"),
+                         "--overwrite", "--out", str(tmp_path / "o")],
+            "refused-out": [str(tmp / "r.npz"), "--out", str(tmp_path / "full"), "--overwrite"],
+            "exists": [str(tmp / "r.npz"), "--out", str(tmp_path / "o")]}[failure]
+    assert main(["run", *argv, "--viewer-save", str(rrd)]) == 2
+    assert capsys.readouterr().err.startswith("gslam: error:")
+    assert rrd.read_bytes() == b"the user's recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["full", "old.rrd"]

@@ -16,7 +16,7 @@ from gslam_jax.config import ConfigError, paper_differences
 from gslam_jax.datasets.registry import Source, get_source, source_names
 from gslam_jax.sim.courses import COURSES
 
-__all__ = ["Given", "add_source_arguments", "config_and_run", "load_config", "nonnegative_int",
+__all__ = ["Given", "add_source_arguments", "attach_negative_values", "config_and_run", "load_config", "nonnegative_int",
            "pose", "pose_sigma", "positive_float", "positive_int", "seed", "source_request",
            "topic", "use_course_path"]
 
@@ -85,6 +85,29 @@ def _triple(text: str, nonnegative: bool) -> tuple[float, float, float]:
 def pose(text: str) -> tuple[float, float, float]:
     """argparse type: X,Y,THETA (metres, radians)."""
     return _triple(text, nonnegative=False)
+
+
+# Options whose value may begin with a minus sign (a pose west or south of the origin).
+NEGATIVE_VALUE_OPTIONS = ("--start",)
+
+
+def attach_negative_values(argv: list[str]) -> list[str]:
+    """``--start -5,0,0`` as ``--start=-5,0,0``: argparse takes a separate value that begins
+    with '-' and is not a plain number for an option of its own ("expected one argument")."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in NEGATIVE_VALUE_OPTIONS and i + 1 < len(argv) and \
+                argv[i + 1].startswith("-") and argv[i + 1][1:2] in set("0123456789."):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+            continue
+        if argv[i] == "--":
+            out.extend(argv[i:])
+            break
+        out.append(argv[i])
+        i += 1
+    return out
 
 
 def pose_sigma(text: str) -> tuple[float, float, float]:

@@ -208,23 +208,24 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
 def main(particles=(50, 200, 1000), local=(64,), map_side=(640,), repeats: int = 10,
          modes=choices.UNKNOWN_CELLS, json_path: Path | None = None, course: str | None = None,
          course_particles: int = 200, plot_path: Path | None = None,
-         particle_block=(0,), stores=("dense",)) -> int:
+         particle_block=(0,), stores=("dense",), overwrite: bool = False) -> int:
     """Print (and optionally save) the update cost over every combination of the arguments.
 
     The cost should be flat in the map size (each update touches one footprint per particle) and
     linear in J; the last column divides by J so both are easy to read off. ``particle_block``
     (0: automatic) takes several values to compare block sizes in one process. The arguments
     and the output paths are checked before any timing (``check_arguments``,
-    ``check_output_file``); the outputs are written atomically.
+    ``check_output_file``: an existing file only with ``overwrite``); the outputs are written
+    atomically.
     """
     particle_block = [particle_block] if isinstance(particle_block, int) else list(particle_block)
     local = [local] if isinstance(local, int) else list(local)
     map_side = [map_side] if isinstance(map_side, int) else list(map_side)
     check_arguments(particles, local, map_side, modes, particle_block, stores)
     if json_path:
-        check_output_file(json_path, "--json")
+        check_output_file(json_path, "--json", overwrite)
     if plot_path:
-        check_output_file(_plot_file(plot_path), "--plot")
+        check_output_file(_plot_file(plot_path), "--plot", overwrite)
     env = environment()
     print("gslam bench: local-map update (footprint reads + fused log-gamma weights + scatter-add"
           " map update + normalise), chained in a lax.scan as runs execute it")

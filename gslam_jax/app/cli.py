@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -13,8 +14,10 @@ from gslam_jax import choices  # light (no JAX), as the next two
 from gslam_jax.config import ConfigError  # light (no JAX), so --exact can still set XLA_FLAGS
 from gslam_jax.errors import InputError
 from gslam_jax.app.progress import ProgressBar
+from gslam_jax.app.termination import Terminated, sigterm_as_exit
 from gslam_jax.app import info, merge, tuning_commands, view
-from gslam_jax.app.arguments import (add_source_arguments, load_config, nonnegative_int, pose,
+from gslam_jax.app.arguments import (add_source_arguments, attach_negative_values,
+                                     load_config, nonnegative_int, pose,
                                      pose_sigma, positive_float, positive_int, seed,
                                      source_request, use_course_path)
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
@@ -32,7 +35,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     elif args.start is not None or args.start_sigma is not None:
         raise ConfigError("--start and --start-sigma place the run in a prior map: give "
                           "--prior-map RUN_A too")
-    with view.RunWatch.open(args.viewer, args.viewer_save, args.viewer_every) as watch:
+    with view.RunWatch.open(args.viewer, args.viewer_save, args.viewer_every,
+                            overwrite=args.overwrite) as watch:
         out, _ = run_pipeline(source_request(args), config, args.out, overwrite=args.overwrite,
                               gps=args.gps, save_run=args.save_run, progress=ProgressBar,
                               prior=prior, on_chunk=watch.on_chunk, chunk=watch.chunk,
@@ -47,13 +51,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json,
                       course=args.course, course_particles=args.course_particles,
                       plot_path=args.plot, particle_block=args.particle_block,
-                      stores=args.store)
+                      stores=args.store, overwrite=args.overwrite)
 
 
 def cmd_table1(args: argparse.Namespace) -> int:
     from gslam_jax.app.table1 import main as table1_main
     return table1_main(args.courses, args.seeds, args.particles, args.config, args.json, args.quick,
-                       args.set or [])
+                       args.set or [], overwrite=args.overwrite)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -94,12 +98,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "outside the run's time span are not used: at least 2 must fall inside it, "
                    "with a warning when fewer than half do. Or 'sim' for a simulated WAAS-like "
                    "receiver on a run with ground truth")
-    p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as .npz")
+    p.add_argument("--save-run", type=Path, help="also write the Run (after the front-end) as "
+                   ".npz; an existing file is refused unless --overwrite")
     p.add_argument("--prior-map", type=Path, metavar="RUN_A", help="map reuse: start every "
                    "particle with this map (a gslam run results folder or its map.npz, same "
                    "[map] resolution), localise in it and extend it; the results are in its frame")
     p.add_argument("--start", type=pose, metavar="X,Y,THETA", help="with --prior-map: the "
-                   "run's start pose in the prior map's frame (metres, radians)")
+                   "run's start pose in the prior map's frame (metres, radians; a negative X "
+                   "may follow directly: --start -5,0,0)")
     p.add_argument("--start-sigma", type=pose_sigma, metavar="SX,SY,STHETA", help="with "
                    "--prior-map: standard deviations of the start pose (metres, radians); the "
                    "particles start spread by them (default 0,0,0: all at --start)")
@@ -111,7 +117,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "the results appear there only when complete (marker file COMPLETE); an "
                    "existing, non-empty folder is refused unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace an existing results "
-                   "folder --out as a whole once the new results are complete")
+                   "folder --out as a whole once the new results are complete (and an existing "
+                   "--save-run or --viewer-save file once the new one is)")
     view.add_run_arguments(p, positive_int)
     p.set_defaults(func=cmd_run)
 
@@ -135,6 +142,8 @@ def _build_rest(sub) -> None:
                    default=list(choices.UNKNOWN_CELLS))
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     p.add_argument("--plot", type=Path, help="also plot us per particle against J (PNG)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --json or "
+                   "--plot file once the new one is complete")
     p.add_argument("--course", choices=COURSES, metavar="COURSE",
                    help="also time a whole simulated course after compilation "
                    "(e.g. mars-yard-a), default settings")
@@ -157,7 +166,9 @@ def _build_rest(sub) -> None:
     p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
                    help="override one config value on every course, after the config's course "
                    "tables (repeatable)")
-    p.add_argument("--json", type=Path)
+    p.add_argument("--json", type=Path, help="also write the rows and the environment as JSON")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --json file "
+                   "once the new one is complete")
     p.add_argument("--quick", action="store_true", help="Mars Yard A, one seed, J <= 100")
     p.set_defaults(func=cmd_table1)
 
@@ -191,11 +202,15 @@ def _out_of_memory(err: BaseException) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = attach_negative_values(sys.argv[1:] if argv is None else list(argv))
     args = build_parser().parse_args(argv)
     try:
-        if getattr(args, "course_path", None) is not None:
-            use_course_path(args)
-        return args.func(args)
+        with sigterm_as_exit():  # every file a command stages is removed on SIGTERM too
+            if getattr(args, "course_path", None) is not None:
+                use_course_path(args)
+            return args.func(args)
+    except Terminated as err:
+        return int(err.code)
     except (InputError, FileNotFoundError) as err:
         print(f"gslam: error: {err}", file=sys.stderr)
         return 2
@@ -214,13 +229,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def console() -> None:
-    """The ``gslam`` script: ``main``, then exit. After Ctrl-C the process ends without
-    Python's teardown, which can crash (SIGSEGV) while XLA threads are still compiling."""
+    """The ``gslam`` script: ``main``, then exit. After Ctrl-C or SIGTERM the process ends
+    without Python's teardown, which can crash (SIGSEGV) while XLA threads are still compiling
+    or running (``termination``)."""
     code = main()
-    if code == 130:
+    if code in (130, 128 + signal.SIGTERM):
         sys.stdout.flush()
         sys.stderr.flush()
-        os._exit(130)
+        os._exit(code)
     sys.exit(code)
 
 

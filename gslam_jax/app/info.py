@@ -106,13 +106,11 @@ def add_parser(sub) -> None:
 
 def cmd_config(args: argparse.Namespace) -> int:
     from gslam_jax.app.outfile import check_output_file, write_text_atomic
-    from gslam_jax.config import ConfigError, config_to_toml, layered_config
+    from gslam_jax.config import config_to_toml, layered_config
     from gslam_jax.sim.courses import COURSES
 
     if args.out is not None:  # a folder, a read-only place, an existing file: refused first
-        check_output_file(args.out, "--out")
-        if args.out.exists() and not args.overwrite:
-            raise ConfigError(f"--out {args.out}: exists (--overwrite replaces it)")
+        check_output_file(args.out, "--out", args.overwrite)
     text = config_to_toml(layered_config(args.config, None, args.set, COURSES), comments=True)
     if args.out is None:
         print(text, end="")

@@ -96,9 +96,10 @@ def prepare_source(src: Source, config: Config, progress: Progress | None = None
     return loaded
 
 
-def check_save_run(path: Path) -> None:
-    """OutputFileError, before any work, when ``--save-run`` cannot be written there."""
-    check_output_file(path, "--save-run")
+def check_save_run(path: Path, overwrite: bool = False) -> None:
+    """OutputFileError, before any work, when ``--save-run`` cannot be written there (or
+    exists, unless ``overwrite``)."""
+    check_output_file(path, "--save-run", overwrite)
 
 
 def save_run_file(path: Path, run) -> None:
@@ -153,7 +154,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
     """``gslam run``: check every input, load the source, run Gamma-SLAM, write the results.
 
     Everything that can be checked before the work is (source options, local-map size, the
-    results folder and ``save_run`` being writable, the GPS log); the results appear under
+    results folder and ``save_run`` being writable and new unless ``overwrite``, the GPS log); the results appear under
     ``out`` only when complete (``results.results_folder``). Returns (folder, summary). With a
     ``prior`` map (``load_prior``) the run starts in it and the results are in its frame.
     ``on_chunk`` and ``chunk`` go to ``slam.run_slam`` (e.g. ``app.viewer``: a callback after
@@ -166,7 +167,7 @@ def run_pipeline(src: Source, config: Config, out: Path | None = None, *,
     bar = progress or (lambda label: None)
     check_inputs(src, config, gps)
     if save_run is not None:
-        check_save_run(save_run)
+        check_save_run(save_run, overwrite)
     with results_folder(out, "run", overwrite=overwrite, command="gslam run") as folder:
         gps_log = None  # a GPS file is read before the front-end: its errors come first
         if gps is not None and str(gps) != "sim":

@@ -6,7 +6,8 @@ run, not after it. When every output is written, a marker ``COMPLETE`` (JSON: th
 the finishing time, every file with its size) is added and the folder is renamed into place in
 one step. A ``--out`` that is a symbolic link is followed: the results go to the folder it
 points to (present or not), beside which they are staged. A failed or interrupted command
-removes its staging folder, and so does one ended by SIGTERM (like Ctrl-C; it exits 143); one
+removes its staging folder, and so does one ended by SIGTERM (like Ctrl-C; it exits 143:
+``termination``); one
 killed outright (SIGKILL) leaves it hidden beside the target, never a half-written target.
 
 An existing, non-empty target is refused unless ``overwrite``; then it is replaced as a whole
@@ -24,14 +25,12 @@ import errno
 import json
 import os
 import shutil
-import signal
-import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Iterator, NamedTuple
 
+from gslam_jax.app.termination import sigterm_as_exit
 from gslam_jax.errors import InputError
 
 __all__ = ["MARKER", "MARKER_FORMAT", "RESULT_FILES", "ResultsError", "Staged", "results_folder",
@@ -208,7 +207,7 @@ def results_folder(out: str | Path | None, kind: str, overwrite: bool = False,
         raise ResultsError(f"{name}: cannot write there ({err.strerror or err}); nothing was "
                            "run") from err
     try:
-        with _sigterm_as_exit():
+        with sigterm_as_exit():
             yield Staged(staging, target, name)
         try:
             _write_marker(staging, command or f"gslam {kind}")
@@ -232,28 +231,6 @@ def writing(folder: Staged) -> Iterator[None]:
     except OSError as err:
         raise ResultsError(f"{folder.name}: cannot write the results ({err.strerror or err}); "
                            f"nothing was written to {folder.target}") from err
-
-
-@contextlib.contextmanager
-def _sigterm_as_exit() -> Iterator[None]:
-    """While a results folder is staged, SIGTERM ends the command like Ctrl-C: SystemExit(143)
-    is raised in the main thread, so the staging folder is removed on the way out (the
-    default action would end the process at once and leave it behind). Installed only from
-    the main thread and over the default action (a handler of the caller's own is kept)."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-
-    def terminate(signum: int, frame: object) -> None:
-        print("gslam: terminated (SIGTERM); no results were written", file=sys.stderr)
-        raise SystemExit(128 + signum)
-
-    signal.signal(signal.SIGTERM, terminate)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _remove_empty(folders: list[Path]) -> None:

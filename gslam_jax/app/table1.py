@@ -52,7 +52,8 @@ def run_course(course: str, seed: int, config: Config, progress=None) -> dict:
 
 def main(courses: list[str], seeds: list[int], particles: int | None = None,
          config_path: Path | None = None, json_path: Path | None = None,
-         quick: bool = False, overrides: list[str] | None = None) -> int:
+         quick: bool = False, overrides: list[str] | None = None,
+         overwrite: bool = False) -> int:
     """Run and print Table I; ``particles`` None takes each course's filter.particles from the
     config (200 where it does not set it); ``quick``: Mars Yard A, one seed, J <= 100;
     ``overrides`` (``section.key=value``) apply to every course after its course tables.
@@ -72,7 +73,7 @@ def main(courses: list[str], seeds: list[int], particles: int | None = None,
         return dataclasses.replace(c, filter=dataclasses.replace(c.filter, particles=j))
 
     if json_path:
-        check_output_file(json_path, "--json")
+        check_output_file(json_path, "--json", overwrite)
     for course in courses:
         try:
             check_inputs(Source(course=course, seed=seeds[0]), course_config(course))

@@ -207,9 +207,7 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
     from gslam_jax.tuning.motion_fit import fallback_scale, fit_run
 
     if args.out is not None:  # a folder, a read-only place: refused before the fit
-        check_output_file(args.out, "--out")
-        if args.out.exists() and not args.overwrite:
-            raise ConfigError(f"--out {args.out}: exists (--overwrite replaces it)")
+        check_output_file(args.out, "--out", args.overwrite)
     if not args.evidence and (args.factors or args.evidence_seeds):
         raise ConfigError("--factors and --evidence-seeds go with --evidence")
     if args.evidence and args.window is not None:

@@ -1,23 +1,31 @@
 """``gslam view RESULTS_DIR`` and ``gslam run --viewer``: runs shown in the Rerun viewer.
 
 ``gslam view`` reads a finished results folder (:func:`read_results`: map.npz, the TUM paths,
-trace.npz) and logs it (``app.viewer``): the paths and the map as they ended, the per-frame
-best and mean poses and ESS on the timelines. ``gslam run --viewer`` / ``--viewer-save`` log
-the run as it goes (:class:`RunWatch`: ``slam.run_slam``'s ``on_chunk``, every
-``--viewer-every`` frames) and, once the results are written, the reported path and the final
-map from the results folder. The particle clouds exist only while the filter runs: ``gslam
-view`` has none.
+trace.npz; or a ``gslam merge`` folder: the merged map and each run's path in its frame) and
+logs it (``app.viewer``): the paths and the map as they ended, the per-frame best and mean
+poses and ESS on the timelines. ``gslam run --viewer`` / ``--viewer-save`` log the run as it
+goes (:class:`RunWatch`: ``slam.run_slam``'s ``on_chunk``, every ``--viewer-every`` frames)
+and, once the results are written, the reported path and the final map from the results
+folder. The particle clouds exist only while the filter runs: ``gslam view`` has none.
+
+A recording file (``--save``, ``--viewer-save``) is written beside its name and renamed onto
+it once complete (``outfile.staged_file``): a failed or terminated command leaves none, and an
+existing one is replaced only with ``--overwrite``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import re
+import sys
 from pathlib import Path
 from typing import Callable, NamedTuple
 
 import numpy as np
 
+from gslam_jax.app.outfile import staged_file
 from gslam_jax.app.viewer import RunViewer, ViewerError, check_viewer, open_viewer
 
 __all__ = ["add_parser", "add_run_arguments", "cmd_view", "ResultsRecord", "read_results",
@@ -30,8 +38,9 @@ class ResultsRecord(NamedTuple):
     """What ``gslam view`` shows of a results folder (NumPy, the map frame)."""
 
     name: str
-    times: np.ndarray                  # [T] seconds from the first frame
-    reported: np.ndarray               # [T, 3] trajectory_tum.txt ([filter] estimate)
+    times: np.ndarray                  # [T] seconds from the first frame (merge: [0])
+    reported: np.ndarray | None        # [T, 3] trajectory_tum.txt ([filter] estimate; merge:
+                                       # None)
     vo: np.ndarray | None              # [T, 3] vo_tum.txt
     ground_truth: np.ndarray | None    # [T, 3] ground_truth_tum.txt on the frames' times (NaN
                                        # where unknown)
@@ -42,6 +51,7 @@ class ResultsRecord(NamedTuple):
     origin: tuple[float, float]        # on the lattice's axes (``GridMap``)
     resolution: float
     heading: float = 0.0               # the lattice's axes in the map frame (``GridMap``)
+    runs: tuple = ()                   # merge: (entity name, [n, 3] path) of each run placed
 
 
 def _tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -64,6 +74,11 @@ def read_results(folder: str | Path) -> ResultsRecord:
     if not folder.is_dir():
         raise MapFileError(f"{folder}: not a folder; give a gslam run results folder")
     grid = load_map(folder)
+    merged = _merged_runs(folder)
+    if merged is not None:
+        return ResultsRecord(folder.name, np.zeros(1), None, None, None, None, None, None,
+                             grid.expected_std(), tuple(grid.origin), float(grid.resolution),
+                             float(grid.heading), merged)
     tum = folder / "trajectory_tum.txt"
     if not tum.is_file():
         raise MapFileError(f"{folder} has no trajectory_tum.txt: give a gslam run results "
@@ -100,6 +115,32 @@ def read_results(folder: str | Path) -> ResultsRecord:
                          float(grid.heading))
 
 
+def _merged_runs(folder: Path) -> tuple | None:
+    """The runs of a ``gslam merge`` folder (summary.json's ``runs``, each path from its
+    trajectory file in the merged frame), or None for a folder gslam merge did not write."""
+    from gslam_jax.gridmap import MapFileError
+
+    if (folder / "trajectory_tum.txt").is_file():
+        return None
+    try:
+        entries = json.loads((folder / "summary.json").read_text()).get("runs")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        return None
+    runs = []
+    for i, entry in enumerate(entries):
+        name = re.sub(r"[^A-Za-z0-9_-]+", "_", str(entry.get("name", i)))
+        file = entry.get("trajectory")
+        if file is None:  # a run given as a bare map.npz has no path
+            continue
+        if not isinstance(file, str) or "/" in file or not (folder / file).is_file():
+            raise MapFileError(f"{folder / 'summary.json'}: run {i} names trajectory {file!r}, "
+                               "which is not in the folder")
+        runs.append((f"run{i}_{name}", _tum(folder / file)[1]))
+    return tuple(runs)
+
+
 def log_results(viewer: RunViewer, record: ResultsRecord, live: bool = False) -> None:
     """Log a finished run: the per-frame poses and ESS (unless ``live``: the run logged them),
     the paths and the map. Static for ``gslam view``; after a live run at its last frame."""
@@ -107,11 +148,13 @@ def log_results(viewer: RunViewer, record: ResultsRecord, live: bool = False) ->
     frame, time_s = (last, float(record.times[last])) if live else (None, None)
     if not live and record.best_pose is not None and record.mean_pose is not None:
         viewer.frames(0, record.times, record.best_pose, record.mean_pose, record.ess)
-    paths = {"reported": record.reported}
+    paths = {} if record.reported is None else {"reported": record.reported}
+    paths.update(record.runs)
     if not live:
         paths.update({k: v for k, v in (("vo", record.vo), ("ground_truth", record.ground_truth))
                       if v is not None})
-    viewer.paths(paths, frame, time_s)
+    if paths:
+        viewer.paths(paths, frame, time_s)
     viewer.map(record.std, record.origin, record.resolution, frame, time_s, record.heading)
 
 
@@ -120,23 +163,34 @@ class RunWatch:
     context manager with ``on_chunk`` and ``chunk`` for ``pipeline.run_pipeline``, then
     :meth:`finish` with the results folder."""
 
-    def __init__(self, viewer: RunViewer | None = None, every: int = VIEWER_EVERY):
+    def __init__(self, viewer: RunViewer | None = None, every: int = VIEWER_EVERY,
+                 staged: contextlib.ExitStack | None = None):
         self.viewer = viewer
+        self.staged = staged  # the recording's staged_file, renamed into place on success
         self.on_chunk: Callable | None = None if viewer is None else viewer.chunk
         self.chunk: int | None = None if viewer is None else every
 
     @classmethod
     def open(cls, spawn: bool, save: Path | None, every: int | None = None,
-             name: str = "gslam run") -> RunWatch:
-        """Checked before any work (``viewer.check_viewer``), then opened; a RunWatch that
-        does nothing without ``spawn`` or ``save``."""
+             name: str = "gslam run", overwrite: bool = False) -> RunWatch:
+        """Checked before any work (``viewer.check_viewer``: an existing ``save`` only with
+        ``overwrite``), then opened; a RunWatch that does nothing without ``spawn`` or
+        ``save``. The recording is written to a temporary file beside ``save``, renamed onto
+        it when the watch is left without an error, removed otherwise."""
         if not spawn and save is None:
             if every is not None:
                 raise ViewerError("--viewer-every sets the live viewer's updates: give "
                                   "--viewer or --viewer-save too")
             return cls()
-        check_viewer(spawn, save)
-        return cls(open_viewer(name, spawn, save), every or VIEWER_EVERY)
+        check_viewer(spawn, save, overwrite=overwrite)
+        staged = contextlib.ExitStack()
+        tmp = None if save is None else staged.enter_context(staged_file(save, "--viewer-save"))
+        try:
+            viewer = open_viewer(name, spawn, tmp)
+        except BaseException:
+            staged.__exit__(*sys.exc_info())  # the temporary removed
+            raise
+        return cls(viewer, every or VIEWER_EVERY, staged)
 
     def finish(self, folder: Path) -> None:
         """The results folder's reported path and map at the last frame, then close."""
@@ -154,7 +208,10 @@ class RunWatch:
         return self
 
     def __exit__(self, *exc) -> None:
-        self.close()  # also when the run failed: the recording keeps what it logged
+        self.close()
+        if self.staged is not None:  # renamed into place, or removed after an error
+            staged, self.staged = self.staged, None
+            staged.__exit__(*exc)
 
 
 def add_run_arguments(p: argparse.ArgumentParser, positive_int) -> None:
@@ -163,24 +220,30 @@ def add_run_arguments(p: argparse.ArgumentParser, positive_int) -> None:
                    "it goes (particles, best and mean paths, VO path, ground truth, map); needs "
                    "a display and the extra 'viewer' (pip install 'gslam-jax[viewer]')")
     p.add_argument("--viewer-save", type=Path, metavar="FILE.rrd", help="write the viewer's "
-                   "recording to this file (headless; open it with `rerun FILE.rrd`)")
+                   "recording to this file (headless; open it with `rerun FILE.rrd`) when the run "
+                   "completes; an existing file is refused unless --overwrite")
     p.add_argument("--viewer-every", type=positive_int, metavar="N", help="frames between the "
                    f"viewer's path and map updates (default {VIEWER_EVERY}; the filter runs in "
                    "chunks of N frames, with the same results)")
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("view", help="show a finished run's results folder in the Rerun viewer")
+    p = sub.add_parser("view", help="show a finished run's (or merge's) results folder in "
+                       "the Rerun viewer")
     p.add_argument("results", type=Path, metavar="RESULTS_DIR",
-                   help="a gslam run results folder")
+                   help="a gslam run or gslam merge results folder")
     p.add_argument("--save", type=Path, metavar="FILE.rrd", help="write the recording to this "
-                   "file instead of spawning the viewer (headless)")
+                   "file instead of spawning the viewer (headless); an existing file is "
+                   "refused unless --overwrite")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --save file "
+                   "once the new recording is complete")
     p.set_defaults(func=cmd_view)
 
 
 def cmd_view(args: argparse.Namespace) -> int:
     spawn = args.save is None
-    check_viewer(spawn, args.save, spawn_option="gslam view", save_option="--save")
+    check_viewer(spawn, args.save, spawn_option="gslam view", save_option="--save",
+                 overwrite=args.overwrite)
     record = read_results(args.results)
     # summary.json names the run's source, when it is there
     source = ""
@@ -188,9 +251,13 @@ def cmd_view(args: argparse.Namespace) -> int:
         source = json.loads((args.results / "summary.json").read_text()).get("source", "")
     except (OSError, ValueError, AttributeError):
         pass  # no summary (or not one gslam wrote): the folder's name alone
-    viewer = open_viewer(f"{record.name}" + (f": {source}" if source else ""), spawn, args.save)
-    log_results(viewer, record)
-    viewer.close()
+    with contextlib.ExitStack() as staged:
+        tmp = None if spawn else staged.enter_context(staged_file(args.save, "--save"))
+        viewer = open_viewer(f"{record.name}" + (f": {source}" if source else ""), spawn, tmp)
+        log_results(viewer, record)
+        viewer.close()
+    what = f"{len(record.runs)} runs merged" if record.reported is None else \
+        f"{len(record.times)} frames"
     print(f"{'recording: ' + str(args.save) if args.save else 'sent to the viewer'}: "
-          f"{len(record.times)} frames of {args.results}")
+          f"{what} of {args.results}")
     return 0

@@ -77,9 +77,9 @@ def has_display() -> bool:
 
 
 def check_viewer(spawn: bool, save: Path | None, spawn_option: str = "--viewer",
-                 save_option: str = "--viewer-save") -> None:
+                 save_option: str = "--viewer-save", overwrite: bool = False) -> None:
     """Before any work: ViewerError when Rerun is missing or ``spawn`` has no display;
-    OutputFileError when ``save`` cannot be written."""
+    OutputFileError when ``save`` cannot be written, or exists and not ``overwrite``."""
     from gslam_jax.app.outfile import check_output_file
 
     if not spawn and save is None:
@@ -90,7 +90,7 @@ def check_viewer(spawn: bool, save: Path | None, spawn_option: str = "--viewer",
                           f"WAYLAND_DISPLAY are unset); write a recording with {save_option} "
                           "FILE.rrd instead and open it with `rerun FILE.rrd` elsewhere")
     if save is not None:
-        check_output_file(Path(save), save_option)
+        check_output_file(Path(save), save_option, overwrite)
 
 
 def _blueprint(rr) -> Any:

@@ -19,18 +19,30 @@ replaces its own: ``height`` the camera's height t_z, ``forward`` t_x, ``lateral
 ``pitch``/``roll``/``yaw`` that angle, the others keeping the default's. So a [rig] 0 keeps the
 source's value; a zero the default does not have (a level camera where the source's is pitched)
 takes ``matrix``.
+
+A mount set by [rig] is checked for the terrain being in view (:func:`check_ground_in_view`):
+the front-end maps the ground ahead, so a camera whose optical axis points more than
+``MAX_ELEVATION_DEG`` above the horizon (e.g. ``rig.pitch = -80``, nose up) is refused naming
+the key, and one pointing above the horizon at all is warned about.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.vo.geometry import CAM_TO_ROBOT_AXES, make_transform
 
-__all__ = ["camera_mount", "mount_matrix", "mount_values", "MOUNT_KEYS"]
+__all__ = ["camera_mount", "check_ground_in_view", "mount_matrix", "mount_values",
+           "MOUNT_KEYS", "MAX_ELEVATION_DEG"]
 
 MOUNT_KEYS = ("height", "pitch", "roll", "yaw", "forward", "lateral")
+# The optical axis may point at most this far above the horizon: a camera's vertical field of
+# view is rarely wider than 60 degrees, so beyond it the lower edge of the image, too, looks
+# above the horizon and no ground is in view.
+MAX_ELEVATION_DEG = 30.0
 
 
 def _axis_rotations(yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -88,4 +100,27 @@ def camera_mount(config: Config, default: np.ndarray | None, where: str) -> np.n
     else:
         values = mount_values(default)
     values.update({k: getattr(rig, k) for k in MOUNT_KEYS if getattr(rig, k)})
-    return mount_matrix(**values)
+    mount = mount_matrix(**values)
+    check_ground_in_view(mount, config, where)
+    return mount
+
+
+def check_ground_in_view(mount: np.ndarray, config: Config, where: str) -> None:
+    """ConfigError when the camera of ``mount`` looks more than MAX_ELEVATION_DEG above the
+    horizon (no ground in view), a warning when it looks above it at all; the message names
+    the [rig] keys that set it and the plausible pitch."""
+    axis = np.asarray(mount, np.float64)[:3, 2]  # the optical axis (camera z) in robot axes
+    elevation = float(np.degrees(np.arcsin(np.clip(axis[2], -1.0, 1.0))))
+    if elevation <= 0.0:
+        return
+    rig = config.rig
+    keys = "[rig] matrix" if rig.matrix else \
+        ", ".join(f"rig.{k} = {getattr(rig, k):g}" for k in ("pitch", "roll") if getattr(rig, k))
+    keys = keys or "the source's mount"
+    text = (f"{where}: {keys} points the left camera {elevation:.0f} degrees above the "
+            "horizon; Gamma-SLAM maps the ground ahead, which a camera needs in view: pitch is "
+            "positive nose down (a level camera 0, a ground robot's typically 0 to 30)")
+    if elevation > MAX_ELEVATION_DEG:
+        raise ConfigError(f"{text}; more than {MAX_ELEVATION_DEG:g} degrees up, no ground is in "
+                          "view. Check the sign of rig.pitch")
+    warnings.warn(f"{text}; only the lower part of the image sees the ground", stacklevel=3)

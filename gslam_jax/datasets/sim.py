@@ -19,6 +19,7 @@ import numpy as np
 
 from gslam_jax.config import Config
 from gslam_jax.datasets.registry import DataSource, LoadedSource, Source
+from gslam_jax.errors import ArgumentError, integer_argument
 from gslam_jax.run import Run, integrate_controls
 from gslam_jax.sim.courses import COURSES, Course, make_course
 from gslam_jax.sim.environments import world_for_course
@@ -149,7 +150,19 @@ def simulate_run(course: str, seed: int = 0, params: LocalMapParams | None = Non
     vo_noise: defaults to the course's profile in ``VO_PROFILES``.
     max_frames: truncate the course (for quick tests); None drives all of it.
     progress: optional callback ``progress(done, total)`` called every few frames.
+    An ArgumentError names an unknown course, a seed outside [0, 2^32) or a max_frames that is not a positive
+    integer (``errors.integer_argument``).
     """
+    if not isinstance(course, str) or course not in COURSES:
+        raise ArgumentError(f"simulate_run: course must be one of {', '.join(COURSES)}, got "
+                            f"{course!r:.40}")
+    for name, value in (("seed", seed), ("noise_seed", noise_seed)):
+        if value is not None:
+            integer_argument(value, f"simulate_run: {name}", 0, 2 ** 32,
+                             bounds="an integer in [0, 2^32)")
+    if max_frames is not None:
+        integer_argument(max_frames, "simulate_run: max_frames", 1,
+                         bounds="a positive integer (None: the whole course)")
     params = params or LocalMapParams()
     t0 = time.perf_counter()
     odo = simulate_odometry(course, seed, drive_params=drive_params, vo_noise=vo_noise,

@@ -15,6 +15,11 @@ A live robot has no path yet, so the map cannot be sized from it: its extent is 
 start). The map does not grow (a larger map would be a new shape, hence a recompilation):
 when a local map reaches past its edge the frame is applied with the cells beyond the edge
 skipped, as the batch run does, and ``MapEdgeError`` is raised.
+
+Arguments are checked as the command line checks its options: a wrong type, shape or value
+is an ``ArgumentError`` (``errors``) naming the argument, and a malformed frame (non-finite or
+impossible local-map statistics: ``run_checks.check_statistics``, as a Run file's) an
+``InputError`` naming the frame and cell, before the filter sees it.
 """
 
 from __future__ import annotations
@@ -31,11 +36,12 @@ import numpy as np
 from gslam_jax import choices, rbpf
 from gslam_jax.config import Config, ConfigError
 from gslam_jax.driver import chunk_checks, observations, sizing
-from gslam_jax.errors import InputError
+from gslam_jax.errors import (ArgumentError, InputError, array_argument, integer_argument,
+                              number_argument)
 from gslam_jax.gridmap import GridMap, turn_poses
 from gslam_jax.rbpf import cells, maps
 from gslam_jax.run import integrate_controls
-from gslam_jax.run.checks import coordinate_limit
+from gslam_jax.run.checks import check_statistics, coordinate_limit
 from gslam_jax.vo.localmap import LocalMapBuilder, localmap_params, map_axes_heading
 
 __all__ = ["Online", "OnlineFrame", "OnlineStats", "Particles", "MapEdgeError",
@@ -100,6 +106,49 @@ def online_step(state: rbpf.FilterState, key: jax.Array, t: jax.Array, control: 
     return state, jax.tree.map(lambda x: x[0], out)
 
 
+def _real(value) -> np.ndarray | None:
+    """``value`` as a float64 array when it holds real numbers, else None."""
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nested lists
+        return None
+    return array.astype(np.float64) if array.dtype.kind in "iuf" else None
+
+
+def _check_arguments(config, map_extent, seed, local_size, observed_cells, sensor,
+                     filter_config) -> None:
+    """ArgumentError naming the first of ``Online``'s arguments of the wrong type or range."""
+    if not isinstance(config, Config):
+        raise ArgumentError(f"Online: config must be a gslam_jax.Config (Config(), or "
+                            f"gslam_jax.load_config(path)), got {type(config).__name__}")
+    if seed is not None:
+        integer_argument(seed, "Online: seed", 0, 2 ** 32, bounds="an integer in [0, 2^32)")
+    if local_size is not None:
+        integer_argument(local_size, "Online: local_size", 1)
+    integer_argument(observed_cells, "Online: observed_cells", 0,
+                     bounds="an integer >= 0 (0: no cap)")
+    if sensor is not None and sensor not in choices.SENSORS:
+        raise ArgumentError(f"Online: sensor must be one of {', '.join(choices.SENSORS)} or "
+                            f"None, got {sensor!r:.40}")
+    if filter_config is not None and not isinstance(filter_config, rbpf.FilterConfig):
+        raise ArgumentError(f"Online: filter_config must be an rbpf.FilterConfig, got "
+                            f"{type(filter_config).__name__}")
+    what = ("a side in metres, or a sizing.MapExtent / (origin, shape) pair: origin 2 finite "
+            "numbers (metres), shape 2 positive integers (cells)")
+    if map_extent is None or (isinstance(map_extent, (int, float)) and
+                              not isinstance(map_extent, bool)):
+        return
+    if not isinstance(map_extent, (tuple, list)) or len(map_extent) != 2:
+        raise ArgumentError(f"Online: map_extent must be {what}, got {map_extent!r:.80}")
+    origin, shape = map_extent
+    origin_ok = _real(origin)
+    if origin_ok is None or origin_ok.shape != (2,) or not np.isfinite(origin_ok).all() or \
+            not isinstance(shape, (tuple, list)) or len(shape) != 2:
+        raise ArgumentError(f"Online: map_extent must be {what}, got {map_extent!r:.80}")
+    for n in shape:
+        integer_argument(n, "Online: map_extent's shape", 1, bounds="2 positive integers")
+
+
 def _extent(config: Config, size: float, start: np.ndarray, local_size: int) -> sizing.MapExtent:
     """The map around the square of side ``size`` metres centred on ``start`` (plus a local
     map's reach), sized by the batch run's rule (``sizing.map_extent``)."""
@@ -136,11 +185,13 @@ class Online:
                  *, start_pose: np.ndarray | None = None, seed: int | None = None,
                  local_size: int | None = None, observed_cells: int = 0,
                  sensor: str | None = None, filter_config: rbpf.FilterConfig | None = None):
+        _check_arguments(config, map_extent, seed, local_size, observed_cells, sensor,
+                         filter_config)
         self.config = config
-        self.start = np.zeros(3) if start_pose is None else np.asarray(start_pose, np.float64)
-        if self.start.shape != (3,) or not np.isfinite(self.start).all():
+        self.start = np.zeros(3) if start_pose is None else _real(start_pose)
+        if self.start is None or self.start.shape != (3,) or not np.isfinite(self.start).all():
             raise ConfigError(f"Online: start_pose must be 3 finite numbers (x, y, theta), "
-                              f"got {np.asarray(start_pose).tolist()}")
+                              f"got {start_pose!r:.80}")
         # the map's axes ([map] axes): the filter runs on them, as ``map_axes.on_map_axes``
         self.heading = map_axes_heading(config.map.axes, self.start)
         start_on_axes = turn_poses(self.start, -self.heading)
@@ -208,13 +259,27 @@ class Online:
         now (``observations.RunningRangeNoise``); None with "none"."""
         return None if self._range_noise is None else self._range_noise.profile
 
-    def _observation(self, stats: np.ndarray) -> jax.Array:
-        """Raw observation [L, L, 2] of local-map statistics [L, L, 3], as ``run_slam``'s."""
-        L = self.cfg.local_size
-        stats = np.asarray(stats, np.float64)
+    def _observation(self, local_map) -> jax.Array:
+        """Raw observation [L, L, 2] of local-map statistics [L, L, 3], as ``run_slam``'s,
+        after the checks a Run file's local maps get (``run_checks.check_statistics``)."""
+        L, t = self.cfg.local_size, self.frames
+        stats = _real(local_map)
+        if stats is None:
+            raise ArgumentError(f"frame {t}: local_map must be [{L}, {L}, 3] statistics (n, sum "
+                                f"z, sum z^2) as real numbers, got {local_map!r:.80}")
         if stats.shape != (L, L, 3):
-            raise InputError(f"frame {self.frames}: local_map must be [{L}, {L}, 3] statistics "
+            raise InputError(f"frame {t}: local_map must be [{L}, {L}, 3] statistics "
                              f"(n, sum z, sum z^2), got shape {list(stats.shape)}")
+
+        def fail(message: str) -> None:
+            raise InputError(f"frame {t}: local_map: {message}")
+
+        def cell(bad: np.ndarray) -> str:
+            i, j = (int(v) for v in np.argwhere(bad[0])[0])
+            return f"cell ({i}, {j}) ({int(np.sum(bad))} cells in all)"
+
+        stored = np.asarray(local_map).dtype
+        check_statistics(stats[None], stored if stored.kind == "f" else np.float64, fail, cell)
         with np.errstate(over="ignore", invalid="ignore"):
             raw = cells.obs_from_stats(stats, 0.0).astype(np.float32)
         if not np.isfinite(raw).all():
@@ -222,6 +287,15 @@ class Online:
             raise InputError(f"frame {self.frames}: local_map cell ({i}, {j}) statistics "
                              f"{stats[i, j].tolist()} are not finite in float32")
         return jnp.asarray(raw)
+
+    def _control(self, control) -> np.ndarray:
+        """The control [3] as float64, else an InputError naming the frame."""
+        u = _real(control)
+        if u is None or u.shape != (3,) or not np.isfinite(u).all():
+            shown = u.tolist() if u is not None else control
+            raise ArgumentError(f"frame {self.frames}: control must be 3 finite numbers (dx, "
+                                f"dy, dtheta), got {shown!r:.80}")
+        return u
 
     def push(self, control: np.ndarray, local_map: np.ndarray | None = None,
              time_s: float | None = None, lattice_heading: float = 0.0,
@@ -236,11 +310,12 @@ class Online:
         malformed frame, ``chunk_checks.WeightError`` for non-finite weights, MapEdgeError
         past the map's edge."""
         t = self.frames
-        u = np.asarray(control, np.float64)
-        if u.shape != (3,) or not np.isfinite(u).all():
-            raise InputError(f"frame {t}: control must be 3 finite numbers (dx, dy, dtheta), "
-                             f"got {np.asarray(control).tolist()}")
-        stamp = float(t if time_s is None else time_s)
+        u = self._control(control)
+        stamp = float(t) if time_s is None else number_argument(time_s, f"frame {t}: time_s")
+        lattice_heading = number_argument(lattice_heading, f"frame {t}: lattice_heading")
+        if not isinstance(vo_failed, (bool, np.bool_)):
+            raise ArgumentError(f"frame {t}: vo_failed must be True or False, got "
+                                f"{vo_failed!r:.40}")
         if self._times and not stamp > self._times[-1]:
             raise InputError(f"frame {t}: time {stamp} s is not after the previous frame's "
                              f"{self._times[-1]} s")
@@ -300,8 +375,11 @@ class Online:
         """One frame of robot-frame points [N, 3] (x forward, y left, z up): fused into local
         maps at the VO poses every [localmap] travel metres (``LocalMapBuilder``, the first at
         the first frame, as ``build_local_maps`` does), then ``push``."""
-        pose = integrate_controls(np.asarray(control, np.float64)[None], self._vo_pose)[0]
-        stats = self._builder.add(pose, np.asarray(points, np.float64))
+        u = self._control(control)
+        points = array_argument(points, f"frame {self.frames}: points", (None, 3),
+                                "robot-frame points (x forward, y left, z up)")
+        pose = integrate_controls(u[None], self._vo_pose)[0]
+        stats = self._builder.add(pose, points)
         if self.frames == 0 and stats is None:
             stats = self._builder.flush()
         heading = self._builder.lattice_headings[-1] if stats is not None else 0.0

@@ -26,6 +26,7 @@ from gslam_jax.driver.map_reuse import PriorMap, prior_state
 from gslam_jax.driver.observations import map_observations
 from gslam_jax.driver.results import Ancestry, ChunkReport, PathEstimates, SlamResult
 from gslam_jax.driver.sizing import fallback_frames, filter_config, filter_params, map_memory
+from gslam_jax.errors import ArgumentError, integer_argument
 from gslam_jax.gridmap import turn_poses
 from gslam_jax.rbpf import maps
 from gslam_jax.run import Run
@@ -93,8 +94,16 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     The filter runs on the map lattice's axes (``map_heading``); the paths are turned back
     into the run's frame and the map keeps its axes (``SlamResult.map_heading``). A prior's
     start spread is drawn on its lattice's axes. The trajectories through the particles'
-    ancestry are built when first read (``results.PathEstimates``).
+    ancestry are built when first read (``results.PathEstimates``). An ArgumentError names a
+    ``run``, ``config`` or ``chunk`` of the wrong type.
     """
+    if not isinstance(run, Run):
+        raise ArgumentError(f"run_slam: run must be a gslam_jax.Run (load_run(path), "
+                            f"simulate_run(...)[0]), got {type(run).__name__}")
+    if not isinstance(config, Config):
+        raise ArgumentError(f"run_slam: config must be a gslam_jax.Config (Config(), or "
+                            f"load_config(path)), got {type(config).__name__}")
+    integer_argument(chunk, "run_slam: chunk", 1)
     given, heading, run = filtered_run(run, config, prior)
     check_local_lattices(given, heading)
     cfg = filter_config(config, run, prior)

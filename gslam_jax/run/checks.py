@@ -12,7 +12,7 @@ import numpy as np
 from gslam_jax import choices
 
 __all__ = ["COORDINATE_FRACTION", "HEADING_LIMIT", "HEADING_STEP", "MAX_SPEED", "MAX_TURN",
-           "check_controls", "check_start_pose", "check_types", "coordinate_limit",
+           "check_controls", "check_start_pose", "check_statistics", "check_types", "coordinate_limit",
            "describe_cells", "float32_limit", "float32_spacing", "normalise_stored",
            "variance_tolerance"]
 
@@ -129,6 +129,25 @@ def variance_tolerance(maps: np.ndarray, stored: np.dtype) -> np.ndarray:
                 stored = np.dtype(np.float32)
     n = np.asarray(maps[..., 0], np.float64)
     return np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * np.finfo(stored).eps)
+
+
+def check_statistics(maps: np.ndarray, stored: np.dtype, fail, where) -> None:
+    """Local-map statistics [M, L, L, 3] (n, sum z, sum z^2) as only point heights give them:
+    finite, n a whole number >= 0, the variance not negative beyond ``variance_tolerance``.
+    ``fail(message)`` raises; ``where(bad_cells [M, L, L])`` names the first bad cell."""
+    finite = np.isfinite(maps).all(axis=-1)
+    if not finite.all():
+        fail(f"non-finite statistics in {where(~finite)}")
+    n, sz, szz = (maps[..., c].astype(np.float64) for c in range(3))
+    if (n < 0).any():
+        fail(f"negative point count n in {where(n < 0)}")
+    if (n != np.round(n)).any():
+        fail(f"non-integer point count n in {where(n != np.round(n))}")
+    spread = n * szz - sz * sz  # n^2 times the variance of the heights
+    tol = variance_tolerance(maps, stored)
+    negative = spread < -tol * (n * np.abs(szz) + sz * sz)
+    if negative.any():
+        fail(f"negative variance (n sum z^2 < (sum z)^2) in {where(negative)}")
 
 
 def describe_cells(bad_cells: np.ndarray, obs_index: np.ndarray) -> str:

@@ -14,8 +14,9 @@ from typing import BinaryIO, NamedTuple
 import numpy as np
 
 from gslam_jax.errors import RunError
-from gslam_jax.run.checks import (HEADING_LIMIT, check_controls, check_start_pose, check_types,
-                                  describe_cells, normalise_stored, variance_tolerance)
+from gslam_jax.run.checks import (HEADING_LIMIT, check_controls, check_start_pose,
+                                  check_statistics, check_types, describe_cells,
+                                  normalise_stored)
 
 __all__ = ["Run", "RunError", "integrate_controls", "known_positions", "load_run", "save_run",
            "validate_run"]
@@ -128,6 +129,8 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
     def fail(field: str, msg: str) -> None:
         raise RunError(f"{source}: field '{field}': {msg}")
 
+    if not isinstance(run, Run):
+        raise RunError(f"{source}: expected a gslam_jax.Run, got {type(run).__name__}")
     check_types(run._asdict(), fail)
     controls = np.asarray(run.controls)
     if controls.ndim != 2 or controls.shape[1] != 3:
@@ -159,19 +162,8 @@ def validate_run(run: Run, source: str = "<run>", stats_dtype: np.dtype | None =
     def first_map(bad_cells: np.ndarray) -> str:
         return describe_cells(bad_cells, obs_index)
 
-    finite = np.isfinite(maps).all(axis=-1)
-    if not finite.all():
-        fail("local_maps", f"non-finite statistics in {first_map(~finite)}")
-    n, sz, szz = (maps[..., c].astype(np.float64) for c in range(3))
-    if (n < 0).any():
-        fail("local_maps", f"negative point count n in {first_map(n < 0)}")
-    if (n != np.round(n)).any():
-        fail("local_maps", f"non-integer point count n in {first_map(n != np.round(n))}")
-    spread = n * szz - sz * sz  # n^2 times the variance of the heights
-    tol = variance_tolerance(maps, maps.dtype if stats_dtype is None else stats_dtype)
-    negative = spread < -tol * (n * np.abs(szz) + sz * sz)
-    if negative.any():
-        fail("local_maps", f"negative variance (n sum z^2 < (sum z)^2) in {first_map(negative)}")
+    check_statistics(maps, maps.dtype if stats_dtype is None else stats_dtype,
+                     lambda message: fail("local_maps", message), first_map)
     resolution = float(run.resolution)
     if not (np.isfinite(resolution) and resolution > 0):
         fail("resolution", f"must be a positive number of metres, got {run.resolution}")
