@@ -20,7 +20,7 @@ OLD = b"the user's file"
 def no_work(monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError("work started before the output file was checked")
-    for name in ("gslam_jax.app.pipeline.prepare_source", "gslam_jax.slam.run_slam",
+    for name in ("gslam_jax.app.pipeline.prepare_source", "gslam_jax.driver.slam.run_slam",
                  "gslam_jax.app.bench.time_update", "gslam_jax.app.bench.time_course",
                  "gslam_jax.app.table1.run_course", "gslam_jax.app.arguments.config_and_run",
                  "gslam_jax.app.tuning_commands.config_and_run",

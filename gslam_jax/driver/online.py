@@ -18,7 +18,7 @@ skipped, as the batch run does, and ``MapEdgeError`` is raised.
 
 Arguments are checked as the command line checks its options: a wrong type, shape or value
 is an ``ArgumentError`` (``errors``) naming the argument, and a malformed frame (non-finite or
-impossible local-map statistics: ``run_checks.check_statistics``, as a Run file's) an
+impossible local-map statistics: ``run.checks.check_statistics``, as a Run file's) an
 ``InputError`` naming the frame and cell, before the filter sees it.
 """
 
@@ -261,7 +261,7 @@ class Online:
 
     def _observation(self, local_map) -> jax.Array:
         """Raw observation [L, L, 2] of local-map statistics [L, L, 3], as ``run_slam``'s,
-        after the checks a Run file's local maps get (``run_checks.check_statistics``)."""
+        after the checks a Run file's local maps get (``run.checks.check_statistics``)."""
         L, t = self.cfg.local_size, self.frames
         stats = _real(local_map)
         if stats is None:
