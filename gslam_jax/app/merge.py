@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gslam_jax.app.arguments import add_shared
 from gslam_jax.app.outputs import json_ready
 from gslam_jax.app.results import results_folder, writing
 
@@ -27,10 +28,7 @@ def add_parser(sub) -> None:
     p.add_argument("--allow-inconsistent", action="store_true",
                    help="merge a run whose map failed its own run's consistency check (terrain "
                         "mapped twice; summary.json's map_consistency); refused by default")
-    p.add_argument("--out", help="results directory (default results/merge-<time>); refused "
-                   "when it exists and is not empty, unless --overwrite")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace an existing results folder --out once the merge is complete")
+    add_shared(p, "--out", "--overwrite")
     p.set_defaults(func=cmd_merge)
 
 

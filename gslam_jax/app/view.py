@@ -18,6 +18,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from gslam_jax.app.arguments import add_deprecated, add_shared
 from gslam_jax.app.viewer import RunViewer, ViewerError, check_viewer, open_viewer
 
 __all__ = ["add_parser", "add_run_arguments", "cmd_view", "ResultsRecord", "read_results",
@@ -162,8 +163,7 @@ def add_run_arguments(p: argparse.ArgumentParser, positive_int) -> None:
     p.add_argument("--viewer", action="store_true", help="show the run in the Rerun viewer as "
                    "it goes (particles, best and mean paths, VO path, ground truth, map); needs "
                    "a display and the extra 'viewer' (pip install 'gslam-jax[viewer]')")
-    p.add_argument("--viewer-save", type=Path, metavar="FILE.rrd", help="write the viewer's "
-                   "recording to this file (headless; open it with `rerun FILE.rrd`)")
+    add_shared(p, "--viewer-save")
     p.add_argument("--viewer-every", type=positive_int, metavar="N", help="frames between the "
                    f"viewer's path and map updates (default {VIEWER_EVERY}; the filter runs in "
                    "chunks of N frames, with the same results)")
@@ -173,14 +173,15 @@ def add_parser(sub) -> None:
     p = sub.add_parser("view", help="show a finished run's results folder in the Rerun viewer")
     p.add_argument("results", type=Path, metavar="RESULTS_DIR",
                    help="a gslam run results folder")
-    p.add_argument("--save", type=Path, metavar="FILE.rrd", help="write the recording to this "
-                   "file instead of spawning the viewer (headless)")
+    add_shared(p, "--viewer-save")  # instead of spawning the viewer
+    add_deprecated(p, "--save", "use --viewer-save FILE.rrd, as gslam run does",
+                   dest="viewer_save", type=Path, metavar="FILE.rrd")
     p.set_defaults(func=cmd_view)
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    spawn = args.save is None
-    check_viewer(spawn, args.save, spawn_option="gslam view", save_option="--save")
+    spawn = args.viewer_save is None
+    check_viewer(spawn, args.viewer_save, spawn_option="gslam view", save_option="--viewer-save")
     record = read_results(args.results)
     # summary.json names the run's source, when it is there
     source = ""
@@ -188,9 +189,10 @@ def cmd_view(args: argparse.Namespace) -> int:
         source = json.loads((args.results / "summary.json").read_text()).get("source", "")
     except (OSError, ValueError, AttributeError):
         pass  # no summary (or not one gslam wrote): the folder's name alone
-    viewer = open_viewer(f"{record.name}" + (f": {source}" if source else ""), spawn, args.save)
+    viewer = open_viewer(f"{record.name}" + (f": {source}" if source else ""), spawn,
+                         args.viewer_save)
     log_results(viewer, record)
     viewer.close()
-    print(f"{'recording: ' + str(args.save) if args.save else 'sent to the viewer'}: "
+    print(f"{'recording: ' + str(args.viewer_save) if args.viewer_save else 'sent to the viewer'}: "
           f"{len(record.times)} frames of {args.results}")
     return 0
