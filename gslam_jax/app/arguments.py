@@ -138,10 +138,12 @@ SHARED: dict[str, dict] = {
         "is refused unless --overwrite (default: results/<command>-<time> for run, search, "
         "tune and merge; no files for the others)")),
     "--overwrite": dict(action="store_true", help=(
-        "replace an existing --out folder as a whole once the new results are complete")),
+        "replace an existing --out folder (as a whole, once the new results are complete) or "
+        "--save-config file")),
     "--config": dict(type=Path, metavar="FILE.toml", help=(
         "TOML config (default: the built-in settings, `gslam config` prints them); a Table I "
-        "config's [course.<name>.*] tables apply to that simulated course (not in compare)")),
+        "config's [course.<name>.*] tables apply to that simulated course in run, search, "
+        "tune, fit-motion and table1, not in compare or config")),
     "--set": dict(action="append", metavar="SECTION.KEY=VALUE", help=(
         "override one config value after --config and its course tables (repeatable)")),
     "--particles": dict(type=positive_int, metavar="J", help=(

@@ -84,9 +84,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--evidence-seeds", type=int, nargs="+", metavar="SEED",
                    help="--evidence: filter seeds the log evidence is averaged over "
                    "(default 0 1 2)")
-    add_shared(p, "--save-config")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --save-config "
-                   "file")
+    add_shared(p, "--save-config", "--overwrite")
     add_deprecated(p, "--out", "use --save-config FILE.toml (--out is a results folder in "
                    "the other commands)", dest="save_config", type=Path)
     p.set_defaults(func=cmd_fit_motion)
