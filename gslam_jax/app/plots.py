@@ -21,9 +21,11 @@ import numpy as np
 from matplotlib.colors import LogNorm
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 from matplotlib.transforms import Affine2D
 
 __all__ = [
+    "MIN_ERROR_SPAN",
     "draw_line",
     "draw_map",
     "error_along_distance",
@@ -41,6 +43,9 @@ _LEGEND_FACE = (0.32, 0.32, 0.34)
 _STD_RANGE = (0.01, 1.0)  # metres: sand .. walls
 _STD_LABEL = "expected std of heights (m)\ndark = flat, bright = rough"
 _PATH = {"color": "white", "lw": 0.8}
+# errors.png's error axis spans at least this (metres): a still vehicle's sub-millimetre
+# errors are drawn as the near-zero they are, not stretched over the whole axis
+MIN_ERROR_SPAN = 0.05
 _TRUTH = {"color": "cyan", "ls": "--", "lw": 1.0}
 
 
@@ -210,10 +215,11 @@ def save_ess_png(out: str | Path, ess: np.ndarray, num_particles: int,
     if threshold is not None:
         ax.axhline(threshold * num_particles, color="grey", ls="--", lw=0.8,
                    label=f"resampling threshold ({threshold:g} J)")
-    if resampled is not None:
+    if resampled is not None and np.any(resampled):  # no legend entry for what did not happen
         r = np.asarray(resampled, dtype=bool)
-        ax.plot(x[r], ess[r], "v", color="tab:red", ms=4, label="resampled")
+        ax.plot(x[r], ess[r], "v", color="tab:red", ms=4, label=f"resampled ({r.sum()} times)")
     ax.set_ylim(0, num_particles * 1.05)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # frames are whole numbers
     ax.set_xlabel("frame (index)")
     ax.set_ylabel("J_eff (particles)")
     ax.set_title(title or f"Effective number of particles (J = {num_particles})")
@@ -262,10 +268,10 @@ def save_errors_png(out: str | Path, ground_truth: np.ndarray,
         distance, error = error_along_distance(ground_truth, path)
         if distance.size:
             rms = float(np.sqrt(np.mean(error ** 2)))
-            ax.plot(distance, error, lw=1.0, color=color, label=f"{label} (RMS {rms:.3f} m)")
+            ax.plot(distance, error, lw=1.0, color=color, label=f"{label} (RMS {_metres(rms)})")
     ax.set_xlabel("distance travelled along the ground truth (m)")
     ax.set_ylabel("position error (m)")
-    ax.set_ylim(bottom=0)
+    ax.set_ylim(0, max(ax.get_ylim()[1], MIN_ERROR_SPAN))
     ax.set_title(title or "Position error after the rigid fit of the RMS "
                  "(frames with ground truth)")
     ax.grid(alpha=0.3)
@@ -275,6 +281,11 @@ def save_errors_png(out: str | Path, ground_truth: np.ndarray,
     fig.savefig(out, dpi=dpi)
     plt.close(fig)
     return out
+
+
+def _metres(value: float) -> str:
+    """A length for a label: millimetres under 1 cm (three figures), else metres."""
+    return f"{value * 1e3:.3g} mm" if abs(value) < 0.01 else f"{value:.3f} m"
 
 
 def _placement(origin: Sequence[float]) -> tuple[float, float, float]:
