@@ -174,7 +174,9 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     (``loaded.kitti_frame``) ``trajectory_kitti.txt`` is the path in KITTI's camera frame, that
     of ``poses/NN.txt`` (``datasets.kitti.camera_poses``). With GPS, the georeferenced outputs
     (``georeference.write_gps_outputs``) and ``map_utm.tif`` (``geotiff``, when rasterio is
-    installed). ``summary.json`` is written last."""
+    installed). ``map_occupancy.pgm`` / ``.yaml``: the map for ROS ``map_server``
+    (``occupancy``). ``summary.json`` is written last."""
+    from gslam_jax.app.occupancy import write_occupancy
     from gslam_jax.config import config_to_toml
     from gslam_jax.io import save_map, write_kitti, write_tum
 
@@ -209,6 +211,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     summary = summarise(run, result, config, loaded.description)
     slam_std = write_figures(out, run, result, config.filter.particles,
                              config.filter.resample_ratio)
+    write_occupancy(out, slam_std, (*result.map_origin, result.map_heading), result.resolution)
     if prior is not None:
         summary["prior_map"] = prior_summary(prior, result)
     if consistency is not None:
