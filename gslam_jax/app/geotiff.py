@@ -172,9 +172,10 @@ def write_run_geotiff(out: Path, std: ArrayLike, k: ArrayLike,
     try:
         import rasterio  # noqa: F401 - only to know whether the GeoTIFF can be written
     except ImportError:
-        note = f"no {GEOTIFF_NAME} (GeoTIFF): rasterio is not installed; {INSTALL_HINT}"
+        note = (f"no {GEOTIFF_NAME} or {NORTH_UP_NAME} (GeoTIFF): rasterio is not installed; "
+                f"{INSTALL_HINT}")
         print(f"note: {note}")
-        return {"geotiff": None, "geotiff_note": note}
+        return {"geotiff": None, "geotiff_north_up": None, "geotiff_note": note}
     from gslam_jax.gps.raster import lattice_rotation
 
     with np.load(out / "gps_alignment.npz") as al:

@@ -37,6 +37,7 @@ __all__ = [
     "save_map_comparison_png",
     "save_map_png",
     "save_maps_png",
+    "save_utm_map_png",
 ]
 
 _UNKNOWN = (0.16, 0.19, 0.24)
@@ -132,7 +133,8 @@ class _Panel(NamedTuple):
 
 
 def _save_map_panels(out: str | Path, panels: Sequence[_Panel], resolution: float,
-                     suptitle: str | None, dpi: int) -> Path:
+                     suptitle: str | None, dpi: int,
+                     axis_labels: tuple[str, str] | None = None) -> Path:
     """Map panels in one window and one colour scale, laid out for the window's shape
     (``_arrange``): side by side, or stacked when the window is a wide strip (KITTI's roads);
     each panel's legend outside its map, so it never hides the path; the window around the
@@ -150,6 +152,9 @@ def _save_map_panels(out: str | Path, panels: Sequence[_Panel], resolution: floa
                       path_label=first[1])
         for xy, label, style in rest:
             draw_line(ax, xy, label, **style)
+        if axis_labels:
+            ax.set_xlabel(axis_labels[0])
+            ax.set_ylabel(axis_labels[1])
         if strip:
             map_legend(ax, panel.std, loc="upper center", outside=(0.5, -0.45 / panel_inches))
         else:
@@ -213,6 +218,33 @@ def save_ground_truth_png(out: str | Path, vo_std: np.ndarray, vo_origin: Sequen
     return _save_map_panels(out, panels, resolution, suptitle or "Ground truth over the maps "
                             "and paths (anchored at the first known pose; errors.png shows the "
                             "error)", dpi)
+
+
+def save_utm_map_png(out: str | Path, std: np.ndarray, transform: Sequence[float],
+                     path: np.ndarray | None = None, crs: str = "UTM",
+                     dpi: int = 120) -> Path:
+    """The georeferenced map as a figure: a north-up expected-std raster ``std`` [rows, cols]
+    (row 0 north, NaN = no data) placed by the GDAL affine ``transform`` (a, 0, c, 0, e, f)
+    (``geotiff.north_up``), on easting and northing axes counted from a round 100 m corner
+    that the axis labels name, with the path [T, >=2] in UTM, a legend and a colour bar."""
+    std = np.asarray(std, np.float64)
+    if std.ndim != 2:
+        raise ValueError(f"std must be a 2-D [rows, cols] raster, got shape {std.shape}")
+    a, b, c, d, e, f = (float(v) for v in transform)
+    if b or d or not (a > 0 and e < 0):
+        raise ValueError(f"a north-up transform (a, 0, c, 0, e, f) with a > 0 > e is needed, "
+                         f"got {tuple(transform)}")
+    east0, north0 = 100.0 * np.floor(c / 100.0), 100.0 * np.floor((f + e * std.shape[0]) / 100.0)
+    lines = []
+    if path is not None:
+        xy = np.asarray(path, np.float64)[:, :2] - [east0, north0]
+        lines = [(xy, "Gamma-SLAM path", _PATH)]
+    # as a lattice of cells from its south-west corner: rows flipped, axes (easting, northing)
+    grid = np.flipud(std).T
+    return _save_map_panels(out, [_Panel(f"Gamma-SLAM map in {crs} (north up)", grid,
+                                         (c - east0, f + e * std.shape[0] - north0), lines)],
+                            a, None, dpi, (f"easting - {east0:,.0f} (m)",
+                                           f"northing - {north0:,.0f} (m)"))
 
 
 def save_ess_png(out: str | Path, ess: np.ndarray, num_particles: int,
