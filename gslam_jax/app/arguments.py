@@ -20,7 +20,7 @@ from gslam_jax.sim.courses import COURSES
 __all__ = ["Deprecated", "Given", "SHARED", "add_config_arguments", "add_deprecated",
            "add_shared", "add_source_arguments", "config_and_run", "config_overrides",
            "load_config", "nonnegative_int", "note", "pose", "pose_sigma", "positive_float",
-           "positive_int", "seed", "source_request", "topic", "use_course_path"]
+           "positive_int", "seed", "source_request", "spelled", "topic", "use_course_path"]
 
 
 def _integer(text: str, low: int, high: int | None, what: str, bounds: str) -> int:
@@ -109,8 +109,9 @@ def note(text: str) -> None:
 
 class Deprecated(argparse.Action):
     """An old spelling that keeps working: stores its value as its ``dest`` (the option it
-    stands for, or its own) and prints a note with ``advice`` (what to write instead). Hidden
-    from ``--help``."""
+    stands for, or its own) and the spelling used as ``<dest>_spelled`` (for messages that
+    name what the user wrote), and prints a note with ``advice`` (what to write instead).
+    Hidden from ``--help``."""
 
     def __init__(self, option_strings, dest, advice: str = "", **kwargs):
         kwargs["help"] = argparse.SUPPRESS
@@ -120,6 +121,12 @@ class Deprecated(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None) -> None:
         note(f"{option_string} is deprecated and will be removed: {self.advice}")
         setattr(namespace, self.dest, True if self.nargs == 0 else values)
+        setattr(namespace, f"{self.dest}_spelled", option_string)
+
+
+def spelled(args: argparse.Namespace, dest: str, option: str) -> str:
+    """The option the user wrote for ``dest``: ``option``, or the old spelling given."""
+    return getattr(args, f"{dest}_spelled", None) or option
 
 
 def add_deprecated(p: argparse.ArgumentParser, option: str, advice: str, **kwargs) -> None:

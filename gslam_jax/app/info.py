@@ -10,7 +10,7 @@ import argparse
 from importlib import metadata
 from pathlib import Path
 
-from gslam_jax.app.arguments import add_deprecated, add_shared
+from gslam_jax.app.arguments import add_deprecated, add_shared, spelled
 from gslam_jax.version import __version__
 
 __all__ = ["EXAMPLES", "add_examples", "add_parser", "add_version", "cmd_config",
@@ -106,16 +106,16 @@ def cmd_config(args: argparse.Namespace) -> int:
     from gslam_jax.app.outfile import check_output_file, write_text_atomic
     from gslam_jax.config import ConfigError, config_to_toml, layered_config
 
-    out = args.save_config
+    out, option = args.save_config, spelled(args, "save_config", "--save-config")
     if out is not None:  # a folder, a read-only place, an existing file: refused first
-        check_output_file(out, "--save-config")
+        check_output_file(out, option)
         if out.exists() and not args.overwrite:
-            raise ConfigError(f"--save-config {out}: exists (--overwrite replaces it)")
+            raise ConfigError(f"{option} {out}: exists (--overwrite replaces it)")
     text = config_to_toml(layered_config(args.config, None, args.set))
     if out is None:
         print(text, end="")
     else:
-        write_text_atomic(out, text, "--save-config")
+        write_text_atomic(out, text, option)
         print(f"config: {out} (for --config)")
     return 0
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from gslam_jax import choices
 from gslam_jax.app.arguments import (add_deprecated, add_shared, add_source_arguments,
-                                     config_and_run, positive_float, positive_int)
+                                     config_and_run, positive_float, positive_int, spelled)
 from gslam_jax.app.outputs import json_ready
 from gslam_jax.app.progress import ProgressBar
 from gslam_jax.app.results import results_folder, writing
@@ -214,11 +214,11 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
     from gslam_jax.config import MotionSection, config_to_toml, section_to_toml
     from gslam_jax.tuning.motion_fit import fallback_scale, fit_run
 
-    out = args.save_config
+    out, option = args.save_config, spelled(args, "save_config", "--save-config")
     if out is not None:  # a folder, a read-only place: refused before the fit
-        check_output_file(out, "--save-config")
+        check_output_file(out, option)
         if out.exists() and not args.overwrite:
-            raise ConfigError(f"--save-config {out}: exists (--overwrite replaces it)")
+            raise ConfigError(f"{option} {out}: exists (--overwrite replaces it)")
     if not args.evidence and (args.factors or args.evidence_seeds):
         raise ConfigError("--factors and --evidence-seeds go with --evidence")
     if args.evidence and args.window is not None:
@@ -242,6 +242,6 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
     print(section_to_toml(fitted, "motion"))
     print(text)
     if out is not None:
-        write_text_atomic(out, config_to_toml(fitted), "--save-config")
+        write_text_atomic(out, config_to_toml(fitted), option)
         print(f"config: {out} (the config with the fitted [motion], for --config)")
     return 0
