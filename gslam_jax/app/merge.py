@@ -19,7 +19,11 @@ __all__ = ["add_parser", "cmd_merge", "write_merge"]
 
 def add_parser(sub) -> None:
     p = sub.add_parser("merge", help="align runs' maps by the gamma likelihood and merge them "
-                       "into the first run's frame")
+                       "into the first run's frame",
+                       description="Align runs' maps by the gamma likelihood and merge them "
+                       "into the first run's frame. --out holds map.npz (the merged map), "
+                       "map.png, each run's path in that frame (TUM) and summary.json (each "
+                       "run's frame pose and its uncertainty; docs/formats.md).")
     p.add_argument("runs", nargs="+", metavar="RUN",
                    help="gslam run results folders (or map.npz files); the first sets the frame")
     p.add_argument("--no-gps", action="store_true",
