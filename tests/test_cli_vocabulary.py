@@ -146,6 +146,8 @@ def test_compare_tile_cells_are_cells(monkeypatch):
                  "--set", "filter.seed=4"]) == 0
     assert seen["tile_size"] == pytest.approx(62 * compare_module.default_resolution())
     assert seen["particles"] == 7 and seen["seed"] == 4
+    seen.clear()
+    assert main(["compare", "--tile-cells", "5000"]) == 2 and not seen
 
 
 def test_bench_out_is_a_results_folder(tmp_path):

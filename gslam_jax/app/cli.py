@@ -90,7 +90,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         os.environ["XLA_FLAGS"] = (flags + " --xla_cpu_max_isa=AVX").strip()
     from gslam_jax.run import load_run
     from gslam_jax.config import load_table_config
-    from gslam_jax.app.compare import compare, default_resolution
+    from gslam_jax.app.compare import (MAX_TILE_CELLS, CompareError, compare,
+                                       default_resolution)
 
     # A Table I config works too: its shared settings are used, its [course.*] tables are not.
     config, per_course = load_table_config(args.config)
@@ -106,6 +107,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if tile_size is not None:
             raise ConfigError("--tile-cells and --tile-size (metres, deprecated) name the same "
                               "tile: give --tile-cells only")
+        if args.tile_cells > MAX_TILE_CELLS:
+            raise CompareError(f"--tile-cells {args.tile_cells}: more than {MAX_TILE_CELLS} "
+                               "cells per side (the paper's 10 m tiles are 62 cells at 0.16 m)")
         tile_size = args.tile_cells * (run.resolution if run is not None
                                        else default_resolution())
     result = compare(run, config, particles=config.filter.particles,
