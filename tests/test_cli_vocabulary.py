@@ -196,6 +196,9 @@ def test_enable_leaves_a_users_jax_cache_and_can_be_turned_off(tmp_path):
     assert "JAX_COMPILATION_CACHE_DIR" not in env
     env = {"HOME": str(tmp_path), "GSLAM_JAX_CACHE_MAX_MB": "0"}
     assert compile_cache.enable_compile_cache(env) is None and len(env) == 2
+    env = {"HOME": str(tmp_path), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "3"}
+    compile_cache.enable_compile_cache(env)
+    assert env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] == "3"  # the user's is kept
     env = {"HOME": str(tmp_path)}
     assert compile_cache.enable_compile_cache(env) == tmp_path / ".cache/gslam-jax/jax"
     assert env["JAX_COMPILATION_CACHE_DIR"] == str(tmp_path / ".cache/gslam-jax/jax")

@@ -12,7 +12,9 @@ this on in the user's cache folder unless told otherwise:
 
 The folder is bounded: at start-up the least recently used entries (by their access or
 modification time, whichever is later) beyond ``GSLAM_JAX_CACHE_MAX_MB`` megabytes (default
-``DEFAULT_MAX_MB``; 0: no cache) are removed. JAX's own bound (``jax_compilation_cache_max_size``) needs the
+``DEFAULT_MAX_MB``; 0: no cache) are removed. Programs that compiled in under
+``MIN_COMPILE_SECONDS`` are not kept (``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS``, unless
+set). JAX's own bound (``jax_compilation_cache_max_size``) needs the
 ``filelock`` package, which is not a dependency. Light on purpose (no JAX import): the
 variables must be set before JAX is imported.
 """
@@ -23,13 +25,16 @@ import os
 from collections.abc import MutableMapping
 from pathlib import Path
 
-__all__ = ["CACHE_ENV", "MAX_MB_ENV", "DEFAULT_MAX_MB", "cache_folder", "prune",
+__all__ = ["CACHE_ENV", "MAX_MB_ENV", "DEFAULT_MAX_MB", "MIN_COMPILE_SECONDS", "cache_folder",
+           "prune",
            "enable_compile_cache"]
 
 CACHE_ENV = "GSLAM_JAX_CACHE"
 MAX_MB_ENV = "GSLAM_JAX_CACHE_MAX_MB"
 DEFAULT_MAX_MB = 1024
 _JAX_DIR = "JAX_COMPILATION_CACHE_DIR"
+_MIN_COMPILE_ENV = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
+MIN_COMPILE_SECONDS = "0.2"  # programs compiled faster than this are not kept
 
 
 def cache_folder(environ: MutableMapping[str, str] | None = None) -> Path | None:
@@ -103,4 +108,7 @@ def enable_compile_cache(environ: MutableMapping[str, str] | None = None) -> Pat
     except OSError:
         return None
     env[_JAX_DIR] = str(folder)
+    # JAX's default keeps only programs that took a second to compile; the filter's smaller
+    # ones add up too (the test suite's conftest uses the same bound)
+    env.setdefault(_MIN_COMPILE_ENV, MIN_COMPILE_SECONDS)
     return folder
