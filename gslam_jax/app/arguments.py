@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 from gslam_jax import choices
@@ -16,9 +17,11 @@ from gslam_jax.config import ConfigError, paper_differences
 from gslam_jax.datasets.registry import Source, get_source, source_names
 from gslam_jax.sim.courses import COURSES
 
-__all__ = ["Given", "add_source_arguments", "attach_negative_values", "config_and_run", "load_config", "nonnegative_int",
-           "pose", "pose_sigma", "positive_float", "positive_int", "seed", "source_request",
-           "topic", "use_course_path"]
+__all__ = ["Deprecated", "Given", "SHARED", "add_config_arguments", "add_deprecated",
+           "add_shared", "add_source_arguments", "attach_negative_values", "config_and_run",
+           "config_overrides", "load_config", "nonnegative_int", "note", "pose", "pose_sigma",
+           "positive_float", "positive_int", "seed", "source_request", "spelled", "topic",
+           "use_course_path"]
 
 
 def _integer(text: str, low: int, high: int | None, what: str, bounds: str) -> int:
@@ -123,6 +126,94 @@ class Given(argparse.Action):
         setattr(namespace, f"{self.dest}_given", True)
 
 
+def note(text: str) -> None:
+    """A note of the command line to the user (stderr), as ``note: TEXT``."""
+    print(f"note: {text}", file=sys.stderr, flush=True)
+
+
+class Deprecated(argparse.Action):
+    """An old spelling that keeps working: stores its value as its ``dest`` (the option it
+    stands for, or its own) and the spelling used as ``<dest>_spelled`` (for messages that
+    name what the user wrote), and prints a note with ``advice`` (what to write instead).
+    Hidden from ``--help``."""
+
+    def __init__(self, option_strings, dest, advice: str = "", **kwargs):
+        kwargs["help"] = argparse.SUPPRESS
+        super().__init__(option_strings, dest, **kwargs)
+        self.advice = advice
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        note(f"{option_string} is deprecated and will be removed: {self.advice}")
+        setattr(namespace, self.dest, True if self.nargs == 0 else values)
+        setattr(namespace, f"{self.dest}_spelled", option_string)
+
+
+def spelled(args: argparse.Namespace, dest: str, option: str) -> str:
+    """The option the user wrote for ``dest``: ``option``, or the old spelling given."""
+    return getattr(args, f"{dest}_spelled", None) or option
+
+
+def add_deprecated(p: argparse.ArgumentParser, option: str, advice: str, **kwargs) -> None:
+    """``option`` on ``p`` as a :class:`Deprecated` spelling (``kwargs``: dest, type, nargs,
+    choices as the option had them, so that its values are checked as before)."""
+    p.add_argument(option, action=Deprecated, advice=advice, **kwargs)
+
+
+# The options several commands share: one name, one dest, one help text, wherever they appear
+# (tests/test_cli_vocabulary.py checks it). ``--out`` is a results folder in every command;
+# one file is written by a ``--save-...`` option, or a ``--viewer-save`` recording.
+SHARED: dict[str, dict] = {
+    "--out": dict(type=Path, metavar="DIR", help=(
+        "results folder: the command's files (its description and docs/formats.md list them) "
+        "appear there only when complete (marker file COMPLETE); an existing, non-empty folder "
+        "is refused unless --overwrite (default: results/<command>-<time> for run, search, "
+        "tune and merge; no files for the others)")),
+    "--overwrite": dict(action="store_true", help=(
+        "replace an existing output: an --out folder as a whole once the new results are "
+        "complete; a --save-run, --viewer-save or --save-config file once the new one is")),
+    "--config": dict(type=Path, metavar="FILE.toml", help=(
+        "TOML config (default: the built-in settings, `gslam config` prints them); a Table I "
+        "config's [course.<name>.*] tables apply to that simulated course in run, search, "
+        "tune, fit-motion and table1, not in compare or config")),
+    "--set": dict(action="append", metavar="SECTION.KEY=VALUE", help=(
+        "override one config value after --config and its course tables (repeatable)")),
+    "--particles": dict(type=positive_int, metavar="J", help=(
+        "particles J: --set filter.particles=J (default: the config's; bench times each of "
+        "several values, default 50 200 1000)")),
+    "--unknown-cells": dict(choices=choices.UNKNOWN_CELLS, help=(
+        "how the filter weighs cells its map has not observed: --set filter.unknown_cells="
+        + "|".join(choices.UNKNOWN_CELLS) + " (default: the config's; bench times each of "
+        "several values, default all)")),
+    "--viewer-save": dict(type=Path, metavar="FILE.rrd", help=(
+        "write the viewer's recording to this file (headless; open it with `rerun FILE.rrd`)")),
+    "--save-config": dict(type=Path, metavar="FILE.toml", help=(
+        "write the resulting config to this file (TOML, for --config); an existing file is "
+        "refused unless --overwrite")),
+}
+
+
+def add_shared(p: argparse.ArgumentParser, *options: str, **changes) -> None:
+    """The ``SHARED`` ``options`` on ``p``; ``changes`` (e.g. nargs="+", default) apply to
+    each of them, never the name, dest or help."""
+    for option in options:
+        if {"help", "dest"} & set(changes):
+            raise ValueError(f"{option}: a shared option keeps its help and dest")
+        p.add_argument(option, **{**SHARED[option], **changes})
+
+
+def add_config_arguments(p: argparse.ArgumentParser) -> None:
+    """--config, --set and --particles, which ``config_overrides`` reads."""
+    add_shared(p, "--config", "--set", "--particles")
+
+
+def config_overrides(args: argparse.Namespace) -> list[str]:
+    """The ``--set`` overrides of ``args``, then ``--particles J`` as filter.particles=J."""
+    overrides = list(getattr(args, "set", None) or [])
+    if getattr(args, "particles", None) is not None:
+        overrides.append(f"filter.particles={args.particles}")
+    return overrides
+
+
 def use_course_path(args: argparse.Namespace) -> None:
     """``--course-path FILE`` is ``--source sim-path --path FILE``: set those, or a ConfigError
     for a Run file, another --source or a --path beside it."""
@@ -153,7 +244,8 @@ def load_config(args: argparse.Namespace):
     from gslam_jax.config import layered_config
 
     simulated = getattr(args, "run_file", None) is None and get_source(args.source).simulated
-    return layered_config(args.config, args.course if simulated else None, args.set, COURSES)
+    return layered_config(args.config, args.course if simulated else None, config_overrides(args),
+                          COURSES)
 
 
 def config_and_run(args: argparse.Namespace):
@@ -200,7 +292,4 @@ def add_source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--on-bad-frame", choices=choices.BAD_FRAME_POLICIES, default="error",
                    help="a missing/corrupt image stops the run (error) or is counted and bridged "
                    "by the fallback odometry")
-    p.add_argument("--config", type=Path, help="TOML config (defaults: the paper's settings, "
-                   "configs/paper.toml, except " + ", ".join(paper_differences()) + ")")
-    p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
-                   help="override one config value (repeatable)")
+    add_config_arguments(p)

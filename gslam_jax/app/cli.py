@@ -8,6 +8,7 @@ import argparse
 import os
 import signal
 import sys
+import warnings
 from pathlib import Path
 
 from gslam_jax import choices  # light (no JAX), as the next two
@@ -16,8 +17,10 @@ from gslam_jax.errors import InputError
 from gslam_jax.app.progress import ProgressBar
 from gslam_jax.app.termination import Terminated, sigterm_as_exit
 from gslam_jax.app import info, merge, tuning_commands, view
-from gslam_jax.app.arguments import (add_source_arguments, attach_negative_values,
-                                     load_config, nonnegative_int, pose,
+from gslam_jax.app.compile_cache import DEFAULT_MAX_MB, enable_compile_cache
+from gslam_jax.app.arguments import (add_config_arguments, add_deprecated, add_shared,
+                                     add_source_arguments, attach_negative_values,
+                                     config_overrides, load_config, nonnegative_int, note, pose,
                                      pose_sigma, positive_float, positive_int, seed,
                                      source_request, use_course_path)
 from gslam_jax.sim.courses import COURSES  # light (no JAX) too
@@ -46,18 +49,41 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _into_folder(args: argparse.Namespace, kind: str, write) -> int:
+    """``write(folder or None)``: into a results folder (``results.results_folder``) when
+    --out is given, else with no folder."""
+    if args.out is None:
+        return write(None)
+    from gslam_jax.app.results import results_folder
+
+    with results_folder(args.out, kind, overwrite=args.overwrite,
+                        command=f"gslam {kind}") as folder:
+        code = write(folder.staging)
+    print(f"results: {folder.target}")
+    return code
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from gslam_jax.app.bench import main as bench_main
-    return bench_main(args.particles, args.local, args.map, args.repeats, args.mode, args.json,
-                      course=args.course, course_particles=args.course_particles,
-                      plot_path=args.plot, particle_block=args.particle_block,
-                      stores=args.store, overwrite=args.overwrite)
+
+    def write(folder: Path | None) -> int:
+        return bench_main(args.particles, args.local, args.map, args.repeats,
+                          args.unknown_cells, folder / "bench.json" if folder else args.json,
+                          course=args.course, course_particles=args.course_particles,
+                          plot_path=folder / "bench.png" if folder else args.plot,
+                          particle_block=args.particle_block, stores=args.store,
+                          overwrite=args.overwrite)
+    return _into_folder(args, "bench", write)
 
 
 def cmd_table1(args: argparse.Namespace) -> int:
     from gslam_jax.app.table1 import main as table1_main
-    return table1_main(args.courses, args.seeds, args.particles, args.config, args.json, args.quick,
-                       args.set or [], overwrite=args.overwrite)
+
+    def write(folder: Path | None) -> int:
+        return table1_main(args.courses, args.seeds, args.particles, args.config,
+                           folder / "table1.json" if folder else args.json, args.quick,
+                           args.set or [], overwrite=args.overwrite)
+    return _into_folder(args, "table1", write)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -69,28 +95,51 @@ def cmd_compare(args: argparse.Namespace) -> int:
         os.environ["XLA_FLAGS"] = (flags + " --xla_cpu_max_isa=AVX").strip()
     from gslam_jax.run import load_run
     from gslam_jax.config import load_table_config
-    from gslam_jax.app.compare import compare
+    from gslam_jax.app.compare import (MAX_TILE_CELLS, CompareError, compare,
+                                       default_resolution)
 
     # A Table I config works too: its shared settings are used, its [course.*] tables are not.
     config, per_course = load_table_config(args.config, COURSES)
     if per_course:
         print(f"note: {args.config}: compare uses the shared settings; the [course.<name>.*] "
               f"tables ({', '.join(per_course)}) are not applied")
+    from gslam_jax.config import apply_overrides
+
+    config = apply_overrides(config, config_overrides(args))
     run = load_run(args.run_file) if args.run_file else None
-    result = compare(run, config, particles=args.particles,
-                     unknown_cells=args.unknown_cells, tile_size=args.tile_size, seed=args.seed,
+    tile_size = args.tile_size
+    if args.tile_cells is not None:
+        if tile_size is not None:
+            raise ConfigError("--tile-cells and --tile-size (metres, deprecated) name the same "
+                              "tile: give --tile-cells only")
+        if args.tile_cells > MAX_TILE_CELLS:
+            raise CompareError(f"--tile-cells {args.tile_cells}: more than {MAX_TILE_CELLS} "
+                               "cells per side (the paper's 10 m tiles are 62 cells at 0.16 m)")
+        tile_size = args.tile_cells * (run.resolution if run is not None
+                                       else default_resolution())
+    result = compare(run, config, particles=config.filter.particles,
+                     unknown_cells=args.unknown_cells, tile_size=tile_size,
+                     seed=config.filter.seed if args.seed is None else args.seed,
                      out_dir=args.out, store=args.store, pool_tiles=args.pool_tiles,
                      overwrite=args.overwrite)
     return 0 if result.get("agreement", {}).get("ok", True) else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="gslam", description="Gamma-SLAM in JAX "
-                                     "(Marks et al., Journal of Field Robotics 2009)")
+    parser = argparse.ArgumentParser(
+        prog="gslam", description="Gamma-SLAM in JAX (Marks et al., Journal of Field Robotics "
+        "2009)", epilog="Compiled filter programs are cached between runs in "
+        "$XDG_CACHE_HOME/gslam-jax/jax (~/.cache/gslam-jax/jax), at most "
+        f"{DEFAULT_MAX_MB} MB: GSLAM_JAX_CACHE=DIR puts the cache there, GSLAM_JAX_CACHE= "
+        "(empty) turns it off, GSLAM_JAX_CACHE_MAX_MB=N bounds it; a JAX_COMPILATION_CACHE_DIR "
+        "of your own is used as it is.")
     info.add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("run", help="run Gamma-SLAM on a Run file, a simulated course or a dataset")
+    p = sub.add_parser("run", help="run Gamma-SLAM on a Run file, a simulated course or a dataset",
+                       description="Run Gamma-SLAM on a Run file, a simulated course or a "
+                       "dataset. --out holds the trajectories, the map, the figures and "
+                       "summary.json (docs/formats.md, \"Results folder\").")
     add_source_arguments(p)
     p.add_argument("--gps", help="GPS log (time, lat, lon, epe) to align the result to, read and "
                    "checked before the run; times are seconds on the run's clock (Run.timestamps: "
@@ -113,12 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "against itself (consistency: each revisited stretch of the path "
                    "scored against the map built before it; terrain mapped twice is reported and "
                    "recorded in summary.json's map_consistency, and gslam merge refuses it)")
-    p.add_argument("--out", type=Path, help="results directory (default results/run-<time>); "
-                   "the results appear there only when complete (marker file COMPLETE); an "
-                   "existing, non-empty folder is refused unless --overwrite")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing results "
-                   "folder --out as a whole once the new results are complete (and an existing "
-                   "--save-run or --viewer-save file once the new one is)")
+    add_shared(p, "--out", "--overwrite")
     view.add_run_arguments(p, positive_int)
     p.set_defaults(func=cmd_run)
 
@@ -131,23 +175,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _build_rest(sub) -> None:
     """bench, table1 and compare: commands with their own arguments."""
-    p = sub.add_parser("bench", help="microseconds per particle per local-map update")
-    p.add_argument("--particles", type=positive_int, nargs="+", default=[50, 200, 1000])
+    p = sub.add_parser("bench", help="microseconds per particle per local-map update",
+                       description="Microseconds per particle per local-map update, over every "
+                       "combination of the values given. --out holds bench.json (every figure) "
+                       "and bench.png (us per particle against J).")
+    add_shared(p, "--particles", nargs="+", default=[50, 200, 1000])
     p.add_argument("--local", type=positive_int, nargs="+", default=[64],
-                   help="local map sides, cells")
+                   help="local map sides, cells (default 64)")
     p.add_argument("--map", type=positive_int, nargs="+", default=[640],
-                   help="global map sides, cells")
-    p.add_argument("--repeats", type=positive_int, default=10)
-    p.add_argument("--mode", choices=choices.UNKNOWN_CELLS, nargs="+",
-                   default=list(choices.UNKNOWN_CELLS))
-    p.add_argument("--json", type=Path, help="also write the figures as JSON")
-    p.add_argument("--plot", type=Path, help="also plot us per particle against J (PNG)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --json or "
-                   "--plot file once the new one is complete")
+                   help="global map sides, cells (default 640)")
+    p.add_argument("--repeats", type=positive_int, default=10,
+                   help="timed scans of each combination; the best is reported (default 10)")
+    add_shared(p, "--unknown-cells", nargs="+", default=list(choices.UNKNOWN_CELLS))
+    add_deprecated(p, "--mode", "use --unknown-cells, as compare and the config's "
+                   "filter.unknown_cells", dest="unknown_cells", choices=choices.UNKNOWN_CELLS,
+                   nargs="+")
+    add_shared(p, "--out", "--overwrite")
+    add_deprecated(p, "--json", "use --out DIR (bench.json in it)", dest="json", type=Path)
+    add_deprecated(p, "--plot", "use --out DIR (bench.png in it)", dest="plot", type=Path)
     p.add_argument("--course", choices=COURSES, metavar="COURSE",
                    help="also time a whole simulated course after compilation "
                    "(e.g. mars-yard-a), default settings")
-    p.add_argument("--course-particles", type=positive_int, default=200)
+    p.add_argument("--course-particles", type=positive_int, default=200,
+                   help="particles of the --course timing (default 200)")
     p.add_argument("--particle-block", type=nonnegative_int, nargs="+", default=[0],
                    help="particles per pass of the update (0: automatic); several values "
                    "compare block sizes in one process")
@@ -156,37 +206,37 @@ def _build_rest(sub) -> None:
                    "side in one process)")
     p.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("table1", help="the paper's Table I on the five simulated courses")
-    p.add_argument("--courses", nargs="+", default=list(COURSES), choices=COURSES, metavar="COURSE")
-    p.add_argument("--seeds", type=seed, nargs="+", default=[0, 1, 2])
-    p.add_argument("--particles", type=positive_int, metavar="J",
-                   help="particles (default: the config's filter.particles, per course; 200 if "
-                   "the config does not set it)")
-    p.add_argument("--config", type=Path, help="TOML config, may hold [course.<name>.*] tables")
-    p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
-                   help="override one config value on every course, after the config's course "
-                   "tables (repeatable)")
-    p.add_argument("--json", type=Path, help="also write the rows and the environment as JSON")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --json file "
-                   "once the new one is complete")
+    p = sub.add_parser("table1", help="the paper's Table I on the five simulated courses",
+                       description="The paper's Table I on the simulated courses. --out holds "
+                       "table1.json (every row, with its config and the machine).")
+    p.add_argument("--courses", nargs="+", default=list(COURSES), choices=COURSES,
+                   metavar="COURSE", help=f"courses to run: {', '.join(COURSES)} (default all)")
+    p.add_argument("--seeds", type=seed, nargs="+", default=[0, 1, 2],
+                   help="simulation seeds, each course run once per seed (default 0 1 2)")
+    add_config_arguments(p)
+    add_shared(p, "--out", "--overwrite")
+    add_deprecated(p, "--json", "use --out DIR (table1.json in it)", dest="json", type=Path)
     p.add_argument("--quick", action="store_true", help="Mars Yard A, one seed, J <= 100")
     p.set_defaults(func=cmd_table1)
 
     merge.add_parser(sub)
     view.add_parser(sub)
 
-    p = sub.add_parser("compare", help="dense JAX filter vs the tiled copy-on-write reference")
+    p = sub.add_parser("compare", help="dense JAX filter vs the tiled copy-on-write reference",
+                       description="The dense JAX filter against the tiled copy-on-write "
+                       "reference on one Run, with the same random numbers (filter.seed). --out "
+                       "holds compare.json and compare_fig4.png.")
     p.add_argument("run_file", nargs="?", type=Path, help="Run file (default: a simulated course)")
-    p.add_argument("--config", type=Path, help="TOML config (a Table I config's [course.*] tables "
-                   "are not applied)")
-    p.add_argument("--particles", type=positive_int, default=200)
-    p.add_argument("--unknown-cells", choices=choices.UNKNOWN_CELLS)
-    p.add_argument("--tile-size", type=positive_float, help="tile side, metres (default 10)")
-    p.add_argument("--seed", type=seed, default=0)
-    p.add_argument("--out", type=Path, help="write compare.json and compare_fig4.png into "
-                   "this results folder when complete; an existing, non-empty folder is "
-                   "refused unless --overwrite")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    add_config_arguments(p)
+    add_shared(p, "--unknown-cells")
+    p.add_argument("--tile-cells", type=positive_int, metavar="N", help="the reference's tile "
+                   "side in map cells, as [map] tile counts them (default: the whole number of "
+                   "cells nearest the paper's 10 m)")
+    add_deprecated(p, "--tile-size", "use --tile-cells N (cells, as [map] tile); "
+                   "--tile-size was metres", dest="tile_size", type=positive_float)
+    add_deprecated(p, "--seed", "use --set filter.seed=N (the filter's seed, as in gslam run)",
+                   dest="seed", type=seed)
+    add_shared(p, "--out", "--overwrite")
     p.add_argument("--exact", action="store_true",
                    help="disable XLA's fused multiply-adds so both filters round identically")
     p.add_argument("--store", choices=choices.MAP_STORES,
@@ -201,16 +251,39 @@ def _out_of_memory(err: BaseException) -> bool:
     return isinstance(err, MemoryError) or "RESOURCE_EXHAUSTED" in str(err)[:2000]
 
 
+def _show_note(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` of the command line: a warning as the CLI's own note, without
+    the file and source line of the code that raised it (a library's non-UserWarning keeps its
+    category's name)."""
+    kind = "" if issubclass(category, UserWarning) else f"{category.__name__}: "
+    note(f"{kind}{message}")
+
+
 def main(argv: list[str] | None = None) -> int:
+    """``gslam``: parse (a negative value attached to its option, ``attach_negative_values``),
+    turn on the compilation cache (``compile_cache``), run the command with Python warnings
+    shown as notes and SIGTERM as exit 143 (``termination``); the exit status."""
     argv = attach_negative_values(sys.argv[1:] if argv is None else list(argv))
     args = build_parser().parse_args(argv)
     try:
-        with sigterm_as_exit():  # every file a command stages is removed on SIGTERM too
-            if getattr(args, "course_path", None) is not None:
-                use_course_path(args)
-            return args.func(args)
-    except Terminated as err:
-        return int(err.code)
+        enable_compile_cache()
+    except ValueError as err:
+        print(f"gslam: error: {err}", file=sys.stderr)
+        return 2
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_note
+        try:
+            with sigterm_as_exit():  # every file a command stages is removed on SIGTERM too
+                return _run_command(args)
+        except Terminated as err:
+            return int(err.code)
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    try:
+        if getattr(args, "course_path", None) is not None:
+            use_course_path(args)
+        return args.func(args)
     except (InputError, FileNotFoundError) as err:
         print(f"gslam: error: {err}", file=sys.stderr)
         return 2

@@ -42,8 +42,9 @@ from gslam_jax.tiled.reference import (
 )
 from gslam_jax.vo.localmap import LocalMapParams
 
-__all__ = ["TOLERANCES", "MAX_TILE_CELLS", "CompareError", "default_tile_size",
-           "check_tile_size", "dense_label", "check_agreement", "default_run", "compare"]
+__all__ = ["TOLERANCES", "MAX_TILE_CELLS", "CompareError", "default_resolution",
+           "default_tile_size", "check_tile_size", "dense_label", "check_agreement",
+           "default_run", "compare"]
 
 TOLERANCES = {"log_w": 1e-4, "pose": 1e-5, "k": 1e-6, "S_rel": 1e-5}
 
@@ -83,6 +84,11 @@ def check_tile_size(tile_size: float, resolution: float,
                            f"({map_shape[0]} x {map_shape[1]} cells at {resolution:g} m); use "
                            f"at most {max(map_shape) * resolution:.6g} m")
     return int(side)
+
+
+def default_resolution() -> float:
+    """The cell side (metres) of the Run ``compare`` simulates when given none."""
+    return DEFAULT_RUN_PARAMS.resolution
 
 
 def default_tile_size(resolution: float, metres: float = DEFAULT_TILE_SIZE) -> float:
@@ -211,7 +217,7 @@ def compare(run: Run | None = None, config: Config | None = None, *, particles: 
     before any work (CompareError, ResultsError).
     """
     say = print if verbose else (lambda *a, **k: None)
-    resolution = run.resolution if run is not None else DEFAULT_RUN_PARAMS.resolution
+    resolution = run.resolution if run is not None else default_resolution()
     if tile_size is not None:
         check_tile_size(tile_size, resolution)
     if pool_tiles is not None and pool_tiles < 0:

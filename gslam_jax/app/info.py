@@ -10,6 +10,7 @@ import argparse
 from importlib import metadata
 from pathlib import Path
 
+from gslam_jax.app.arguments import add_deprecated, add_shared, spelled
 from gslam_jax.version import __version__
 
 __all__ = ["EXAMPLES", "add_examples", "add_parser", "add_version", "cmd_config",
@@ -33,27 +34,27 @@ EXAMPLES = {
   gslam tune --objective supervised --steps 50 --out tuned
   gslam tune --params alpha_d,alpha_theta --optimizer sgd --lr 0.01 --steps 20""",
     "fit-motion": """\
-  gslam fit-motion --source kitti --path DIR --sequence 00 --out fitted.toml
+  gslam fit-motion --source kitti --path DIR --sequence 00 --save-config fitted.toml
   gslam fit-motion log.npz --window 10     # errors summed over windows of 10 frames
-  gslam fit-motion log.npz --evidence --out fitted.toml   # no ground truth needed""",
+  gslam fit-motion log.npz --evidence --save-config fitted.toml   # no ground truth needed""",
     "bench": """\
   gslam bench                              # J = 50, 200, 1000 on a 640-cell map
   gslam bench --particles 200 --store dense shared --course mars-yard-a""",
     "table1": """\
   gslam table1 --quick                     # Mars Yard A, one seed, J <= 100
-  gslam table1 --config configs/table1.toml --json table1.json""",
+  gslam table1 --config configs/table1.toml --out results/table1""",
     "merge": """\
   gslam merge results/A results/B --out results/merged
   gslam merge results/A/map.npz results/B/map.npz --no-gps""",
     "view": """\
   gslam view results/run                   # the finished run in the Rerun viewer
-  gslam view results/run --save run.rrd    # ... written to a recording instead""",
+  gslam view results/run --viewer-save run.rrd  # ... written to a recording instead""",
     "compare": """\
   gslam compare --exact                    # both filters round identically
   gslam compare log.npz --store shared --out results/compare""",
     "config": """\
   gslam config                             # the default config as TOML
-  gslam config --out my.toml               # ... written to a file, to edit for --config
+  gslam config --save-config my.toml       # ... written to a file, to edit for --config
   gslam config --config configs/kitti.toml --set filter.particles=100""",
 }
 
@@ -93,14 +94,11 @@ def add_version(parser: argparse.ArgumentParser) -> None:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("config", help="print the default config as TOML (or the config that "
-                       "--config and --set make), or write it with --out")
-    p.add_argument("--config", type=Path, help="start from this TOML config instead of the "
-                   "defaults (its [course.<name>.*] tables are not applied)")
-    p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
-                   help="override one config value (repeatable)")
-    p.add_argument("--out", type=Path, help="write the config to this file (TOML, for "
-                   "--config) instead of printing it")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+                       "--config and --set make), or write it with --save-config")
+    add_shared(p, "--config", "--set")
+    add_shared(p, "--save-config", "--overwrite")  # instead of printing it
+    add_deprecated(p, "--out", "use --save-config FILE.toml (--out is a results folder in "
+                   "the other commands)", dest="save_config", type=Path)
     p.set_defaults(func=cmd_config)
 
 
@@ -109,14 +107,15 @@ def cmd_config(args: argparse.Namespace) -> int:
     from gslam_jax.config import config_to_toml, layered_config
     from gslam_jax.sim.courses import COURSES
 
-    if args.out is not None:  # a folder, a read-only place, an existing file: refused first
-        check_output_file(args.out, "--out", args.overwrite)
+    out, option = args.save_config, spelled(args, "save_config", "--save-config")
+    if out is not None:  # a folder, a read-only place, an existing file: refused first
+        check_output_file(out, option, args.overwrite)
     text = config_to_toml(layered_config(args.config, None, args.set, COURSES), comments=True)
-    if args.out is None:
+    if out is None:
         print(text, end="")
     else:
-        write_text_atomic(args.out, text, "--out")
-        print(f"config: {args.out} (for --config)")
+        write_text_atomic(out, text, option)
+        print(f"config: {out} (for --config)")
     return 0
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gslam_jax.app.arguments import add_shared
 from gslam_jax.app.outputs import json_ready
 from gslam_jax.app.results import results_folder, writing
 
@@ -19,7 +20,11 @@ __all__ = ["add_parser", "cmd_merge", "write_merge"]
 
 def add_parser(sub) -> None:
     p = sub.add_parser("merge", help="align runs' maps by the gamma likelihood and merge them "
-                       "into the first run's frame")
+                       "into the first run's frame",
+                       description="Align runs' maps by the gamma likelihood and merge them "
+                       "into the first run's frame. --out holds map.npz (the merged map), "
+                       "map.png, each run's path in that frame (TUM) and summary.json (each "
+                       "run's frame pose and its uncertainty; docs/formats.md).")
     p.add_argument("runs", nargs="+", metavar="RUN",
                    help="gslam run results folders (or map.npz files); the first sets the frame")
     p.add_argument("--no-gps", action="store_true",
@@ -28,10 +33,7 @@ def add_parser(sub) -> None:
     p.add_argument("--allow-inconsistent", action="store_true",
                    help="merge a run whose map failed its own run's consistency check (terrain "
                         "mapped twice; summary.json's map_consistency); refused by default")
-    p.add_argument("--out", help="results directory (default results/merge-<time>); refused "
-                   "when it exists and is not empty, unless --overwrite")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace an existing results folder --out once the merge is complete")
+    add_shared(p, "--out", "--overwrite")
     p.set_defaults(func=cmd_merge)
 
 

@@ -81,6 +81,20 @@ def write_figures(out: Path, run, result, num_particles: int,
     return slam_std
 
 
+def _write_utm_figure(out: Path, slam_std: np.ndarray, result) -> None:
+    """``map_utm_figure.png``: the map resampled north-up in UTM (``geotiff.run_north_up``)
+    with ``trajectory_utm.txt``'s path, as a figure with axes, legend and colour bar."""
+    from gslam_jax.app import plots
+    from gslam_jax.app.geotiff import NODATA, run_north_up
+
+    north = run_north_up(out, slam_std, result.kmap, result.map_origin, result.resolution,
+                         result.map_heading)
+    std = np.where(north.bands[0] == NODATA, np.nan, north.bands[0])
+    utm = np.loadtxt(out / "trajectory_utm.txt", ndmin=2)
+    plots.save_utm_map_png(out / "map_utm_figure.png", std, north.transform, utm[:, 1:3],
+                           crs=f"EPSG:{north.epsg}")
+
+
 def local_maps_used(run) -> int:
     """How many of the Run's local maps the filter used: those some frame's ``obs_index``
     names (a local map no frame names never updates a particle)."""
@@ -176,7 +190,9 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     (``loaded.kitti_frame``) ``trajectory_kitti.txt`` is the path in KITTI's camera frame, that
     of ``poses/NN.txt`` (``datasets.kitti.camera_poses``). With GPS, the georeferenced outputs
     (``georeference.write_gps_outputs``) and ``map_utm.tif`` (``geotiff``, when rasterio is
-    installed). ``summary.json`` is written last."""
+    installed). ``map_occupancy.pgm`` / ``.yaml``: the map for ROS ``map_server``
+    (``occupancy``). ``summary.json`` is written last."""
+    from gslam_jax.app.occupancy import write_occupancy
     from gslam_jax.config import config_to_toml
     from gslam_jax.io import save_map, write_kitti, write_tum
 
@@ -211,6 +227,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
     summary = summarise(run, result, config, loaded.description)
     slam_std = write_figures(out, run, result, config.filter.particles,
                              config.filter.resample_ratio)
+    write_occupancy(out, slam_std, (*result.map_origin, result.map_heading), result.resolution)
     if prior is not None:
         summary["prior_map"] = prior_summary(prior, result)
     if consistency is not None:
@@ -221,6 +238,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
         summary["gps"] = georeference.write_gps_outputs(out, gps_input, run, result, slam_std)
         summary["gps"].update(write_run_geotiff(out, slam_std, result.kmap, result.map_origin,
                                                 result.resolution, result.map_heading))
+        _write_utm_figure(out, slam_std, result)
     _write_json(out / "summary.json", summary)
     return summary
 

@@ -44,12 +44,13 @@ RESULT_FILES = frozenset({
     MARKER, "summary.json", "config.toml", "simulation.json", "trajectory_tum.txt",
     "trajectory_kitti.txt", "trajectory_robot_kitti.txt", "vo_tum.txt", "map_path_tum.txt",
     "ground_truth_tum.txt",
-    "map.npz", "map.png",
+    "map.npz", "map.png", "map_occupancy.pgm", "map_occupancy.yaml",
     "maps_vo_vs_slam.png", "ground_truth.png", "errors.png", "ess.png", "trace.npz",
     "trajectory_utm.txt",
-    "map_utm.png",
+    "map_utm.png", "map_utm.tif", "map_utm_north.tif", "map_utm_figure.png",
     "map_utm.pgw", "gps_alignment.npz", "results.csv", "results.json", "best.toml",
-    "tuned.json", "tuned.toml", "compare.json", "compare_fig4.png"})
+    "tuned.json", "tuned.toml", "compare.json", "compare_fig4.png", "bench.json", "bench.png",
+    "table1.json"})
 
 
 class ResultsError(InputError):

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from gslam_jax import choices
-from gslam_jax.app.arguments import (add_source_arguments, config_and_run, positive_float,
-                                     positive_int)
+from gslam_jax.app.arguments import (add_deprecated, add_shared, add_source_arguments,
+                                     config_and_run, positive_float, positive_int, spelled)
 from gslam_jax.app.outputs import json_ready
 from gslam_jax.app.progress import ProgressBar
 from gslam_jax.app.results import results_folder, writing
@@ -29,35 +29,43 @@ __all__ = ["add_parsers", "cmd_fit_motion", "cmd_search", "cmd_tune"]
 
 def add_parsers(sub) -> None:
     """The three commands' parsers on the ``gslam`` subparsers ``sub``."""
-    p = sub.add_parser("search", help="batched parameter search (vmapped/sharded over sets)")
+    p = sub.add_parser("search", help="batched parameter search (vmapped/sharded over sets)",
+                       description="Batched parameter search (vmapped/sharded over the sets). "
+                       "--out holds results.csv, results.json and best.toml (the config with "
+                       "the best values, for --config).")
     add_source_arguments(p)
     p.add_argument("--space", type=Path, required=True, help="TOML search space (see "
                    "configs/search_example.toml)")
-    p.add_argument("--design", choices=choices.SEARCH_DESIGNS)
-    p.add_argument("--n", type=positive_int, help="number of parameter sets")
-    p.add_argument("--objective", choices=choices.SEARCH_OBJECTIVES)
+    p.add_argument("--design", choices=choices.SEARCH_DESIGNS, help="how the parameter sets "
+                   "are drawn from the space (default: the space file's design, else halton)")
+    p.add_argument("--n", type=positive_int, help="number of parameter sets (default: the "
+                   "space file's n, else 64)")
+    p.add_argument("--objective", choices=choices.SEARCH_OBJECTIVES, help="what ranks the sets: "
+                   "rms, position RMS against ground truth (m), or the filter's log likelihood "
+                   "(default: the space file's objective, else rms)")
     p.add_argument("--score-path", choices=choices.SCORE_PATHS,
                    help="path scored by rms: final best particle or weighted mean "
                    "(default: [filter] estimate)")
     p.add_argument("--batch", type=positive_int, help="parameter sets per chunk")
-    p.add_argument("--out", type=Path, help="write results.csv, results.json and best.toml here "
-                   "when complete (default results/search-<time>)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    add_shared(p, "--out", "--overwrite")
     p.set_defaults(func=cmd_search)
 
-    p = sub.add_parser("tune", help="gradient tuning of the noise parameters with optax")
+    p = sub.add_parser("tune", help="gradient tuning of the noise parameters with optax",
+                       description="Gradient tuning of the noise parameters with optax. --out "
+                       "holds tuned.toml (a config for --config) and tuned.json.")
     add_source_arguments(p)
-    p.add_argument("--objective", choices=choices.TUNE_OBJECTIVES, default="loglik")
+    p.add_argument("--objective", choices=choices.TUNE_OBJECTIVES, default="loglik",
+                   help="what the gradient steps improve (default loglik)")
     p.add_argument("--optimizer", default="adam", help="an optax optimiser by name whose "
                    "update needs only the gradient (adam, sgd, ...; lbfgs is refused)")
     p.add_argument("--lr", type=positive_float, default=0.05, help="learning rate (> 0)")
-    p.add_argument("--steps", type=positive_int, default=100)
+    p.add_argument("--steps", type=positive_int, default=100,
+                   help="optimiser steps (default 100)")
     p.add_argument("--params", help="comma-separated names (default: the objective's)")
-    p.add_argument("--runs-per-step", type=positive_int, default=4)
+    p.add_argument("--runs-per-step", type=positive_int, default=4,
+                   help="filter runs averaged per step (default 4)")
     p.add_argument("--crn", action="store_true", help="common random numbers across steps")
-    p.add_argument("--out", type=Path, help="write tuned.toml (a config for --config) and "
-                   "tuned.json here when complete (default results/tune-<time>)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    add_shared(p, "--out", "--overwrite")
     p.set_defaults(func=cmd_tune)
 
     p = sub.add_parser("fit-motion", help="fit the [motion] alphas to the VO errors of a log "
@@ -76,9 +84,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--evidence-seeds", type=int, nargs="+", metavar="SEED",
                    help="--evidence: filter seeds the log evidence is averaged over "
                    "(default 0 1 2)")
-    p.add_argument("--out", type=Path, help="write the config with the fitted [motion] here "
-                   "(TOML, for --config)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    add_shared(p, "--save-config", "--overwrite")
+    add_deprecated(p, "--out", "use --save-config FILE.toml (--out is a results folder in "
+                   "the other commands)", dest="save_config", type=Path)
     p.set_defaults(func=cmd_fit_motion)
 
 
@@ -206,8 +214,9 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
     from gslam_jax.config import MotionSection, config_to_toml, section_to_toml
     from gslam_jax.tuning.motion_fit import fallback_scale, fit_run
 
-    if args.out is not None:  # a folder, a read-only place: refused before the fit
-        check_output_file(args.out, "--out", args.overwrite)
+    out, option = args.save_config, spelled(args, "save_config", "--save-config")
+    if out is not None:  # a folder, a read-only place, an existing file: refused before the fit
+        check_output_file(out, option, args.overwrite)
     if not args.evidence and (args.factors or args.evidence_seeds):
         raise ConfigError("--factors and --evidence-seeds go with --evidence")
     if args.evidence and args.window is not None:
@@ -230,7 +239,7 @@ def cmd_fit_motion(args: argparse.Namespace) -> int:
                  f"fallback_scale (kept at {config.motion.fallback_scale:g})")
     print(section_to_toml(fitted, "motion"))
     print(text)
-    if args.out is not None:
-        write_text_atomic(args.out, config_to_toml(fitted), "--out")
-        print(f"config: {args.out} (the config with the fitted [motion], for --config)")
+    if out is not None:
+        write_text_atomic(out, config_to_toml(fitted), option)
+        print(f"config: {out} (the config with the fitted [motion], for --config)")
     return 0

@@ -25,6 +25,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from gslam_jax.app.arguments import add_deprecated, add_shared, spelled
 from gslam_jax.app.outfile import staged_file
 from gslam_jax.app.viewer import RunViewer, ViewerError, check_viewer, open_viewer
 
@@ -219,9 +220,7 @@ def add_run_arguments(p: argparse.ArgumentParser, positive_int) -> None:
     p.add_argument("--viewer", action="store_true", help="show the run in the Rerun viewer as "
                    "it goes (particles, best and mean paths, VO path, ground truth, map); needs "
                    "a display and the extra 'viewer' (pip install 'gslam-jax[viewer]')")
-    p.add_argument("--viewer-save", type=Path, metavar="FILE.rrd", help="write the viewer's "
-                   "recording to this file (headless; open it with `rerun FILE.rrd`) when the run "
-                   "completes; an existing file is refused unless --overwrite")
+    add_shared(p, "--viewer-save")
     p.add_argument("--viewer-every", type=positive_int, metavar="N", help="frames between the "
                    f"viewer's path and map updates (default {VIEWER_EVERY}; the filter runs in "
                    "chunks of N frames, with the same results)")
@@ -232,17 +231,16 @@ def add_parser(sub) -> None:
                        "the Rerun viewer")
     p.add_argument("results", type=Path, metavar="RESULTS_DIR",
                    help="a gslam run or gslam merge results folder")
-    p.add_argument("--save", type=Path, metavar="FILE.rrd", help="write the recording to this "
-                   "file instead of spawning the viewer (headless); an existing file is "
-                   "refused unless --overwrite")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --save file "
-                   "once the new recording is complete")
+    add_shared(p, "--viewer-save", "--overwrite")  # instead of spawning the viewer
+    add_deprecated(p, "--save", "use --viewer-save FILE.rrd, as gslam run does",
+                   dest="viewer_save", type=Path, metavar="FILE.rrd")
     p.set_defaults(func=cmd_view)
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    spawn = args.save is None
-    check_viewer(spawn, args.save, spawn_option="gslam view", save_option="--save",
+    spawn = args.viewer_save is None
+    option = spelled(args, "viewer_save", "--viewer-save")
+    check_viewer(spawn, args.viewer_save, spawn_option="gslam view", save_option=option,
                  overwrite=args.overwrite)
     record = read_results(args.results)
     # summary.json names the run's source, when it is there
@@ -252,12 +250,12 @@ def cmd_view(args: argparse.Namespace) -> int:
     except (OSError, ValueError, AttributeError):
         pass  # no summary (or not one gslam wrote): the folder's name alone
     with contextlib.ExitStack() as staged:
-        tmp = None if spawn else staged.enter_context(staged_file(args.save, "--save"))
+        tmp = None if spawn else staged.enter_context(staged_file(args.viewer_save, option))
         viewer = open_viewer(f"{record.name}" + (f": {source}" if source else ""), spawn, tmp)
         log_results(viewer, record)
         viewer.close()
     what = f"{len(record.runs)} runs merged" if record.reported is None else \
         f"{len(record.times)} frames"
-    print(f"{'recording: ' + str(args.save) if args.save else 'sent to the viewer'}: "
+    print(f"{'recording: ' + str(args.viewer_save) if args.viewer_save else 'sent to the viewer'}: "
           f"{what} of {args.results}")
     return 0
