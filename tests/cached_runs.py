@@ -1,4 +1,5 @@
-"""Synthetic Runs built once per test process and shared by the CLI tests.
+"""Synthetic Runs built once per test process and shared by the CLI tests, and the one filter
+setting they run it with.
 
 ``make_run`` (``synthetic.py``) renders every frame's points and builds the local maps, a few
 seconds of CPU per call; the CLI tests only need a Run file, so they share these. The Run's
@@ -16,6 +17,12 @@ from synthetic import make_run
 from gslam_jax.run import Run, save_run
 
 FRAMES = 25  # the CLI tests' run length (0.2 s a frame: 0-4.8 s on the run's clock)
+# One filter setting for every `gslam run` on the shared Run, in every file: the filter's
+# programs are compiled once and the persistent compilation cache (conftest.py) serves them to
+# the other files and workers. resample_ratio 0.3 (not the default 0.5) is what
+# test_cli_inputs.test_ess_plot_threshold_is_the_resample_ratio looks for.
+RUN_SETTINGS = ("--set", "filter.particles=8", "--set", "map.margin=1.0",
+                "--set", "filter.resample_ratio=0.3")
 
 
 @lru_cache(maxsize=None)

@@ -6,13 +6,12 @@ import sys
 
 import numpy as np
 import pytest
-from cached_runs import FRAMES, run_file
+from cached_runs import FRAMES, RUN_SETTINGS, run_file
 
 from gslam_jax.app.cli import main
 
-# One filter setting for every `gslam run` here (the tuned config's too): the filter compiles
-# once per process and the later runs reuse it.
-RUN_SETTINGS = ["--set", "filter.particles=8", "--set", "map.margin=1.0"]
+# Every `gslam run` here (the tuned config's too) uses cached_runs.RUN_SETTINGS: the filter
+# compiles once and the later runs reuse it.
 
 
 @pytest.fixture(scope="module")
@@ -35,6 +34,7 @@ def test_help_lists_subcommands():
         assert cmd in out.stdout
 
 
+@pytest.mark.slow
 def test_run_on_npz_writes_results(mean_run):
     _, out = mean_run
     summary = json.loads((out / "summary.json").read_text())
@@ -63,6 +63,7 @@ def _counts_at(run, poses: np.ndarray, like: dict) -> np.ndarray:
     return pose_map(run, poses, lattice=lattice).k
 
 
+@pytest.mark.slow
 def test_map_path_is_the_path_of_the_written_map(mean_run):
     """map.npz is the final best particle's map; map_path_tum.txt is that particle's path: the
     local maps placed along it give map.npz's counts in every cell, which the reported path
@@ -79,6 +80,7 @@ def test_map_path_is_the_path_of_the_written_map(mean_run):
     assert (_counts_at(run, reported, written) != written["k"]).any()
 
 
+@pytest.mark.slow
 def test_a_map_on_the_start_axes_is_written_with_its_heading(tmp_path):
     """[map] axes = "start": map.npz's lattice lies on the robot's start axes (its heading is
     the start heading), and the local maps placed along map_path_tum.txt (in the run's frame)
@@ -115,6 +117,7 @@ def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
     assert "invalid choice: 'mars-yard-c'" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_bench_writes_every_figure(tmp_path, capsys):
     """A tiny bench sweep: one row per combination, every figure finite and positive."""
     out = tmp_path / "bench.json"
@@ -159,6 +162,7 @@ def test_run_config_applies_the_course_section_of_a_table1_config(tmp_path):
     assert from_file.filter.beta_prev == 0.05  # a Run file is not a simulated course
 
 
+@pytest.mark.slow
 def test_search_prints_the_best_score_and_writes_a_config(tmp_path, capsys):
     from gslam_jax.config import load_config
 
@@ -177,6 +181,7 @@ def test_search_prints_the_best_score_and_writes_a_config(tmp_path, capsys):
     assert cfg.filter.particles == 8
 
 
+@pytest.mark.slow
 def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
     from gslam_jax.config import load_config
 
@@ -201,6 +206,7 @@ def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
         (tmp_path / "t" / "tuned.toml").read_text()
 
 
+@pytest.mark.slow
 def test_run_reports_the_configured_estimate(mean_run):
     """[filter] estimate = "mean": the trajectory files and the RMS are the weighted mean poses."""
     from gslam_jax.evaluation.metrics import rms_after_fit

@@ -5,17 +5,15 @@ import json
 
 import numpy as np
 import pytest
-from cached_runs import FRAMES, run_file, shared_run
+from cached_runs import FRAMES, RUN_SETTINGS, run_file, shared_run
 
 from gslam_jax import gps
 from gslam_jax.app.cli import ProgressBar, main
 from gslam_jax.run import RunError
 
 SITE = np.array([394000.0, 3783000.0])  # UTM zone 11N, like the simulated receiver's site
-# One filter setting for every `gslam run` here, so the filter compiles once per process;
-# resample_ratio 0.3 (not the default 0.5) is what test_ess_plot_threshold_is_the_resample_ratio
-# looks for.
-RUN_SETTINGS = ["--set", "filter.particles=8", "--set", "filter.resample_ratio=0.3"]
+# Every `gslam run` here uses cached_runs.RUN_SETTINGS (filter.resample_ratio = 0.3, which
+# test_ess_plot_threshold_is_the_resample_ratio looks for): the filter compiles once.
 
 
 def _strict_json(path):
@@ -73,6 +71,7 @@ def test_out_that_is_a_file_fails_up_front(tmp_path, capsys, no_filter):
     assert taken.read_text() == "not a directory"
 
 
+@pytest.mark.slow
 def test_gps_report_counts_the_readings_used_and_warns(tmp_path, capsys):
     run, path = _run_file(tmp_path)
     # 10 readings during the run (0-4.8 s), 15 after it: fewer than half can be used.
@@ -117,6 +116,7 @@ def partial_truth_run(tmp_path_factory):
     return tmp / "out", stdout.getvalue(), thresholds
 
 
+@pytest.mark.slow
 def test_partial_ground_truth_is_scored_over_its_finite_frames(partial_truth_run):
     out, stdout, _ = partial_truth_run
     summary = _strict_json(out / "summary.json")
@@ -127,6 +127,7 @@ def test_partial_ground_truth_is_scored_over_its_finite_frames(partial_truth_run
     assert f"(over the {FRAMES - 5} of {FRAMES} frames with ground truth)" in stdout
 
 
+@pytest.mark.slow
 def test_ess_plot_threshold_is_the_resample_ratio(partial_truth_run):
     out, _, thresholds = partial_truth_run
     assert thresholds == [0.3]

@@ -42,6 +42,7 @@ def _local_obs(world, pose, seed):
     return jnp.asarray(obs_from_stats(stats, 1e-6), jnp.float32)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_particle_nearest_truth_gains_weight(mode):
     """First observation builds the same map for all particles; the second, taken from the true
@@ -64,6 +65,7 @@ def test_particle_nearest_truth_gains_weight(mode):
     assert w[0] > 3 * np.sort(w)[-2]
 
 
+@pytest.mark.slow
 def test_best_particle_survives_resampling():
     """After a resampling every weight is equal, so the best particle must be the one that was
     best before it: the same update with and without resampling must name the same pose, also
@@ -91,6 +93,7 @@ def test_best_particle_survives_resampling():
     assert int(moved_info.best) == int(resampled.best) == int(moved.best)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_without_map_updates_the_weights_stay_uniform(mode):
     run, _ = _make_run(seed=1, steps=30)
@@ -109,6 +112,7 @@ def _config(J=32, mode="sample", seed=0):
                                motion=MotionSection(alpha_theta_d=0.02))
 
 
+@pytest.mark.slow
 def test_same_seed_is_bit_identical_and_seeds_differ():
     run, _ = _make_run(seed=2, steps=30)
     a = slam.run_slam(run, _config(seed=5))
@@ -121,6 +125,7 @@ def test_same_seed_is_bit_identical_and_seeds_differ():
     assert not np.array_equal(a.best_path, c.best_path)
 
 
+@pytest.mark.slow
 def test_slam_corrects_vo_heading_drift_on_a_loop():
     run, _ = make_run(seed=4, steps=80, drift=0.004)
     res = slam.run_slam(run, _config(J=64))
@@ -133,6 +138,7 @@ def test_slam_corrects_vo_heading_drift_on_a_loop():
     assert res.extent_violations == 0
 
 
+@pytest.mark.slow
 def test_footprints_leaving_the_map_are_counted_not_wrapped():
     run, _ = _make_run(seed=1, steps=30)
     cfg = rbpf.FilterConfig(num_particles=4, map_shape=(112, 112), map_origin=(-2.0, -9.0),
@@ -227,6 +233,7 @@ def test_update_adds_every_on_map_cell_once():
     assert expected < k.sum()  # the second pose really left the map
 
 
+@pytest.mark.slow
 def test_empty_local_maps_leave_weights_unchanged_and_are_counted():
     run, _ = _make_run(seed=1, steps=30)
     run = run._replace(local_maps=np.zeros_like(run.local_maps))
@@ -258,6 +265,7 @@ def _shared_run(mode: str, observed_cells: int, particle_block: int) -> rbpf.Run
                            jnp.asarray(observations.local_observations(run, 1e-6)), cfg)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_compacted_update_equals_full_and_reports_overflow(mode):
     """Evaluating only the observed cells (observed_cells = M) gives the same weights and maps
@@ -280,6 +288,7 @@ def test_compacted_update_equals_full_and_reports_overflow(mode):
     assert int(info.dropped_cells) == int(np.sum(np.asarray(obs[0, ..., 0]) > 0)) - 8 > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_update_in_particle_blocks_equals_one_pass(mode):
     """Reading, weighing and writing the particles in blocks (3 of 3 and a tail of 2, the CPU
@@ -350,6 +359,7 @@ def test_sample_mode_borrows_draw_c_mod_d_from_the_draws_themselves(M):
     assert float(spelled) != 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_written_rows_cover_every_written_cell(mode):
     """DenseMaps.rows, which bounds what resampling copies, holds every map row with data

@@ -5,6 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from cached_runs import RUN_SETTINGS, shared_run
 from synthetic import make_run
 
 from gslam_jax import gps
@@ -346,17 +347,19 @@ def test_an_empty_config_file_is_an_error(tmp_path, run_file, capsys, no_work):
     assert f"gslam: error: {empty}: the config file is empty" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("used, expected", [(0, "no frame uses any of the Run's"),
                                             (1, "only 1 of the Run's")])
-def test_local_maps_no_frame_uses_are_counted_and_warned(tmp_path, run, capsys, used, expected):
+def test_local_maps_no_frame_uses_are_counted_and_warned(tmp_path, capsys, used, expected):
     import json
 
+    run = shared_run()  # and the other files' filter setting: their compiled filter is reused
     index = np.asarray(run.obs_index).copy()
     keep = index == index[index >= 0][0] if used else np.zeros_like(index, bool)
     path = tmp_path / "r.npz"
     save_run(path, run._replace(obs_index=np.where(keep, index, -1)))
     out = tmp_path / "o"
-    assert main(["run", str(path), "--out", str(out), "--set", "filter.particles=4"]) == 0
+    assert main(["run", str(path), "--out", str(out), *RUN_SETTINGS]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["local_maps"] == run.num_local_maps and summary["local_maps_used"] == used
     stdout = capsys.readouterr().out

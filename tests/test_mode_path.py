@@ -155,6 +155,7 @@ def test_the_map_goes_with_the_mode_and_otherwise_with_the_best_particle(estimat
     assert got == (densest if estimate in ("mode", "mode_mean") else 0)
 
 
+@pytest.mark.slow
 def test_a_mode_run_reports_the_map_laid_along_the_modes_path():
     """``run_slam`` with ``estimate = "mode"`` on a run whose final densest and best particles
     differ: ``map_path`` is the mode's path, and the local maps placed along it (NumPy, eq.

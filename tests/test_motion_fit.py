@@ -187,6 +187,7 @@ def _noisy_run_file(tmp_path, steps=40):
     return path
 
 
+@pytest.mark.slow
 def test_cli_writes_a_config_with_the_fitted_motion(tmp_path, capsys):
     path = _noisy_run_file(tmp_path)
     out = tmp_path / "fitted.toml"
@@ -212,6 +213,7 @@ def test_cli_without_ground_truth_exits_2(tmp_path, capsys):
     assert "no ground truth" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_run_reports_the_fit_and_notes_motion_noise_far_off_it(tmp_path, capsys):
     import json
 

@@ -37,6 +37,7 @@ def _fit(centre: np.ndarray, precision: np.ndarray, phi: float, points: int = 3,
     return mu, q_chol
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("precision", [np.diag([4.0, 9.0, 25.0]), np.diag([0.0, 9.0, 25.0])])
 def test_weights_are_exact_importance_weights_of_the_tempered_target(precision):
     """E_q[exp(correction + phi log lambda)] is the target's normaliser
@@ -163,6 +164,7 @@ def _brute_log_lambda(pose, local, k_map, S_map, cfg, beta, stride=1):
     return total / (beta * n) if n else 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("stride", [1, 3])
 def test_candidate_scores_match_brute_force_eq_26(stride):
     """With ``proposal_cell_stride`` s the candidates are scored on every s-th observed cell."""
@@ -191,6 +193,7 @@ def test_candidate_scores_match_brute_force_eq_26(stride):
         assert got[0, 0] != pytest.approx(full, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_one_candidate_reduces_to_the_motion_proposals_update():
     """proposal_points = 1: the pose is a draw of the prior, and the update is exactly the
     motion proposal's update at that pose (no correction, the same weights and maps)."""
@@ -238,6 +241,7 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     assert float(info.exponent) == 1.0  # fixed tempering: the paper's beta alone
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rule", ["prior", "normaliser"])
 def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
     """Adaptive tempering with the informed proposal: the update's exponent is the rule's on
@@ -268,6 +272,7 @@ def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
     assert float(info.exponent) == pytest.approx(want, rel=2e-3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("store,prior_std,window_bytes", [
     ("shared", 0.1, None),  # every candidate inside its particle's window
     ("dense", 1.5, None),   # a prior wider than the window: read from the maps instead

@@ -128,6 +128,7 @@ def test_chunks_are_balanced(sets, max_batch, devices):
     assert cost(b) == best
 
 
+@pytest.mark.slow
 def test_search_ranks_and_writes(small_run, tmp_path):
     space = SP.parse_space({"alpha_d": [0.01, 0.1], "alpha_theta_d": [0.002, 0.05]})
     res = S.search(small_run, CONFIG, space, "halton", 5, "rms", batch=3)
@@ -147,6 +148,7 @@ def test_search_ranks_and_writes(small_run, tmp_path):
     assert (tmp_path / "r.csv").read_text().splitlines()[0] == "rank,alpha_d,alpha_theta_d,rms,status"
 
 
+@pytest.mark.slow
 def test_search_nan_objective_errors_and_warnings(small_run):
     space = SP.parse_space({"beta_prev": [0.01, 0.1]})
     with pytest.raises(SP.SearchError, match="objective 'loglik'"):
@@ -160,6 +162,7 @@ def test_search_nan_objective_errors_and_warnings(small_run):
         S.search(small_run._replace(ground_truth=None), CONFIG, space, n=2, objective="rms")
 
 
+@pytest.mark.slow
 def test_rms_needs_a_frame_with_ground_truth(small_run):
     """Ground truth with no finite frame would score every set 0 m: an error instead."""
     space = SP.parse_space({"alpha_d": [0.01, 0.1]})
@@ -181,6 +184,7 @@ def test_rms_needs_a_frame_with_ground_truth(small_run):
     S.search(blind, CONFIG, space, n=1, objective="loglik")
 
 
+@pytest.mark.slow
 def test_rms_scores_position_only_ground_truth(small_run):
     """Ground truth with NaN headings (positions only): the RMS uses x, y alone, as
     metrics.errors_over_known_frames does. Before, every frame was dropped and the search
@@ -203,6 +207,7 @@ def test_rms_scores_position_only_ground_truth(small_run):
                                   np.arange(small_run.num_frames) != 5)
 
 
+@pytest.mark.slow
 def test_result_times_are_named_for_what_they_hold(small_run, tmp_path):
     """total_seconds includes compilation; first_chunk_seconds is a part of it."""
     space = SP.parse_space({"alpha_d": [0.01, 0.1]})
@@ -217,6 +222,7 @@ def test_result_times_are_named_for_what_they_hold(small_run, tmp_path):
         S.search(small_run, CONFIG, space, n=2, objective="loglik", crn=False)
 
 
+@pytest.mark.slow
 def test_sharded_on_two_cpu_devices(tmp_path):
     """Sharded over a 2-device mesh gives the same objectives as one device (subprocess: the
     device count must be set before JAX is imported)."""
@@ -250,6 +256,7 @@ def test_sharded_on_two_cpu_devices(tmp_path):
     assert "OK" in proc.stdout
 
 
+@pytest.mark.slow
 def test_observation_settings_match_the_config_path(small_run):
     """Searching min_variance, obs_weight and min_points scores each set as a run whose [map]
     config holds those values (``config_with_values``: min_points rounded up)."""
@@ -317,6 +324,7 @@ def test_settings_table_names_config_fields_and_device_fields():
     assert tuple(SP.base_values(CONFIG)) == SP.PARAM_NAMES
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["search", "tune"])
 def test_a_full_disk_is_a_named_error_and_publishes_nothing(small_run, tmp_path, monkeypatch,
                                                             capsys, command):
@@ -349,6 +357,7 @@ def test_a_full_disk_is_a_named_error_and_publishes_nothing(small_run, tmp_path,
     assert not out.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", ["steps", "local_steps"])
 def test_the_search_scores_the_path_the_run_reports(small_run, path):
     """``--score-path``: the search's RMS at the config's own values is the RMS of the path

@@ -93,6 +93,7 @@ def check_invariants(store: ts.TileStore) -> None:
     assert not np.asarray(store.kpool[P]).any() and not np.asarray(store.spool[P]).any()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bits", [False, True])
 def test_writes_and_resampling_match_dense_model(bits):
     rng = np.random.default_rng(0)
@@ -132,6 +133,7 @@ def test_writes_and_resampling_match_dense_model(bits):
     assert int(ts.live_tiles(store)) < int(np.sum(np.asarray(store.page) < P))
 
 
+@pytest.mark.slow
 def test_a_grown_pool_holds_the_same_maps_and_goes_on_like_the_dense_model():
     """``grow`` mid-run, with some tiles shared and some freed: the maps read the same, the
     bookkeeping holds, and writes and resamplings after it match the NumPy model. (The shapes
@@ -231,6 +233,7 @@ def test_pool_exhaustion_is_flagged_and_changes_nothing():
         tilebytes.check_status(store.status, P)
 
 
+@pytest.mark.slow
 def test_store_vmaps_over_independent_filters():
     """Two filters' stores stacked and written in one vmapped call agree with two calls.
     (Shapes as in test_writes_and_resampling_match_dense_model[True]: its compiled write of
@@ -251,6 +254,7 @@ def test_store_vmaps_over_independent_filters():
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["ignore", "sample"])
 def test_filter_on_shared_store_equals_dense(mode):
     """The whole filter on the shared store (small tiles, blocks of 3 and a tail, resampling
