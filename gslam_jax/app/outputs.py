@@ -224,7 +224,7 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
 
 
 # print_summary notes [motion] noise outside this range of the run's fitted noise (configured
-# over fitted std, along-track and heading), by the run's sensor (docs/real-data.md, "How wide
+# over fitted std, along-track and heading), by the run's sensor (docs/notebook/real-data.md, "How wide
 # the motion noise"). The simulator's point sensor: the Table I calibration lies at 1.2-4.5x its
 # VO's errors and the fit itself does as well (0.69-1.62x its RMS); ten times the calibration
 # (12-45x) costs 2-6x the RMS. Stereo, at its automatic ESS target (0.99), whose tempered weights
@@ -270,7 +270,7 @@ def motion_noise_note(fit: dict, sensor: str) -> str | None:
             f"(heading) what this run's VO errors fit (alpha_d {fit['alpha_d']:.2g}, "
             f"alpha_theta_d {fit['alpha_theta_d']:.2g}, alpha_theta {fit['alpha_theta']:.2g}). "
             f"On {sensor} local maps the logs measured did well with {low:.2g}-{high:g}x them "
-            f"and lost accuracy {side} (docs/real-data.md, \"How wide the motion noise\")")
+            f"and lost accuracy {side} (docs/notebook/real-data.md, \"How wide the motion noise\")")
 
 
 def print_summary(summary: dict, run, result) -> None:

@@ -31,7 +31,7 @@ def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
     the map cell (k', S') then predicts the observed variance about S'/k' + noise, i.e. it
     enters eq. 26 as (k', S' + k' noise). A cell mapped from close by (tiny variance, many
     points) is otherwise all but impossible when seen again from afar, and a correct revisit
-    scores below chance (docs/results.md, "How long a loop closes").
+    scores below chance (docs/notebook/results.md, "How long a loop closes").
     """
     return _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borrow,
                            params, unknown_cells, noise=noise)

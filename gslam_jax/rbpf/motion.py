@@ -64,7 +64,7 @@ def particle_scales(num_particles: int, spread: float) -> Array:
     """Each particle's factor on the motion stds [J]: spread^(u^3) for u the midpoints of
     P = ceil(J / 2) equal steps of [-1, 1], so every factor lies in (1 / spread, spread) and
     half of them within spread^(+-1/8) of 1 (the alphas given; log-uniform levels cost 9 % RMS
-    there, docs/results.md), rows j and j + P equal, so that an antithetic pair
+    there, docs/notebook/results.md), rows j and j + P equal, so that an antithetic pair
     (``draws.standard_normals``) shares its noise."""
     P = (num_particles + 1) // 2
     u = (2.0 * jnp.arange(P) + 1.0) / P - 1.0

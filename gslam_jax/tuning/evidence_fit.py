@@ -16,7 +16,7 @@ in one dimension (a ladder, not a grid over three alphas). The factors form a la
 random numbers), averaged over ``seeds`` (``DEFAULT_SEEDS``); every run of a ladder is one
 compiled batch (``tuning.evaluation.evaluate``).
 
-Measured (docs/results.md, docs/real-data.md): on the simulator's point sensor, whose
+Measured (docs/notebook/results.md, docs/notebook/real-data.md): on the simulator's point sensor, whose
 likelihood is exact, noise given 10x or 0.3x too wide comes back within 1.5x of the calibrated
 run on 8 of 9 cases each, and on the whole Table I courses the fit is the calibrated noise on
 four of five; on the fifth (the maze) it asks for 4x, which the fixed-beta filter does a little
@@ -44,7 +44,7 @@ __all__ = ["DEFAULT_FACTORS", "DEFAULT_SEEDS", "MIN_GAIN", "EvidenceFit", "fit_n
 
 DEFAULT_FACTORS = tuple(2.0 ** k for k in range(-6, 5))
 # filter seeds averaged: on the simulated maze one seed's ladder peaked at 2.4x the calibrated
-# noise on one case of six where three seeds' peaked at 1.2x (docs/results.md)
+# noise on one case of six where three seeds' peaked at 1.2x (docs/notebook/results.md)
 DEFAULT_SEEDS = (0, 1, 2)
 # The given alphas (factor 1, when on the ladder) are kept unless another factor's log evidence
 # is higher by more than this: a Bayes factor of e^2 (about 7), "positive" evidence on Kass and
