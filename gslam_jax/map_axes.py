@@ -45,7 +45,8 @@ def on_map_axes(run: Run, heading: float) -> Run:
 class LatticeWarning(UserWarning):
     """A run's local maps were binned on the map's axes ("map" lattice) at another angle than
     the map lattice the filter runs on: each local cell is then placed by its centre, two into
-    some map cells and none into others (docs/notebook/results.md, "The map frame's orientation")."""
+    some map cells and none into others (docs/notebook/results.md, "The map frame's
+    orientation")."""
 
 
 def local_lattice_axes(run: Run, tolerance: float = 1e-4) -> float | None:

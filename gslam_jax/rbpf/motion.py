@@ -6,7 +6,8 @@ Delta d_t with std sigma_d = alpha_d |Delta d| and q_theta has std
 sigma_theta = alpha_theta_d |Delta d| + alpha_theta |Delta theta|.
 
 The paper's q_d has no component across Delta d_t. Stereo VO can err across the track about as
-much as along it (docs/notebook/real-data.md, "Cross-track noise"), so q_d may also have a cross-track part of std sigma_c = alpha_cross |Delta d|, independent of the others;
+much as along it (docs/notebook/real-data.md, "Cross-track noise"), so q_d may also have a
+cross-track part of std sigma_c = alpha_cross |Delta d|, independent of the others;
 alpha_cross = 0 (the default) is the paper's model exactly.
 
 Noise enters reparameterised (eps ~ N(0, 1) times sigma), so samples are differentiable in the

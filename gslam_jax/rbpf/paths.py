@@ -120,8 +120,8 @@ def smoothed_step_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     weights are nearly flat (stereo's ESS target), their positions lie inside the arc the
     headings span, so that mean path is shorter than each particle's by about the mean of
     1 - cos of the spread, a scale error the rigid fit behind the RMS cannot remove
-    (docs/notebook/real-data.md, "What the gain over VO is made of"). Mean steps do not shorten: their
-    lengths are the particles' mean step lengths. The heading is the sum of mean turns (not
+    (docs/notebook/real-data.md, "What the gain over VO is made of"). Mean steps do not
+    shorten: their lengths are the particles' mean step lengths. The heading is the sum of mean turns (not
     wrapped). One backward pass as ``smoothed_mean_path`` (the weight shares of each frame's
     slots), then a forward composition."""
     J = log_w.shape[0]
