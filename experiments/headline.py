@@ -4,6 +4,7 @@
     python -m experiments.headline --out docs/figures    # ... and headline.json, headline.md
                                                          #     and the page's images written there
     python -m experiments.headline --sections default kitti
+    python -m experiments.headline --out docs/figures --page docs/results.md   # ... and the page
 
 Sections, each the command a user would run and the figures the page quotes from it:
 
@@ -22,8 +23,11 @@ Sections, each the command a user would run and the figures the page quotes from
 
 The output starts with the machine, the versions and the git commit; the page names the commit
 its figures were generated at. ``--out DIR`` writes ``headline.json`` (every figure, the
-environment and the commit), ``headline.md`` (the page's tables, to paste) and the images the
-page shows. The real-data sections skip, saying so, where ``--data`` lacks their clip.
+environment and the commit), ``headline.md`` (the page's tables) and the images the page
+shows; ``--page FILE`` writes each section's commands and table into FILE between its markers
+``<!-- headline:NAME -->`` and ``<!-- /headline:NAME -->`` (and the commit and machine between
+``<!-- headline:generated -->`` markers), leaving the prose around them as it is. The
+real-data sections skip, saying so, where ``--data`` lacks their clip.
 """
 
 from __future__ import annotations
@@ -56,6 +60,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="which sections to run (default: all)")
     ap.add_argument("--out", type=Path, help="write headline.json, headline.md and the "
                     "page's images into this folder (created; files in it replaced)")
+    ap.add_argument("--page", type=Path, help="write the figures into this page between its "
+                    "<!-- headline:NAME --> markers (docs/results.md)")
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data",
                     help="the folder holding the KITTI and EuRoC clips (default ../shared/data)")
     ap.add_argument("--kitti-seeds", type=int, default=16,
@@ -323,16 +329,29 @@ RUNNERS: dict[str, Callable[[argparse.Namespace, Path], dict]] = {
     "table1": section_table1, "loops": section_loops}
 
 
-def markdown(name: str, section: dict) -> str:
+def markdown(section: dict) -> str:
     """A section as the page shows it: its commands, then its figures as a table."""
-    lines = [f"<!-- headline:{name} -->"]
     if section.get("skipped"):
-        return "\n".join([*lines, f"Skipped: {section['skipped']}.", ""])
-    lines += ["```bash", *section["commands"], "```", ""]
+        return f"Skipped: {section['skipped']}.\n"
+    lines = ["```bash", *section["commands"], "```", ""]
     header = section.get("header", ("figure", "value"))
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(map(str, row)) + " |" for row in section["table"]]
     return "\n".join(lines) + "\n"
+
+
+def between_markers(page: str, name: str, text: str) -> str:
+    """``page`` with what lies between ``<!-- headline:NAME -->`` and ``<!-- /headline:NAME -->``
+    replaced by ``text``; a page without that pair of markers is an error naming them."""
+    start, end = f"<!-- headline:{name} -->", f"<!-- /headline:{name} -->"
+    i, j = page.find(start), page.find(end)
+    if i < 0 or j < i:
+        raise ValueError(f"the page has no {start} ... {end} pair")
+    return page[:i + len(start)] + "\n" + text.rstrip("\n") + "\n" + page[j:]
+
+
+def generated_line(env: dict, commit: str) -> str:
+    return f"Generated at commit `{commit}` on {environment_line(env, commit)}."
 
 
 def environment_line(env: dict, commit: str) -> str:
@@ -346,6 +365,9 @@ def main(argv: list[str] | None = None) -> int:
     from gslam_jax import __version__
     from gslam_jax.machine import environment
 
+    if args.page:  # every marker checked before the sections run
+        for name in ("generated", *args.sections):
+            between_markers(args.page.read_text(), name, "")
     env = {**environment(), "gslam_jax": __version__}
     commit = git_commit()
     print(f"# {environment_line(env, commit)}", flush=True)
@@ -358,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
             section = RUNNERS[name](args, work)
             section["seconds"] = time.perf_counter() - t0
             print(f"\n## {section['title']} ({section['seconds']:.0f} s)", flush=True)
-            print(markdown(name, section), flush=True)
+            print(markdown(section), flush=True)
             for line in section["printed"]:
                 print(f"    {line}")
             if args.out:
@@ -371,10 +393,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.out:
         report = {"environment": env, "commit": commit, "sections": sections}
         (args.out / "headline.json").write_text(json.dumps(report, indent=1, default=float))
-        text = [f"Generated at commit `{commit}` on {environment_line(env, commit)}.", ""]
-        text += [markdown(name, s) for name, s in sections.items()]
+        text = [generated_line(env, commit), ""]
+        text += [f"<!-- headline:{name} -->\n{markdown(s)}<!-- /headline:{name} -->\n"
+                 for name, s in sections.items()]
         (args.out / "headline.md").write_text("\n".join(text))
         print(f"\nwritten: {args.out}/headline.json, headline.md and the images", flush=True)
+    if args.page:
+        page = between_markers(args.page.read_text(), "generated", generated_line(env, commit))
+        for name, section in sections.items():
+            page = between_markers(page, name, markdown(section))
+        args.page.write_text(page)
+        print(f"written: {args.page}", flush=True)
     return 0
 
 

@@ -43,7 +43,23 @@ def test_real_data_sections_skip_without_their_clip(tmp_path: Path) -> None:
     for name in ("kitti", "euroc"):
         section = headline.RUNNERS[name](args, tmp_path)
         assert "not found" in section["skipped"]
-        assert "Skipped:" in headline.markdown(name, section)
+        assert "Skipped:" in headline.markdown(section)
+
+
+def test_page_is_written_between_its_markers_only() -> None:
+    page = ("# Results\nprose before\n<!-- headline:kitti -->\nold table\n"
+            "<!-- /headline:kitti -->\nprose after\n")
+    new = headline.between_markers(page, "kitti", "| a | b |\n")
+    assert new == ("# Results\nprose before\n<!-- headline:kitti -->\n| a | b |\n"
+                   "<!-- /headline:kitti -->\nprose after\n")
+    with pytest.raises(ValueError, match="headline:table1"):
+        headline.between_markers(page, "table1", "x")
+
+
+def test_the_results_page_has_every_sections_markers() -> None:
+    page = (ROOT / "docs" / "results.md").read_text()
+    for name in ("generated", *headline.SECTIONS):
+        headline.between_markers(page, name, "")
 
 
 def test_default_section_on_a_few_frames_writes_its_figures(tmp_path: Path, capsys) -> None:
