@@ -360,6 +360,23 @@ def environment_line(env: dict, commit: str) -> str:
             f"opencv {env['opencv']} | gslam-jax {env['gslam_jax']} | commit {commit}")
 
 
+def write_outputs(args: argparse.Namespace, env: dict, commit: str, sections: dict) -> None:
+    """``--out``'s headline.json and headline.md, and ``--page``'s figures, for the sections
+    run so far."""
+    if args.out:
+        report = {"environment": env, "commit": commit, "sections": sections}
+        (args.out / "headline.json").write_text(json.dumps(report, indent=1, default=float))
+        text = [generated_line(env, commit), ""]
+        text += [f"<!-- headline:{name} -->\n{markdown(s)}<!-- /headline:{name} -->\n"
+                 for name, s in sections.items()]
+        (args.out / "headline.md").write_text("\n".join(text))
+    if args.page:
+        page = between_markers(args.page.read_text(), "generated", generated_line(env, commit))
+        for name, section in sections.items():
+            page = between_markers(page, name, markdown(section))
+        args.page.write_text(page)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from gslam_jax import __version__
@@ -390,19 +407,10 @@ def main(argv: list[str] | None = None) -> int:
                         shutil.copyfile(source, args.out / image)
             section["images"] = sorted(section["images"])
             sections[name] = section
+            write_outputs(args, env, commit, sections)  # after each: a later failure keeps these
     if args.out:
-        report = {"environment": env, "commit": commit, "sections": sections}
-        (args.out / "headline.json").write_text(json.dumps(report, indent=1, default=float))
-        text = [generated_line(env, commit), ""]
-        text += [f"<!-- headline:{name} -->\n{markdown(s)}<!-- /headline:{name} -->\n"
-                 for name, s in sections.items()]
-        (args.out / "headline.md").write_text("\n".join(text))
         print(f"\nwritten: {args.out}/headline.json, headline.md and the images", flush=True)
     if args.page:
-        page = between_markers(args.page.read_text(), "generated", generated_line(env, commit))
-        for name, section in sections.items():
-            page = between_markers(page, name, markdown(section))
-        args.page.write_text(page)
         print(f"written: {args.page}", flush=True)
     return 0
 
