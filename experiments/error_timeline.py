@@ -17,7 +17,7 @@ after the rigid fit (Table I's figure), the first distance at which the heading 
 ``--heading-limit`` degrees, and that at which the position error first exceeds the VO's by
 ``--margin`` metres.
 
-This is the measurement behind "what J = 20 lacks on the maze" (docs/results.md, Table I).
+This is the measurement behind "what J = 20 lacks on the maze" (docs/notebook/results.md, Table I).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ frames turned about its start, with local maps on the robot's lattice or the map
 
 Turning the frame turns the map's lattice against the terrain and, with robot-lattice local
 maps, against every local map: each local cell then takes the map cell its centre falls in, two
-local cells share some map cells and other map cells stay empty (docs/results.md, "The map
+local cells share some map cells and other map cells stay empty (docs/notebook/results.md, "The map
 frame's orientation"). With map-lattice local maps the points are binned on the map's axes at
 the VO pose, so only the particle's heading correction turns them against the map. The Runs
 are built by the front-end in each frame (``kitti_frontend(frame_turn=...)``), so the ground

@@ -2,7 +2,7 @@
 on ``experiments.loop_closure``'s closures.
 
 Until the sensor first meets the map made at the loop's start, the particles have met only
-their own maps, and on these loops their weights stay nearly flat (docs/results.md, "A
+their own maps, and on these loops their weights stay nearly flat (docs/notebook/results.md, "A
 kilometre"): the cloud at the approach is then J draws of the motion model (eqs. 1-3) along
 the VO. A loop closes only where one of them is within the closure's 1 m of the truth there
 (``loop_closure``'s summary splits its closures by that). This experiment draws N such paths
@@ -17,9 +17,9 @@ seeds at each J, and the J at which it reaches 80 %. p is given twice: counted a
 them (``p_gauss``, ``gaussian_within``), with the cloud's spread (``spread_m``: the geometric
 mean of its two standard deviations). Heading noise makes that spread grow as L^(3/2) round a
 loop of length L, so where the truth lies inside the cloud p falls as L^-3 and the J a loop
-needs grows as L^3 (docs/results.md, "How far the cloud reaches"). The filter's clouds at
+needs grows as L^3 (docs/notebook/results.md, "How far the cloud reaches"). The filter's clouds at
 J = 200 match the bound; at J = 2000 they left it both ways, the resampling keeping hypotheses
-that flat draws do not (docs/results.md, "Which loops J particles can close").
+that flat draws do not (docs/notebook/results.md, "Which loops J particles can close").
 
 What no tuning of the noise's level can buy: ``p_best_scale`` is the fit's mass within 1 m
 with its width scaled by the factor that suits that seed's truth best (``best_scaled_within``),

@@ -107,7 +107,7 @@ class ApproachCloud:
     1 m is the closure's tolerance, the wider ones tell its density where none is that near),
     and ``nearest_heading_deg``, the heading error of the particle nearest in position (a
     near particle turned a few degrees scores worse on the old map than the far ones as it
-    drives on: docs/results.md, KITTI 00)."""
+    drives on: docs/notebook/results.md, KITTI 00)."""
 
     def __init__(self, frame: int):
         self.frame, self.nearest_m, self.within = frame, None, {}

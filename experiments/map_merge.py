@@ -25,7 +25,7 @@ defaults, or ``--config`` (with its tables for each course: ``configs/table1.tom
 course its calibrated noise) and ``--set``. B's frame is turned at random; on the robot's start
 axes (the default) every run's map lattice lies on them, while on the frame's (``--set
 map.axes=frame``, which ``configs/table1.toml`` pins) B's lies at a random angle to the
-terrain (on the maze that breaks B's maps, docs/results.md).
+terrain (on the maze that breaks B's maps, docs/notebook/results.md).
 """
 
 from __future__ import annotations

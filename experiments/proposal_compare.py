@@ -15,7 +15,7 @@ small), the length of each path against the true length (a path shortened or str
 whole: the rigid fit cannot take that out), filter seconds (after compilation).
 ``--frame-turns`` also runs each case with its map frame turned by each angle about the start
 (``common.turned_run``: the start heading and the ground truth turned, the log as it is): the
-result should not depend on it (docs/results.md,
+result should not depend on it (docs/notebook/results.md,
 "The map frame's orientation"); the fit turn is then the path's turn against the truth in
 every frame.
 

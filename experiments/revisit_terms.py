@@ -1,6 +1,6 @@
 """Whose map a particle is scored on after a loop's revisit: the start's, or the one it wrote
 itself on the way in. Asks why a hypothesis near the truth can lose the weights to ones metres
-off (docs/results.md, "A real vehicle's 799 m loop").
+off (docs/notebook/results.md, "A real vehicle's 799 m loop").
 
     python -m experiments.revisit_terms --course arroyo-a --config configs/table1.toml \\
         --kitti ../shared/data/kitti-poses/00.txt --length 800 --seed 2 \\

@@ -15,7 +15,7 @@ map of its own path, and each keeps the weight the likelihood gives it. For ever
   heading), unweighted and weighted by the window's increments, and those weights' ESS.
 
 This is the measurement behind "more particles close the 100 m Mars Yard circle less often"
-(docs/results.md, "How long a loop closes").
+(docs/notebook/results.md, "How long a loop closes").
 
 ``--at-truth M`` measures instead, with no filter, why: the local maps of the first M metres
 fused at the true poses (eq. 14), and every later local map from 40 m before the revisit scored

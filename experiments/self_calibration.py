@@ -1,7 +1,7 @@
 """Motion noise without ground truth: fit the alphas of eqs. 2-3 to the filter's own path.
 
 A user without ground truth cannot run ``gslam fit-motion``, and the marginal likelihood over
-the alphas is nearly flat on short logs (docs/real-data.md). This measures the obvious
+the alphas is nearly flat on short logs (docs/notebook/real-data.md). This measures the obvious
 substitute, a hard-EM iteration: run the filter with the noise it is given, take its reported
 path as the reference, fit the alphas to the VO's increments against that path with the same
 maximum-likelihood fit as ``gslam fit-motion`` (``tuning.motion_fit.fit_motion``, the VO errors

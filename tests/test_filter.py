@@ -178,7 +178,7 @@ def test_observation_cells_match_float64_geometry():
 _OBLIQUE_ALIASES = pytest.mark.xfail(
     strict=True, reason="known: a local map on the robot's lattice ([localmap] lattice = "
     "'robot') aliases at oblique headings, so results depend on the map frame's orientation; "
-    "the map's lattice avoids it (next test; docs/results.md, 'The map frame's orientation')")
+    "the map's lattice avoids it (next test; docs/notebook/results.md, 'The map frame's orientation')")
 
 
 @pytest.mark.parametrize("heading", [0.0, np.pi / 2,
@@ -188,7 +188,7 @@ def test_a_turned_local_map_lands_one_cell_per_map_cell(heading):
     lattice along the map's axes has a map cell for every local cell; turned by 45 degrees a
     third of them share one with another local cell (and as many map cells beneath stay
     empty). On the KITTI clip the final drift on the robot's lattice was 0.81 % with the frame
-    turned by 22.5 degrees against 0.35 % (docs/results.md)."""
+    turned by 22.5 degrees against 0.35 % (docs/notebook/results.md)."""
     L = 64
     cfg = rbpf.FilterConfig(1, (200, 200), (-16.0, -16.0), RES, L, unknown_cells="ignore")
     flat, _ = observation_cells(jnp.asarray([0.03, 0.05, heading], jnp.float32),

@@ -1,6 +1,6 @@
 """``[map] axes``: a map lattice turned in its frame (``GridMap.heading``), and the filter run
 on the robot's start axes, whose result turns with the frame the run is given in and changes
-in nothing else (the maze's walls showed that the frame's axes matter, docs/results.md)."""
+in nothing else (the maze's walls showed that the frame's axes matter, docs/notebook/results.md)."""
 
 from __future__ import annotations
 

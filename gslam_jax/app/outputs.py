@@ -244,14 +244,8 @@ def write_outputs(out: Path, loaded: LoadedSource, result, config: Config,
 
 
 # print_summary notes [motion] noise outside this range of the run's fitted noise (configured
-# over fitted std, along-track and heading), by the run's sensor (docs/real-data.md, "How wide
-# the motion noise"). The simulator's point sensor: the Table I calibration lies at 1.2-4.5x its
-# VO's errors and the fit itself does as well (0.69-1.62x its RMS); ten times the calibration
-# (12-45x) costs 2-6x the RMS. Stereo, at its automatic ESS target (0.99), whose tempered weights
-# need the wider noise (the reported path "steps", measured before "local_steps"): the
-# defaults lie at 3.4-11x the errors of the three stereo logs and give 0.48-0.90x VO-only's
-# RMS; the fit gives 0.98x on KITTI, 0.3x the defaults (1.0-3.2x) 0.83-0.95x, three times the
-# defaults (10-32x) 1.08-1.68x.
+# over fitted std, along-track and heading), by the run's sensor: the range in which the logs
+# measured did well (docs/notebook/real-data.md, "How wide the motion noise").
 MOTION_NOISE_RANGE = {"points": (1 / 3, 10.0), "stereo": (3.0, 15.0)}
 
 
@@ -290,7 +284,7 @@ def motion_noise_note(fit: dict, sensor: str) -> str | None:
             f"(heading) what this run's VO errors fit (alpha_d {fit['alpha_d']:.2g}, "
             f"alpha_theta_d {fit['alpha_theta_d']:.2g}, alpha_theta {fit['alpha_theta']:.2g}). "
             f"On {sensor} local maps the logs measured did well with {low:.2g}-{high:g}x them "
-            f"and lost accuracy {side} (docs/real-data.md, \"How wide the motion noise\")")
+            f"and lost accuracy {side} (docs/notebook/real-data.md, \"How wide the motion noise\")")
 
 
 def print_summary(summary: dict, run, result) -> None:

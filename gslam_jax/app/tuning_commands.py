@@ -205,7 +205,7 @@ def _evidence_fit(run, config, args: argparse.Namespace):
         text += ("\nnote: stereo local maps: their cells share disparity errors, the fixed-beta "
                  "likelihood is overconfident, and on three stereo logs the fitted noise did "
                  "worse than the defaults (narrower on KITTI, wider on rendered stereo; "
-                 "docs/real-data.md). The evidence fit is for the point sensor")
+                 "docs/notebook/real-data.md). The evidence fit is for the point sensor")
     return fit.config(config), text
 
 

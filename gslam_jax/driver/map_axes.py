@@ -56,7 +56,8 @@ def filtered_run(run: Run, config: Config, prior: PriorMap | None = None
 class LatticeWarning(UserWarning):
     """A run's local maps were binned on the map's axes ("map" lattice) at another angle than
     the map lattice the filter runs on: each local cell is then placed by its centre, two into
-    some map cells and none into others (docs/results.md, "The map frame's orientation")."""
+    some map cells and none into others (docs/notebook/results.md, "The map frame's
+    orientation")."""
 
 
 def local_lattice_axes(run: Run, tolerance: float = 1e-4) -> float | None:

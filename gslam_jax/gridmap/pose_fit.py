@@ -145,7 +145,7 @@ def mutual_covariance(forward: np.ndarray, reverse: np.ndarray) -> np.ndarray:
     have covariance 2 C, so d d^T / 2 is a one-sample estimate of C. It counts what the
     curvature and the jackknife miss where the score is rugged at the scale of a cell: a
     quadratic fitted there reads a sharp peak, and every held-out fit stays on the same ridge
-    (the maze trials of docs/results.md, heading std 0.003 deg against 0.13-0.21 deg off)."""
+    (measured on the simulated maze: docs/notebook/results.md, "The reported uncertainty")."""
     back = invert_pose(np.asarray(reverse, np.float64))
     d = np.asarray(forward, np.float64) - back
     d[2] = math.remainder(d[2], 2 * math.pi)

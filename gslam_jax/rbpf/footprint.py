@@ -44,7 +44,7 @@ def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig,
     exactly one map cell, so no observation is dropped; off-map cells get index H*W and are
     masked, never wrapped. Where the lattice lies turned against the map's (the particle's
     heading plus ``lattice_heading`` far from a multiple of 90 degrees), some map cells take
-    two local cells and others none (docs/results.md, "The map frame's orientation").
+    two local cells and others none (docs/notebook/results.md, "The map frame's orientation").
     """
     H, W = cfg.map_shape
     L = cfg.local_size

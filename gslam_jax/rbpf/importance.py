@@ -31,7 +31,7 @@ def log_importance(k_obs: Array, S_obs: Array, k_prior: Array, S_prior: Array,
     the map cell (k', S') then predicts the observed variance about S'/k' + noise, i.e. it
     enters eq. 26 as (k', S' + k' noise). A cell mapped from close by (tiny variance, many
     points) is otherwise all but impossible when seen again from afar, and a correct revisit
-    scores below chance (docs/results.md, "How long a loop closes").
+    scores below chance (docs/notebook/results.md, "How long a loop closes").
     """
     return _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borrow,
                            params, unknown_cells, noise=noise)
@@ -82,8 +82,9 @@ def _log_importance(k_obs, S_obs, k_prior, S_prior, k_borrow, S_borrow, can_borr
         lam_new = log_pred(ko, So, jnp.where(new, k_borrow, one), jnp.where(new, S_borrow, one))
     else:
         # k_borrow, S_borrow are the draws [D]; cell c borrows draw c mod D. Eq. 26 runs over
-        # the cells laid out [rows, D] with the draws broadcast over the rows: XLA CPU runs
-        # that about 5x faster than over the draws tiled out to [M] (26 -> 5 ns per cell).
+        # the cells laid out [rows, D] with the draws broadcast over the rows, which XLA CPU
+        # runs faster than the draws tiled out to [M] (docs/notebook/results.md, "Moved
+        # from code comments").
         D = k_borrow.shape[0]
         grid = partial(_by_draw, draws=D)
         log_v = cells.log_v_obs(k_obs, S_obs) if log_v is None else log_v

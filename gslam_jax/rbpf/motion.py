@@ -5,9 +5,9 @@ Delta d_t is the VO translation rotated into the world frame, q_d is Gaussian no
 Delta d_t with std sigma_d = alpha_d |Delta d| and q_theta has std
 sigma_theta = alpha_theta_d |Delta d| + alpha_theta |Delta theta|.
 
-The paper's q_d has no component across Delta d_t. Stereo VO errs across the track about as
-much as along it (the kitti-stereo-51 clip: 0.4 % against 0.5 % of each step, rms), so q_d may
-also have a cross-track part of std sigma_c = alpha_cross |Delta d|, independent of the others;
+The paper's q_d has no component across Delta d_t. Stereo VO can err across the track about as
+much as along it (docs/notebook/real-data.md, "Cross-track noise"), so q_d may also have a
+cross-track part of std sigma_c = alpha_cross |Delta d|, independent of the others;
 alpha_cross = 0 (the default) is the paper's model exactly.
 
 Noise enters reparameterised (eps ~ N(0, 1) times sigma), so samples are differentiable in the
@@ -63,8 +63,9 @@ def scaled(params: MotionParams, scale: Array | float) -> MotionParams:
 def particle_scales(num_particles: int, spread: float) -> Array:
     """Each particle's factor on the motion stds [J]: spread^(u^3) for u the midpoints of
     P = ceil(J / 2) equal steps of [-1, 1], so every factor lies in (1 / spread, spread) and
-    half of them within spread^(+-1/8) of 1 (the alphas given; log-uniform levels cost 9 % RMS
-    there, docs/results.md), rows j and j + P equal, so that an antithetic pair
+    half of them within spread^(+-1/8) of 1 (the alphas given; why not log-uniform:
+    docs/notebook/results.md, "Motion noise: the particles' own"), rows j and j + P equal, so
+    that an antithetic pair
     (``draws.standard_normals``) shares its noise."""
     P = (num_particles + 1) // 2
     u = (2.0 * jnp.arange(P) + 1.0) / P - 1.0

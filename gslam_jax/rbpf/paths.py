@@ -120,8 +120,8 @@ def smoothed_step_path(poses: Array, ancestors: Array, log_w: Array) -> Array:
     weights are nearly flat (stereo's ESS target), their positions lie inside the arc the
     headings span, so that mean path is shorter than each particle's by about the mean of
     1 - cos of the spread, a scale error the rigid fit behind the RMS cannot remove
-    (docs/real-data.md, "What the gain over VO is made of"). Mean steps do not shorten: their
-    lengths are the particles' mean step lengths. The heading is the sum of mean turns (not
+    (docs/notebook/real-data.md, "What the gain over VO is made of"). Mean steps do not
+    shorten: their lengths are the particles' mean step lengths. The heading is the sum of mean turns (not
     wrapped). One backward pass as ``smoothed_mean_path`` (the weight shares of each frame's
     slots), then a forward composition."""
     J = log_w.shape[0]
@@ -219,7 +219,7 @@ def local_step_path(poses: Array, ancestors: Array, history: StepHistory,
     factors. To first order in the factors (stereo's tempered, nearly flat weights) a step's
     posterior mean moves only by the factors that depend on it; the others (made before it,
     or by updates whose maps do not reach back to it) only add Monte Carlo error
-    (docs/real-data.md, "Where the seeds' spread comes from"). The factors before the last
+    (docs/notebook/real-data.md, "Where the seeds' spread comes from"). The factors before the last
     resampling are already in which lineages survived it, and are not weighed again; with
     one factor after it that covers every step this is ``smoothed_step_path``. The start:
     the lineages' mean at frame 0 under the first step's weights. One backward pass, which

@@ -16,14 +16,10 @@ in one dimension (a ladder, not a grid over three alphas). The factors form a la
 random numbers), averaged over ``seeds`` (``DEFAULT_SEEDS``); every run of a ladder is one
 compiled batch (``tuning.evaluation.evaluate``).
 
-Measured (docs/results.md, docs/real-data.md): on the simulator's point sensor, whose
-likelihood is exact, noise given 10x or 0.3x too wide comes back within 1.5x of the calibrated
-run on 8 of 9 cases each, and on the whole Table I courses the fit is the calibrated noise on
-four of five; on the fifth (the maze) it asks for 4x, which the fixed-beta filter does a little
-better with and the default adaptive filter 3.3x worse. On stereo the fixed-beta likelihood
-is overconfident and the evidence does not point at the noise the filter does best with:
-narrower than the defaults on KITTI (the filter then follows the VO), 2-8x wider on two
-rendered logs.
+It is meant for the simulator's point sensor, whose likelihood is exact. On stereo the
+fixed-beta likelihood is overconfident and the evidence need not point at the noise the filter
+does best with. Measurements: docs/notebook/results.md, "The noise fitted to the filter's
+evidence", and docs/notebook/real-data.md, "The noise fitted to the filter's evidence".
 """
 
 from __future__ import annotations
@@ -43,8 +39,8 @@ from gslam_jax.tuning.space import ALPHA_NAMES, SearchError
 __all__ = ["DEFAULT_FACTORS", "DEFAULT_SEEDS", "MIN_GAIN", "EvidenceFit", "fit_noise_scale"]
 
 DEFAULT_FACTORS = tuple(2.0 ** k for k in range(-6, 5))
-# filter seeds averaged: on the simulated maze one seed's ladder peaked at 2.4x the calibrated
-# noise on one case of six where three seeds' peaked at 1.2x (docs/results.md)
+# filter seeds averaged: one seed's ladder can peak far from where several seeds' do
+# (docs/notebook/results.md, "The noise fitted to the filter's evidence")
 DEFAULT_SEEDS = (0, 1, 2)
 # The given alphas (factor 1, when on the ladder) are kept unless another factor's log evidence
 # is higher by more than this: a Bayes factor of e^2 (about 7), "positive" evidence on Kass and

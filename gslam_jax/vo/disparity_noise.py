@@ -5,10 +5,11 @@ triangulated at frame t-1, moved by the VO's camera motion and projected into fr
 frame t's disparity there. The residuals hold both frames' matching errors (and the VO's, small
 beside them), so a robust spread of the residuals over sqrt(2) estimates the disparity noise
 sigma_d: the part of it that changes from frame to frame. An error that stays with the
-texture escapes it (on rendered flat ground it reads 0.34-1.28 of the true sigma per band).
+texture escapes it (measured on rendered ground: docs/notebook/real-data.md, "Moved from code
+comments").
 It is kept per disparity band (``DISPARITY_EDGES``): matching degrades with range faster than
 a constant sigma_d says where far surfaces lose their texture or are seen at a grazing angle
-(docs/real-data.md, "The rendered maze: its far points").
+(docs/notebook/real-data.md, "The rendered maze: its far points").
 
 A point's depth error then follows to first order, sigma_z = z^2 sigma_d(d) / (f b), and the
 front-end keeps the points whose sigma_z is within ``[stereo] max_depth_error``.

@@ -25,9 +25,8 @@ __all__ = ["FeatureParams", "Features", "detect", "feature_disparity", "dense_fe
 class FeatureParams:
     """Detection and matching settings.
 
-    fast_threshold: FAST corner threshold (20: at 10, FAST returned ~4200 corners per 512x384
-    KITTI frame to keep a few hundred; 20 gives the same tracks, KITTI drift 0.74% vs 0.76% and
-    rendered-stereo drift 1.09% vs 1.07%, and ~1.2 ms less per 512x384 frame);
+    fast_threshold: FAST corner threshold (20 finds fewer corners than 10 and the same tracks:
+    docs/notebook/real-data.md, "Moved from code comments");
     max_features: cap after grid bucketing into ``grid`` = (cols, rows) cells; window: SAD
     window side (odd); search_radius: max image motion between frames as a fraction of the
     image width; max_sad: mean absolute difference per pixel above which a match is refused;

@@ -41,7 +41,7 @@ class LocalMapParams:
         near the VO pose places its cells on the map's cells one for one. A lattice turned
         against the map's places cells by their centres, two into some map cells and none
         into others, and the result then depends on the map frame's orientation
-        (docs/results.md, "The map frame's orientation").
+        (docs/notebook/results.md, "The map frame's orientation").
     axes: the map's axes a "map" lattice lies on (``[map] axes``): the robot's at its start
         pose ("start"; ``map_axes_heading``), or the frame's ("frame").
     """

@@ -36,7 +36,7 @@ class DenseStereoParams:
     disparity_std: the disparity noise (px) assumed until a disparity band has been measured.
     edge_ratio: the points of a pixel whose 5 x 5 neighbourhood spans more than this fraction of
     its disparity, or holds an unmatched pixel, are not made (``drop_depth_edges``); inf keeps
-    them (the default before 2026-12-06).
+    them all.
     """
 
     algorithm: str = "sgbm"
