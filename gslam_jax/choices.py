@@ -16,7 +16,7 @@ __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJEC
 
 UNKNOWN_CELLS = ("ignore", "sample")  # eq. 30 / eq. 31 (``[filter] unknown_cells``)
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
-MAP_STORES = ("dense", "shared", "auto")  # ``[map] store``; "auto" resolves to one of the others
+MAP_STORES = ("dense", "shared", "window", "auto")  # ``[map] store``; "auto": dense or shared
 # ``[filter] proposal``: the motion model alone (eq. 24) or informed by the local map
 # (``rbpf.proposal``)
 PROPOSALS = ("motion", "informed")

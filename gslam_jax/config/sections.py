@@ -126,7 +126,10 @@ class MapSection:
     min_points: int = 2  # heights a local-map cell needs to be used (at least 2)
     # Particle map storage: "dense" (a whole map per particle), "shared" (copy-on-write tiles
     # of tile x tile cells in a pool of pool_tiles tiles; 0: sized automatically) or "auto"
-    # (dense when it fits in memory, shared otherwise); rbpf.tilestore.
+    # (dense when it fits in memory, shared otherwise); rbpf.tilestore. "window": each
+    # particle's map as its path over the shared local maps plus a window of cells around it
+    # (rbpf.windowstore; tile: cells a particle may move between local maps, pool_tiles: the
+    # local maps its history holds, 0: the run's; eq. 30 only).
     store: str = "dense"
     tile: int = 32
     pool_tiles: int = 0
