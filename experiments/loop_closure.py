@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--informed-particles", type=int, nargs="+",
                     help="J for the informed proposal (default: --particles)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
-    ap.add_argument("--store", default="auto", choices=["dense", "shared", "auto"])
+    ap.add_argument("--store", default="auto", choices=["dense", "shared", "window", "auto"])
     ap.add_argument("--course", default="mars-yard-a", help="world kind and VO noise")
     add_vo_arguments(ap)
     ap.add_argument("--overlap", type=float, default=20.0, help="metres driven past the loop")

@@ -19,7 +19,7 @@ __all__ = ["UNKNOWN_CELLS", "RESAMPLERS", "TEMPERING", "MAP_STORES", "TUNE_OBJEC
 # (``config.sections``, printed by ``gslam config``).
 UNKNOWN_CELLS = ("ignore", "sample")  # ``[filter] unknown_cells``: eq. 30 / eq. 31
 RESAMPLERS = ("multinomial", "systematic", "stratified", "residual")  # ``[filter] resampler``
-MAP_STORES = ("dense", "shared", "auto")  # ``[map] store``; "auto" resolves to one of the others
+MAP_STORES = ("dense", "shared", "window", "auto")  # ``[map] store``; "auto" resolves to one of the others
 PROPOSALS = ("motion", "informed")  # ``[filter] proposal`` (``rbpf.proposal.RULES``)
 PROPOSAL_EXPONENTS = ("prior", "normaliser")  # ``[filter] proposal_exponent``
 # ``[filter] proposal_draws``; "auto" resolves by the run's sensor (``AUTO_PROPOSAL_DRAWS``)

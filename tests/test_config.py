@@ -30,7 +30,7 @@ def test_round_trip_through_toml(tmp_path):
     ("[filter]\nresampler = \"best\"\n", r"bad\.toml: \[filter\] resampler must be one of"),
     ("[filter]\nparticle_block = -2\n", r"bad\.toml: \[filter\] particle_block must be >= 0"),
     ("[filter\nparticles = 3\n", r"bad\.toml: malformed TOML"),
-    ("[map]\nstore = \"tiles\"\n", r"bad\.toml: \[map\] store must be one of dense, shared, auto"),
+    ("[map]\nstore = \"tiles\"\n", r"bad\.toml: \[map\] store must be one of dense, shared, window, auto"),
     ("[map]\ntile = 12\n", r"bad\.toml: \[map\] tile must be a positive multiple of 8"),
     ("[map]\npool_tiles = -1\n", r"bad\.toml: \[map\] pool_tiles must be >= 0"),
     ("[localmap]\nlattice = \"north\"\n",

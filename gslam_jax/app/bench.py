@@ -37,12 +37,14 @@ class BenchError(InputError):
 
 
 def bench_config(J: int, local: int, map_side: int, mode: str, particle_block: int = 0,
-                  store: str = "dense") -> rbpf.FilterConfig:
-    """The filter config ``time_update`` times (0.16 m cells, map centred on the origin)."""
-    return rbpf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
-                             map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
-                             local_size=local, unknown_cells=mode,
-                             particle_block=particle_block, store=store)
+                  store: str = "dense", updates: int = 1) -> rbpf.FilterConfig:
+    """The filter config ``time_update`` times (0.16 m cells, map centred on the origin);
+    the window store's history holds ``updates`` local maps."""
+    cfg = rbpf.FilterConfig(num_particles=J, map_shape=(map_side, map_side),
+                            map_origin=(-0.08 * map_side, -0.08 * map_side), resolution=0.16,
+                            local_size=local, unknown_cells=mode,
+                            particle_block=particle_block, store=store)
+    return maps.resolve_history(cfg, updates)
 
 
 def synthetic_local_map(rng: np.random.Generator, local: int) -> jax.Array:
@@ -70,6 +72,9 @@ def check_arguments(particles, local, map_side, modes, particle_block, stores) -
                              "or a smaller --local")
     for L, side, mode, J, b, store in itertools.product(local, map_side, modes, particles,
                                                         particle_block, stores):
+        if store == "window" and mode == "sample":
+            raise BenchError("--store window --mode sample: the window store does eq. 30 "
+                             "(--mode ignore) only")
         try:
             bench_config(J, L, side, mode, b, store).validate()
         except ValueError as err:
@@ -118,7 +123,9 @@ def time_update(J: int, local: int, map_side: int, mode: str, repeats: int = 10,
     ``store = "shared"`` the forced resamplings ("resample_ms") include the copy-on-write of
     every footprint's tiles at the next update."""
     rng = np.random.default_rng(seed)
-    cfg = bench_config(J, local, map_side, mode, particle_block, store)
+    # every timed call of the update and of the resampling chains ``chain`` updates
+    cfg = bench_config(J, local, map_side, mode, particle_block, store,
+                       updates=2 * (repeats + 1) * chain)
     obs = synthetic_local_map(rng, local)
     params = rbpf.FilterParams()
     noise = rbpf.update_noise(jax.random.key(seed), cfg)

@@ -160,12 +160,15 @@ class MapSection:
                               _at_least(2), "must be at least 2")
     store: str = setting(
         "dense", "particle maps: dense (a whole map per particle), shared (copy-on-write tiles "
-        "in one pool) or auto (dense when it fits in memory, shared otherwise)",
+        "in one pool), window (each particle's path over the shared local maps plus a window "
+        "of cells around it; eq. 30 only) or auto (dense when it fits in memory, else shared)",
         one_of=choices.MAP_STORES, resolved="auto")
-    tile: int = setting(32, "shared store: tile side, cells (a multiple of 8)",
+    tile: int = setting(32, "shared store: tile side, cells (a multiple of 8); window store: "
+                        "cells a particle may move between local maps",
                         lambda v: v >= 8 and v % 8 == 0, "must be a positive multiple of 8")
-    pool_tiles: int = setting(0, "shared store: tiles in the pool; 0: automatic, grown as the "
-                              "run needs", _non_negative, "must be >= 0 (0: automatic)")
+    pool_tiles: int = setting(0, "shared store: tiles in the pool; window store: local maps "
+                              "its history holds; 0: automatic (grown as the run needs, or the "
+                              "run's local maps)", _non_negative, "must be >= 0 (0: automatic)")
     axes: str = setting(
         "start", "the map lattice's axes: start (the robot's at its start pose, the result "
         "independent of the run frame's angle) or frame (the run frame's, the paper's)",

@@ -162,7 +162,7 @@ def update(state: FilterState, local_obs: Array, unknown_u: Array, params: Filte
     unnorm = state.log_w + phi * w.log_lam + correction
     log_lik = jax.nn.logsumexp(unnorm)  # log sum_j w_j lambda_j: the evidence increment
     log_w = unnorm - log_lik
-    new_maps = maps.finish_update(w.maps, state.pose, cfg)
+    new_maps = maps.finish_update(w.maps, state.pose, cfg, obs)
     best = best_slot(log_w, jnp.arange(J, dtype=jnp.int32))
     info = UpdateInfo(ess=resampling.ess(log_w), log_lik=log_lik,
                       extent_violations=jnp.sum(w.off_map).astype(jnp.int32),

@@ -1,8 +1,9 @@
 """The map-store seam: the only code that knows which store holds the particles' maps.
 
-Two stores sit behind it (``FilterConfig.store``): "dense" (``densestore``: a whole [H, W]
-map of k and S per particle) and "shared" (``tilestore``: copy-on-write tiles in one pool
-behind per-particle page tables). ``FilterState.maps`` holds either (``Maps``); the kernel and
+Three stores sit behind it (``FilterConfig.store``): "dense" (``densestore``: a whole
+[H, W] map of k and S per particle), "shared" (``tilestore``: copy-on-write tiles in one pool
+behind per-particle page tables) and "window" (``windowstore``: each particle's map as its
+path over the shared local maps, with a window of cells around it materialised). ``FilterState.maps`` holds either (``Maps``); the kernel and
 the host driver reach it only through the functions here, which dispatch to the store:
 
 * in the filter: ``init`` (empty maps, or a prior map in every particle), ``read`` (the map
@@ -27,19 +28,22 @@ import numpy as np
 from jax import Array
 
 from gslam_jax.config import ConfigError
-from gslam_jax.rbpf import densestore, tilebytes, tilesample, tilestore
+from gslam_jax.errors import InputError
+from gslam_jax.rbpf import densestore, tilebytes, tilesample, tilestore, windowstore
 from gslam_jax.rbpf.densestore import DenseMaps
 from gslam_jax.rbpf.tilestore import TileStore
-from gslam_jax.rbpf.types import FilterConfig, FilterState
+from gslam_jax.rbpf.types import FilterConfig, FilterState, Observation
+from gslam_jax.rbpf.windowstore import WindowMaps
 
 __all__ = ["Maps", "DenseMaps", "TileStore", "MapStoreNotice", "init", "read", "write",
            "sample_known", "finish_update", "resample", "particle_map", "to_dense", "known_bits",
            "status", "free_tiles", "page_window", "pool_tiles", "whole_maps_tiles", "prior_tiles",
            "map_bytes", "peak_bytes", "choose_store", "check_memory", "check_status",
-           "pool_ran_out", "grow_pool", "PoolGrowth"]
+           "pool_ran_out", "grow_pool", "PoolGrowth", "WindowMaps", "resolve_history",
+           "WindowStoreError"]
 
-Maps = Union[DenseMaps, TileStore]
-"""The particles' maps (``FilterState.maps``): the dense store or the shared tile store."""
+Maps = Union[DenseMaps, TileStore, WindowMaps]
+"""The particles' maps (``FilterState.maps``): the dense, shared tile or window store."""
 
 AUTO_POOL_MAPS = 4  # ``pool_tiles``: whole maps of shared history an automatic pool holds
 
@@ -53,6 +57,39 @@ def _shared(maps: Maps) -> bool:
     return isinstance(maps, TileStore)
 
 
+def _window(maps: Maps) -> bool:
+    return isinstance(maps, WindowMaps)
+
+
+class WindowStoreError(InputError):
+    """The window store could not hold a run's maps (its window or its history)."""
+
+
+def _check_window(cfg: FilterConfig, prior) -> None:
+    """ConfigError for what the window store does not do: eq. 31 (it draws known cells from
+    the whole map, which the store does not hold), a prior map, an unsized history."""
+    if cfg.unknown_cells == "sample":
+        raise ConfigError('[map] store = "window" supports [filter] unknown_cells = "ignore" '
+                          '(eq. 30) only: eq. 31 draws known cells from the whole map, which '
+                          'this store does not hold; use store "dense" or "shared"')
+    if prior is not None:
+        raise ConfigError('[map] store = "window" cannot start from a prior map; use store '
+                          '"dense" or "shared"')
+    if cfg.pool_tiles < 1:
+        raise ConfigError('[map] store = "window" needs its history sized: [map] pool_tiles = '
+                          'the local maps the run has (a run sizes it itself, '
+                          '``maps.resolve_history``)')
+
+
+def resolve_history(cfg: FilterConfig, num_updates: int) -> FilterConfig:
+    """The window store's history (``[map] pool_tiles``, 0: automatic) sized to the run's
+    ``num_updates`` local maps, so that ``map_bytes`` is the whole run's need before it
+    starts; other stores unchanged."""
+    if cfg.store != "window" or cfg.pool_tiles:
+        return cfg
+    return cfg._replace(pool_tiles=max(int(num_updates), 1))
+
+
 def init(cfg: FilterConfig, prior: tuple[Array, Array] | None = None) -> Maps:
     """The store ``cfg.store`` with J empty maps, or with J times the map ``prior`` = (k, S)
     [H, W] (map reuse: the dense store copies it into every particle's map, the shared store
@@ -61,6 +98,9 @@ def init(cfg: FilterConfig, prior: tuple[Array, Array] | None = None) -> Maps:
     if prior is not None and tuple(prior[0].shape) != tuple(cfg.map_shape):
         raise ValueError(f"prior map of shape {tuple(prior[0].shape)} does not match the "
                          f"filter's map shape {cfg.map_shape}")
+    if cfg.store == "window":
+        _check_window(cfg, prior)
+        return windowstore.init(cfg)
     if cfg.store == "shared":
         store = tilestore.init(cfg.num_particles, cfg.map_shape, cfg.tile, pool_tiles(cfg),
                                bits)
@@ -73,6 +113,8 @@ def read(maps: Maps, particles: Array, cells_: Array, on_map: Array, cfg: Filter
     """(k, S) [n, M] at flat map cells cells_ [n, M] of particles [n]; 0 where not on_map."""
     if _shared(maps):
         return tilestore.read(maps, particles, cells_, on_map, cfg.map_shape[1])
+    if _window(maps):
+        return windowstore.read(maps, particles, cells_, on_map, cfg.map_shape[1])
     return densestore.read(maps, particles, cells_, on_map)
 
 
@@ -85,6 +127,8 @@ def write(maps: Maps, particles: Array, cells_: Array, k: Array, S: Array,
         HW = cfg.map_shape[0] * cfg.map_shape[1]
         return tilestore.write(maps, particles, jnp.minimum(cells_, HW - 1), cells_ < HW, k, S,
                                cfg.map_shape[1], page_window(cfg))
+    if _window(maps):
+        return windowstore.write(maps, particles, cells_, k, S, cfg.map_shape)
     return densestore.add(maps, particles, cells_, k, S)
 
 
@@ -95,15 +139,25 @@ def sample_known(maps: Maps, rows: Array, u: Array, cfg: FilterConfig) -> tuple[
     maps, ``tilesample``); where a map has none the cells are meaningless."""
     if _shared(maps):
         return tilesample.sample_known(maps, rows, u, cfg.map_shape)
+    if _window(maps):
+        _check_window(cfg, None)
     return densestore.sample_known(maps, rows, u, cfg.map_shape[1])
 
 
-def finish_update(maps: Maps, pose: Array, cfg: FilterConfig) -> Maps:
-    """After an update from ``pose`` [J, 3] wrote the maps: the dense store refreshes its
-    known-cell bits around each footprint and widens its written rows; the shared store has
-    nothing left to do (its writes refreshed the bits of the tiles they wrote)."""
+def finish_update(maps: Maps, pose: Array, cfg: FilterConfig,
+                  obs: Observation | None = None) -> Maps:
+    """After an update from ``pose`` [J, 3] with the local map ``obs`` wrote the maps: the
+    dense store refreshes its known-cell bits around each footprint and widens its written
+    rows; the shared store has nothing left to do (its writes refreshed the bits of the tiles
+    they wrote); the window store records the update and moves each window, refilling the
+    cells it takes in (``windowstore.finish_update``; it needs ``obs``)."""
     if _shared(maps):
         return maps
+    if _window(maps):
+        if obs is None:
+            raise ValueError("maps.finish_update: the window store needs the update's "
+                             "observation (obs)")
+        return windowstore.finish_update(maps, pose, obs, cfg)
     return densestore.finish_update(maps, pose, cfg)
 
 
@@ -113,12 +167,16 @@ def resample(maps: Maps, ancestors: Array) -> Maps:
     shared store's page tables gathered."""
     if _shared(maps):
         return tilestore.resample(maps, ancestors)
+    if _window(maps):
+        return windowstore.resample(maps, ancestors)
     return densestore.resample(maps, ancestors)
 
 
 def particle_map(state: FilterState, j: Array | int, cfg: FilterConfig) -> tuple[Array, Array]:
     """(k, S) [H, W] of particle ``j``, from either store."""
     maps = state.maps
+    if _window(maps):
+        return windowstore.particle_map(maps, j, cfg)
     if not _shared(maps):
         return maps.k[j], maps.S[j]
     one = maps._replace(page=maps.page[jnp.asarray(j)][None])
@@ -131,6 +189,8 @@ def to_dense(maps: Maps, cfg: FilterConfig) -> tuple[Array, Array, Array]:
     unless "sample" mode)."""
     if _shared(maps):
         return tilestore.to_dense(maps, cfg.map_shape)
+    if _window(maps):
+        return windowstore.to_dense(maps, cfg)
     return maps.k, maps.S, maps.known_bits
 
 
@@ -143,8 +203,9 @@ def known_bits(maps: Maps, particles: Array, cfg: FilterConfig) -> Array:
 
 
 def status(maps: Maps) -> Array:
-    """The shared store's sticky error bits (``check_status``); 0 for the dense store."""
-    return maps.status if _shared(maps) else jnp.int32(0)
+    """The shared or window store's sticky error bits (``check_status``); 0 for the dense
+    store."""
+    return maps.status if _shared(maps) or _window(maps) else jnp.int32(0)
 
 
 def free_tiles(maps: Maps) -> Array:
@@ -186,6 +247,8 @@ def map_bytes(cfg: FilterConfig) -> int:
     """Bytes the store ``cfg.store`` allocates for the particles' maps (``init``): the dense
     maps, or the shared store's pool (allocated up front), page tables and bookkeeping."""
     bits = cfg.unknown_cells == "sample"
+    if cfg.store == "window":
+        return windowstore.nbytes(cfg)
     if cfg.store == "shared":
         return tilebytes.nbytes(cfg.num_particles, cfg.map_shape, cfg.tile, pool_tiles(cfg),
                                 bits)
@@ -235,6 +298,13 @@ def check_memory(cfg: FilterConfig, available: int, what: str = "memory",
     need = map_bytes(cfg)
     if need <= available:
         return
+    if cfg.store == "window":
+        C = windowstore.side(cfg)
+        raise ConfigError(
+            f"the window map store needs {need / 2**30:.2f} GiB ({cfg.num_particles} "
+            f"particles x ({C} x {C} cells x 2 float32 + a path of {cfg.pool_tiles} poses) + "
+            f"{cfg.pool_tiles} local maps of {cfg.max_observed} cells), more than this "
+            f"machine's {available / 2**30:.1f} GiB of {what}; use fewer [filter] particles")
     if cfg.store == "shared":
         raise ConfigError(
             f"the shared map store's pool needs {need / 2**30:.1f} GiB ([map] pool_tiles = "
@@ -253,6 +323,9 @@ def check_status(status_bits: int | Array, cfg: FilterConfig, where: str = "",
                  automatic: bool = False) -> None:
     """Raise the host-side error for a store's ``status`` bits (0: fine); ``where`` prefixes
     the message (the frame, the tuning step); ``automatic``: the pool is a ``PoolGrowth``'s."""
+    if cfg.store == "window":
+        _window_status(int(status_bits), cfg, where)
+        return
     tilebytes.check_status(status_bits, pool_tiles(cfg), where, automatic)
 
 
@@ -261,6 +334,22 @@ def pool_ran_out(status_bits) -> int:
     shared pool ran out of tiles; 0 if none does."""
     hit = (np.asarray(status_bits) & tilestore.POOL_EXHAUSTED) != 0
     return int(np.argmax(hit)) + 1 if hit.any() else 0
+
+
+def _window_status(bits: int, cfg: FilterConfig, where: str) -> None:
+    """WindowStoreError for the window store's status bits (0: fine)."""
+    if bits & windowstore.MISSED:
+        raise WindowStoreError(
+            where + f"the window map store's window ({windowstore.side(cfg)} cells) missed "
+            f"cells an update wrote: a particle moved more than [map] tile = {cfg.tile} cells "
+            f"between local maps; raise [map] tile")
+    if bits & windowstore.HISTORY_FULL:
+        raise WindowStoreError(
+            where + f"the window map store's history of [map] pool_tiles = {cfg.pool_tiles} "
+            f"local maps is full; raise it to the run's local maps")
+    if bits & windowstore.REFILL_OVERFLOW:
+        raise WindowStoreError(
+            where + "the window map store met more past local maps than one refill replays")
 
 
 def grow_pool(maps_: Maps, cfg: FilterConfig, need_free: int, available: int

@@ -1,0 +1,333 @@
+"""Window map store: each particle's map kept as its path over the shared local maps, with only
+the cells near the particle materialised (issue 67, docs/particle-budget.md).
+
+A particle's map is a function of its path and of the local maps, which every particle shares:
+cell c of particle j's map is the sum, over the updates u so far, of the local map of u
+scattered from j's pose at u (eq. 14). The dense store keeps that sum for every cell, so its
+memory is J x the area; this store keeps
+
+* the local maps once for all particles (their observed cells, ``Observation``), ``U`` of them;
+* each particle's pose at each update (its ancestral path: resampling copies it with the map);
+* for each particle a C x C window of (k, S) around it, addressed toroidally: global cell
+  (i, j) lives in slot (i mod C, j mod C) while it lies in the particle's window
+  [origin, origin + C)^2. Every cell in the window holds the particle's full sum.
+
+so memory is J x (C^2 + path) plus the local maps, whatever the area. After each update
+(``finish_update``) the window moves towards the particle (at most ``step`` cells per axis);
+the cells that enter it are zeroed and refilled by replaying, in update order, the past local
+maps whose footprint box meets them, from the particle's pose at each, with the scatter the
+update used (``footprint.observation_cells``): the same additions in the same order as the
+dense map's, so the values are the dense store's. The update's reads and writes must fall in
+the window: C = 2 (reach + step) holds a footprint from anywhere within ``step`` cells of the
+window's centre; a written cell outside it sets ``MISSED`` (an error on the host).
+
+Only eq. 30 (``unknown_cells = "ignore"``) and maps that start empty: eq. 31 draws known
+cells uniformly from the whole map, which this store does not hold (``rbpf.maps`` refuses
+both with a ConfigError).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array, lax
+
+from gslam_jax.rbpf.densestore import gather_particles
+from gslam_jax.rbpf.footprint import observation_cells
+from gslam_jax.rbpf.types import FilterConfig, Observation
+
+__all__ = ["WindowMaps", "MISSED", "HISTORY_FULL", "REFILL_OVERFLOW", "UNSET", "side",
+           "init", "nbytes", "read", "write", "finish_update", "resample", "to_dense",
+           "particle_map"]
+
+MISSED = 1           # status bit: an update wrote a map cell outside the particle's window
+HISTORY_FULL = 2     # status bit: more updates than the history holds (``history``)
+REFILL_OVERFLOW = 4  # status bit: cells entering a window met more past local maps than ``replays``
+UNSET = -(2 ** 30)   # origin of a window no update has placed yet (its map is empty)
+
+
+class WindowMaps(NamedTuple):
+    """The maps of J particles as paths over U shared local maps plus a C x C window each."""
+
+    k: Array          # [J, C, C] float32 window of k, toroidal (global (i, j) at (i % C, j % C))
+    S: Array          # [J, C, C] float32 window of S
+    origin: Array     # [J, 2] int32 global cell of the window's first row and column (UNSET)
+    path: Array       # [J, U, 3] float32 each particle's pose at each update so far
+    obs_index: Array  # [U, M] int32 flat local cell of each observed cell of each update
+    obs_k: Array      # [U, M] float32 its k (0: padding)
+    obs_S: Array      # [U, M] float32 its S
+    obs_heading: Array  # [U] float32 the local map's lattice heading
+    count: Array      # [] int32 updates recorded
+    status: Array     # [] int32 sticky error bits (MISSED | HISTORY_FULL | REFILL_OVERFLOW)
+
+
+def side(cfg: FilterConfig) -> int:
+    """C: window side in cells, 2 (reach + step) rounded up to a multiple of 8, where ``step``
+    (``cfg.tile``) is how far the particle may move between updates before its footprint
+    leaves the window."""
+    return -(-2 * (cfg.reach + cfg.tile) // 8) * 8
+
+
+def history(cfg: FilterConfig) -> int:
+    """U: updates the history holds (``cfg.pool_tiles``; 0 is resolved from the run before,
+    ``maps.resolve_history``)."""
+    return max(cfg.pool_tiles, 1)
+
+
+def init(cfg: FilterConfig) -> WindowMaps:
+    """J empty maps: no update recorded, every window unplaced (``UNSET``)."""
+    J, C, U, M = cfg.num_particles, side(cfg), history(cfg), cfg.max_observed
+    if J * C * C >= 2 ** 31:
+        raise ValueError(f"{J} windows of {C} x {C} cells exceed the int32 cell index")
+    return WindowMaps(k=jnp.zeros((J, C, C), jnp.float32), S=jnp.zeros((J, C, C), jnp.float32),
+                      origin=jnp.full((J, 2), UNSET, jnp.int32),
+                      path=jnp.zeros((J, U, 3), jnp.float32),
+                      obs_index=jnp.zeros((U, M), jnp.int32),
+                      obs_k=jnp.zeros((U, M), jnp.float32), obs_S=jnp.zeros((U, M), jnp.float32),
+                      obs_heading=jnp.zeros((U,), jnp.float32), count=jnp.int32(0),
+                      status=jnp.int32(0))
+
+
+def nbytes(cfg: FilterConfig) -> int:
+    """Bytes ``init`` allocates: J windows of k and S, J paths of U poses, U local maps."""
+    J, C, U, M = cfg.num_particles, side(cfg), history(cfg), cfg.max_observed
+    return J * (C * C * 8 + 8 + U * 12) + U * (M * 12 + 4) + 8
+
+
+def _slots(store: WindowMaps, rows: Array, cells_: Array, width: int
+           ) -> tuple[Array, Array]:
+    """Flat index into ``k.reshape(-1)`` of flat map cells ``cells_`` [n, M] of particles
+    ``rows`` [n] and whether each lies in its particle's window."""
+    C = store.k.shape[1]
+    gi, gj = cells_ // width, cells_ % width
+    o = store.origin[rows]
+    inside = ((gi >= o[:, :1]) & (gi < o[:, :1] + C) & (gj >= o[:, 1:]) & (gj < o[:, 1:] + C))
+    slot = rows[:, None] * (C * C) + (gi % C) * C + gj % C
+    return jnp.where(inside, slot, 0), inside
+
+
+def read(store: WindowMaps, rows: Array, cells_: Array, on_map: Array, width: int
+         ) -> tuple[Array, Array]:
+    """(k, S) [n, M] at flat map cells ``cells_`` [n, M] of particles ``rows`` [n]; 0 where
+    not on_map or outside the window (a written cell there sets ``MISSED`` in ``write``)."""
+    idx, inside = _slots(store, rows, cells_, width)
+    use = on_map & inside
+
+    def get(x: Array) -> Array:
+        return jnp.where(use, x.reshape(-1).at[idx].get(mode="promise_in_bounds"), 0.0)
+
+    return get(store.k), get(store.S)
+
+
+def _placed(store: WindowMaps, rows: Array, cells_: Array, written: Array, width: int
+            ) -> WindowMaps:
+    """Windows of particles ``rows`` not yet placed, centred on the bounding box of their
+    written cells (their maps are empty, so any place is exact)."""
+    C = store.k.shape[1]
+    gi, gj = cells_ // width, cells_ % width
+    big = jnp.iinfo(jnp.int32).max
+
+    def centre(g: Array) -> Array:
+        lo = jnp.min(jnp.where(written, g, big), axis=1)
+        hi = jnp.max(jnp.where(written, g, -1), axis=1)
+        return jnp.where(hi >= 0, (lo + hi) // 2 - C // 2, UNSET)
+
+    o = store.origin[rows]
+    fresh = jnp.stack([centre(gi), centre(gj)], axis=1)
+    return store._replace(origin=store.origin.at[rows].set(jnp.where(o == UNSET, fresh, o)))
+
+
+def write(store: WindowMaps, rows: Array, cells_: Array, k: Array, S: Array,
+          map_shape: tuple[int, int]) -> WindowMaps:
+    """Eq. 14: add (k, S) [M] at flat map cells ``cells_`` [n, M] (H*W: off the map) of
+    particles ``rows`` [n], in their windows (placed first where unplaced). A written cell
+    (k > 0) on the map but outside the window sets ``MISSED``."""
+    H, W = map_shape
+    on_map = cells_ < H * W
+    written = on_map & (jnp.broadcast_to(k, cells_.shape) > 0)
+    store = _placed(store, rows, jnp.where(on_map, cells_, 0), written, W)
+    idx, inside = _slots(store, rows, jnp.where(on_map, cells_, 0), W)
+    use = on_map & inside
+
+    def put(x: Array, v: Array) -> Array:
+        v = jnp.where(use, jnp.broadcast_to(v, idx.shape), 0.0)
+        return x.reshape(-1).at[idx].add(v, mode="promise_in_bounds").reshape(x.shape)
+
+    missed = jnp.any(written & ~inside)
+    return store._replace(k=put(store.k, k), S=put(store.S, S),
+                          status=store.status | jnp.where(missed, MISSED, 0))
+
+
+def _record(store: WindowMaps, pose: Array, obs: Observation) -> WindowMaps:
+    """The update just written appended to the history: its local map and every pose."""
+    U = store.obs_k.shape[0]
+    u = jnp.minimum(store.count, U - 1)
+    full = store.count >= U
+    keep = lambda new, old: jnp.where(full, old, new)  # noqa: E731
+    return store._replace(
+        path=store.path.at[:, u].set(keep(pose, store.path[:, u])),
+        obs_index=store.obs_index.at[u].set(keep(obs.index, store.obs_index[u])),
+        obs_k=store.obs_k.at[u].set(keep(obs.k, store.obs_k[u])),
+        obs_S=store.obs_S.at[u].set(keep(obs.S, store.obs_S[u])),
+        obs_heading=store.obs_heading.at[u].set(
+            keep(jnp.asarray(obs.lattice_heading, jnp.float32), store.obs_heading[u])),
+        count=jnp.minimum(store.count + 1, U),
+        status=store.status | jnp.where(full, HISTORY_FULL, 0))
+
+
+def _entered(old: Array, new: Array, C: int) -> tuple[Array, Array]:
+    """[lo, hi) global rows (or columns) that a window moving from ``old`` to ``new`` takes in."""
+    return jnp.where(new > old, old + C, new), jnp.where(new > old, new + C, old)
+
+
+def _zero_band(x: Array, lo: Array, hi: Array, step: int, axis: int) -> Array:
+    """x [C, C] with the slots of global rows (axis 0) or columns (axis 1) [lo, hi) zeroed
+    (hi - lo <= step)."""
+    C = x.shape[0]
+    t = jnp.arange(step)
+    idx = (lo + t) % C
+    keep = (t >= hi - lo)[:, None] if axis == 0 else (t >= hi - lo)[None, :]
+    if axis == 0:
+        return x.at[idx].set(jnp.where(keep, x[idx], 0.0))
+    return x.at[:, idx].set(jnp.where(keep, x[:, idx], 0.0))
+
+
+class _Move(NamedTuple):
+    """One particle's window move: the new origin, and the rows and columns it takes in."""
+
+    origin: Array  # [2]
+    rows: Array    # [2] [lo, hi)
+    cols: Array    # [2] [lo, hi)
+
+
+def _move(origin: Array, pose: Array, C: int, step: int, cfg: FilterConfig) -> _Move:
+    """The window moved towards centring the particle's cell, at most ``step`` cells an axis."""
+    cell = jnp.floor((pose[:2] - jnp.asarray(cfg.map_origin, jnp.float32))
+                     / cfg.resolution)
+    cell = jnp.clip(jnp.nan_to_num(cell), -2 ** 24, 2 ** 24).astype(jnp.int32)
+    target = cell - C // 2
+    new = jnp.where(origin == UNSET, origin, origin + jnp.clip(target - origin, -step, step))
+    r0, r1 = _entered(origin[0], new[0], C)
+    c0, c1 = _entered(origin[1], new[1], C)
+    return _Move(new, jnp.stack([r0, r1]), jnp.stack([c0, c1]))
+
+
+def _hits(path: Array, count: Array, mv: _Move, C: int, cfg: FilterConfig) -> Array:
+    """[U] past updates of one particle whose footprint box (its cell +- reach) meets the cells
+    its window takes in."""
+    U = path.shape[0]
+    cell = jnp.floor((path[:, :2] - jnp.asarray(cfg.map_origin, jnp.float32))
+                     / cfg.resolution)
+    cell = jnp.clip(jnp.nan_to_num(cell), -2 ** 24, 2 ** 24).astype(jnp.int32)
+    lo, hi = cell - cfg.reach, cell + cfg.reach + 1  # [U, 2] box [lo, hi)
+    o = mv.origin
+
+    def meets(a0, a1, b0, b1):
+        return (a0 < b1) & (b0 < a1)
+
+    in_rows = meets(lo[:, 0], hi[:, 0], o[0], o[0] + C)
+    in_cols = meets(lo[:, 1], hi[:, 1], o[1], o[1] + C)
+    new_rows = meets(lo[:, 0], hi[:, 0], mv.rows[0], mv.rows[1]) & (mv.rows[1] > mv.rows[0])
+    new_cols = meets(lo[:, 1], hi[:, 1], mv.cols[0], mv.cols[1]) & (mv.cols[1] > mv.cols[0])
+    return (jnp.arange(U) < count) & ((new_rows & in_cols) | (new_cols & in_rows))
+
+
+def _replay(k: Array, S: Array, pose: Array, index: Array, ok: Array, oS: Array,
+            heading: Array, mv: _Move, cfg: FilterConfig) -> tuple[Array, Array]:
+    """One past local map (its pose, cells and heading) added to the window k, S [C, C] at the
+    cells the window took in (``mv``), with the update's own scatter."""
+    C = k.shape[0]
+    H, W = cfg.map_shape
+    flat, on_map = observation_cells(pose, index, cfg, heading)
+    gi, gj = flat // W, flat % W
+    o = mv.origin
+    inside = (gi >= o[0]) & (gi < o[0] + C) & (gj >= o[1]) & (gj < o[1] + C)
+    entered = (((gi >= mv.rows[0]) & (gi < mv.rows[1]))
+               | ((gj >= mv.cols[0]) & (gj < mv.cols[1])))
+    use = on_map & inside & entered
+    slot = jnp.where(use, (gi % C) * C + gj % C, 0)
+
+    def put(x, v):
+        return x.reshape(-1).at[slot].add(jnp.where(use, v, 0.0),
+                                          mode="promise_in_bounds").reshape(C, C)
+
+    return put(k, ok), put(S, oS)
+
+
+def finish_update(store: WindowMaps, pose: Array, obs: Observation, cfg: FilterConfig,
+                  replays: int = 128) -> WindowMaps:
+    """After an update from ``pose`` [J, 3] with the local map ``obs`` wrote the maps: the
+    update recorded, every window moved towards its particle (``_move``), the cells it takes in
+    zeroed and refilled from the past local maps whose footprint meets them, in update order
+    (``_hits``, ``_replay``; the dense store's additions in its order). A particle whose new
+    cells meet more than ``replays`` past local maps sets ``REFILL_OVERFLOW``."""
+    C, step = store.k.shape[1], cfg.tile
+    store = _record(store, pose, obs)
+    moves = jax.vmap(lambda o, p: _move(o, p, C, step, cfg))(store.origin, pose)
+    k = jax.vmap(lambda x, m: _zero_band(_zero_band(x, m.rows[0], m.rows[1], step, 0),
+                                         m.cols[0], m.cols[1], step, 1))(store.k, moves)
+    S = jax.vmap(lambda x, m: _zero_band(_zero_band(x, m.rows[0], m.rows[1], step, 0),
+                                         m.cols[0], m.cols[1], step, 1))(store.S, moves)
+    U = store.obs_k.shape[0]
+    R = min(replays, U)
+    hit = jax.vmap(lambda p, m: _hits(p, store.count, m, C, cfg))(store.path, moves)
+    n_hits = jnp.sum(hit, axis=1)
+    which = jax.vmap(lambda h: jnp.nonzero(h, size=R, fill_value=U)[0])(hit)  # [J, R] in order
+
+    def one(r, kS):
+        k, S = kS
+        u = which[:, r]
+        uc = jnp.minimum(u, U - 1)
+        live = u < U
+        p = jnp.take_along_axis(store.path, uc[:, None, None], axis=1)[:, 0]
+        zero = jnp.zeros_like(store.obs_k[0])
+
+        def rep(k1, S1, p1, u1, l1, m1):
+            ok = jnp.where(l1, store.obs_k[u1], zero)
+            oS = jnp.where(l1, store.obs_S[u1], zero)
+            return _replay(k1, S1, p1, store.obs_index[u1], ok, oS, store.obs_heading[u1], m1,
+                           cfg)
+
+        return jax.vmap(rep)(k, S, p, uc, live, moves)
+
+    k, S = lax.fori_loop(0, jnp.minimum(jnp.max(n_hits), R), one, (k, S))
+    overflow = jnp.any(n_hits > R)
+    return store._replace(k=k, S=S, origin=moves.origin,
+                          status=store.status | jnp.where(overflow, REFILL_OVERFLOW, 0))
+
+
+def resample(store: WindowMaps, ancestors: Array) -> WindowMaps:
+    """Particle i takes the map of particle ancestors[i] (survivors kept in place,
+    ``resampling.keep_in_place``): its window, the window's origin and its path, copied into
+    the slots of the particles left without offspring (``densestore.gather_particles``)."""
+    k, S, origin, path = gather_particles((store.k, store.S, store.origin, store.path),
+                                          ancestors)
+    return store._replace(k=k, S=S, origin=origin, path=path)
+
+
+def particle_map(store: WindowMaps, j: Array | int, cfg: FilterConfig) -> tuple[Array, Array]:
+    """(k, S) [H, W] of particle ``j``'s whole map: every recorded local map replayed from
+    its pose, in update order (eq. 14, as the dense store adds them)."""
+    H, W = cfg.map_shape
+    path = store.path[jnp.asarray(j)]
+
+    def one(u, kS):
+        k, S = kS
+        flat, on_map = observation_cells(path[u], store.obs_index[u], cfg, store.obs_heading[u])
+        idx = jnp.where(on_map, flat, 0)
+        return (k.at[idx].add(jnp.where(on_map, store.obs_k[u], 0.0), mode="promise_in_bounds"),
+                S.at[idx].add(jnp.where(on_map, store.obs_S[u], 0.0), mode="promise_in_bounds"))
+
+    zero = jnp.zeros((H * W,), jnp.float32)
+    k, S = lax.fori_loop(0, store.count, one, (zero, zero))
+    return k.reshape(H, W), S.reshape(H, W)
+
+
+def to_dense(store: WindowMaps, cfg: FilterConfig) -> tuple[Array, Array, Array]:
+    """Every particle's whole map: k, S [J, H, W] (``particle_map``) and no known-cell bits
+    ([J, 0, 0, 2]: "ignore" mode only)."""
+    J = store.k.shape[0]
+    k, S = lax.map(lambda j: particle_map(store, j, cfg), jnp.arange(J))
+    return k, S, jnp.zeros((J, 0, 0, 2), jnp.uint32)

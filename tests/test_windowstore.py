@@ -1,0 +1,162 @@
+"""The window store (``rbpf.windowstore``) against the dense store on small runs: the same
+weights, resampling decisions and ancestors, and every particle's whole map the dense one,
+on a path that leaves its start and comes back (the cells that re-enter the windows are
+refilled from the past local maps)."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gslam_jax import rbpf
+from gslam_jax.config import ConfigError
+from gslam_jax.rbpf import maps, windowstore
+
+L = 16          # local map side: reach 13 cells
+SIDE = 160      # map side, cells of 0.16 m
+STEP_CELLS = 8  # [map] tile: cells a particle may move between local maps
+
+
+def _config(store: str, J: int = 8, history: int = 0, **kw) -> rbpf.FilterConfig:
+    return rbpf.FilterConfig(num_particles=J, map_shape=(SIDE, SIDE), map_origin=(0.0, 0.0),
+                             resolution=0.16, local_size=L, store=store, tile=STEP_CELLS,
+                             pool_tiles=history, **kw)
+
+
+def _loop_run(rng: np.random.Generator, updates: int = 88):
+    """A square loop of side 9 m from (4, 4) m driven twice round (so the second lap revisits
+    what the first mapped), a local map every 0.5 m of travel and a frame between; controls in
+    the robot frame, local maps of random cells (k in 0..6)."""
+    corners = np.array([[4.0, 4.0], [13.0, 4.0], [13.0, 13.0], [4.0, 13.0]])
+    pts = []
+    for lap in range(2):
+        for c in range(4):
+            a, b = corners[c], corners[(c + 1) % 4]
+            for s in np.linspace(0.0, 1.0, 18, endpoint=False):
+                pts.append(a + s * (b - a))
+    pts = np.array(pts[:updates + 1])
+    heading = np.arctan2(*np.diff(pts, axis=0)[:, ::-1].T)
+    poses = np.column_stack([pts[1:], heading])
+    start = np.array([pts[0, 0], pts[0, 1], heading[0]], np.float32)
+    prev = np.concatenate([start[None], poses[:-1]])
+    controls = []
+    for p, q in zip(prev, poses):
+        d = q[:2] - p[:2]
+        c, s = math.cos(p[2]), math.sin(p[2])
+        dtheta = (q[2] - p[2] + np.pi) % (2 * np.pi) - np.pi
+        # half the step at each of two frames, the local map at the second
+        controls.append([0.5 * (c * d[0] + s * d[1]), 0.5 * (-s * d[0] + c * d[1]), dtheta])
+        controls.append([0.5 * (c * d[0] + s * d[1]), 0.5 * (-s * d[0] + c * d[1]), 0.0])
+    T = len(controls)
+    obs_index = np.where(np.arange(T) % 2 == 1, np.arange(T) // 2, -1).astype(np.int32)
+    n = T // 2
+    k = rng.integers(0, 7, (n, L, L)).astype(np.float32)
+    k[:, :, :3] = 0.0  # some unobserved cells
+    S = k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)
+    return (jnp.asarray(np.array(controls, np.float32)), jnp.asarray(obs_index),
+            jnp.asarray(np.stack([k, S], -1)), jnp.asarray(start))
+
+
+@pytest.fixture(scope="module")
+def runs():
+    controls, obs_index, local_obs, start = _loop_run(np.random.default_rng(3))
+    n_maps = int(local_obs.shape[0])
+    params = rbpf.FilterParams()
+    out = {}
+    for store in ("dense", "window"):
+        cfg = maps.resolve_history(_config(store, resample_ratio=0.6), n_maps)
+        out[store] = (cfg, jax.jit(rbpf.run_filter, static_argnums=5)(
+            jax.random.key(7), params, controls, obs_index, local_obs, cfg, start))
+    return out
+
+
+def test_the_path_leaves_the_window_and_comes_back(runs):
+    """The test's run is one that needs refills: a particle moves further from its first
+    pose than the window's half side, and comes back within a footprint's reach of it."""
+    cfg, out = runs["window"]
+    C = windowstore.side(cfg)
+    xy = np.asarray(out.infos.pose)[:, 0, :2] / cfg.resolution
+    far = np.max(np.abs(xy - xy[0]), axis=1)
+    assert far.max() > C
+    late = far[len(far) // 2:]
+    assert late.min() < cfg.reach
+
+
+def test_weights_resampling_and_ancestors_match_the_dense_store(runs):
+    cfg, dense = runs["dense"]
+    _, window = runs["window"]
+    assert int(jnp.max(window.infos.map_status)) == 0
+    resampled = np.asarray(dense.infos.resampled)
+    assert 0 < resampled.sum() < resampled.size  # both decisions occur
+    np.testing.assert_array_equal(np.asarray(window.infos.resampled), resampled)
+    np.testing.assert_array_equal(np.asarray(window.infos.ancestors),
+                                  np.asarray(dense.infos.ancestors))
+    np.testing.assert_allclose(np.asarray(window.infos.log_w), np.asarray(dense.infos.log_w),
+                               rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(window.infos.pose), np.asarray(dense.infos.pose),
+                               rtol=0, atol=1e-5)
+
+
+def test_every_particle_map_is_the_dense_one(runs):
+    """The whole maps replayed from the paths (``to_dense``) and the windows' cells against the
+    dense maps: equal (the same additions in the same order)."""
+    cfg, dense = runs["dense"]
+    _, window = runs["window"]
+    dk, dS = np.asarray(dense.final_state.maps.k), np.asarray(dense.final_state.maps.S)
+    wk, wS, _ = (np.asarray(x) for x in maps.to_dense(window.final_state.maps, cfg))
+    assert dk.sum() > 0
+    np.testing.assert_allclose(wk, dk, rtol=1e-6, atol=0)
+    np.testing.assert_allclose(wS, dS, rtol=1e-6, atol=1e-9)
+    # the windows hold the dense map's values at every cell they cover
+    store = window.final_state.maps
+    C = windowstore.side(cfg)
+    for j in range(cfg.num_particles):
+        oi, oj = (int(x) for x in store.origin[j])
+        gi, gj = np.meshgrid(np.arange(oi, oi + C), np.arange(oj, oj + C), indexing="ij")
+        ok = (gi >= 0) & (gi < SIDE) & (gj >= 0) & (gj < SIDE)
+        cached = np.asarray(store.k[j])[gi % C, gj % C]
+        np.testing.assert_array_equal(cached[ok], dk[j][gi[ok], gj[ok]])
+
+
+def test_window_store_refuses_eq31_a_prior_and_an_unsized_history():
+    with pytest.raises(ConfigError, match="unknown_cells"):
+        maps.init(_config("window", history=4, unknown_cells="sample"))
+    with pytest.raises(ConfigError, match="prior"):
+        z = jnp.zeros((SIDE, SIDE), jnp.float32)
+        maps.init(_config("window", history=4), (z, z))
+    with pytest.raises(ConfigError, match="history"):
+        maps.init(_config("window"))
+
+
+def test_memory_is_known_before_the_run_and_refused_with_the_figure():
+    cfg = maps.resolve_history(_config("window", J=1000), 500)
+    assert cfg.pool_tiles == 500
+    C = windowstore.side(cfg)
+    need = maps.map_bytes(cfg)
+    assert need == 1000 * (C * C * 8 + 8 + 500 * 12) + 500 * (L * L * 12 + 4) + 8
+    maps.check_memory(cfg, need)
+    with pytest.raises(ConfigError, match=f"{need / 2**30:.2f} GiB"):
+        maps.check_memory(cfg, need - 1)
+    # independent of the map's area (the dense store's grows with it)
+    big = maps.resolve_history(_config("window", J=1000)._replace(map_shape=(8000, 8000)), 500)
+    assert maps.map_bytes(big) == need
+
+
+def test_a_particle_that_outruns_its_window_is_reported():
+    """A jump of more than the window allows between two local maps: the write outside the
+    window sets MISSED and the host error names [map] tile."""
+    cfg = maps.resolve_history(_config("window", J=2), 4)
+    state = rbpf.init(cfg, jnp.asarray([5.0, 5.0, 0.0]))
+    obs = jnp.ones((L, L, 2), jnp.float32)
+    noise = rbpf.update_noise(jax.random.key(0), cfg)
+    state, _ = rbpf.update(state, obs, noise.unknown_u, rbpf.FilterParams(), cfg)
+    state = state._replace(pose=state.pose + jnp.asarray([10.0, 0.0, 0.0]))
+    state, _ = rbpf.update(state, obs, noise.unknown_u, rbpf.FilterParams(), cfg)
+    bits = int(maps.status(state.maps))
+    assert bits & windowstore.MISSED
+    with pytest.raises(maps.WindowStoreError, match="tile"):
+        maps.check_status(bits, cfg)
