@@ -111,7 +111,8 @@ def test_no_import_cycles():
 
 
 
-STORE_MODULES = {"rbpf.densestore", "rbpf.tilestore", "rbpf.tilebytes", "rbpf.tilesample"}
+STORE_MODULES = {"rbpf.densestore", "rbpf.tilestore", "rbpf.tilebytes", "rbpf.tilesample",
+                 "rbpf.windowstore"}
 
 
 def test_the_map_stores_are_reached_only_through_rbpf():
