@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> dict:
     cov = jnp.broadcast_to(jnp.diag(var), (J, 3, 3))
     state = state._replace(prior_cov=cov)
     obs = compact_observation(local, cfg)
-    chol = proposal._factor(cov)
+    chol = proposal.prior_factor(cov)
     grid, _ = proposal.candidate_grid(cfg.proposal_points, cfg.proposal_span)
     g = jnp.broadcast_to(grid, (J,) + grid.shape)
 

@@ -14,7 +14,7 @@ from gslam_jax.config import Config, FilterSection, MotionSection
 from gslam_jax.driver import observations, sizing, slam
 from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf.cells import obs_from_stats
-from gslam_jax.rbpf.footprint import observation_cells
+from gslam_jax.rbpf.placement import observation_cells
 from gslam_jax.rbpf.importance import _log_importance, log_importance
 from gslam_jax.rbpf.types import CPU_BLOCK_CELLS
 from gslam_jax.vo.localmap import LocalMapParams, points_to_stats

@@ -61,7 +61,7 @@ def test_map_lattice_places_cells_one_for_one_on_the_map():
     import jax.numpy as jnp
 
     from gslam_jax import rbpf
-    from gslam_jax.rbpf.footprint import observation_cells
+    from gslam_jax.rbpf.placement import observation_cells
 
     res, L = 0.25, 32
     origin = np.array([-10.0, -10.0])

@@ -7,9 +7,10 @@ import pytest
 from synthetic import make_run
 
 from gslam_jax import choices
-from gslam_jax.config import Config, ConfigError, apply_overrides
+from gslam_jax.config import Config, apply_overrides
 from gslam_jax.driver import sizing, slam
 from gslam_jax.driver.online import Online
+from gslam_jax.errors import ArgumentError
 from gslam_jax.run import RunError, load_run, save_run
 
 
@@ -60,5 +61,5 @@ def test_online_takes_the_sensor():
     # [localmap] lattice = "auto": stereo local maps fused by push_points on the map's axes
     assert Online(_small(), 20.0, sensor="stereo").localmap.lattice == "map"
     assert Online(_small(), 20.0).localmap.lattice == "robot"
-    with pytest.raises(ConfigError, match="sensor must be one of points, stereo, got 'lidar'"):
+    with pytest.raises(ArgumentError, match="sensor must be one of points, stereo or None, got 'lidar'"):
         Online(_small(), 20.0, sensor="lidar")

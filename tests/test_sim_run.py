@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gslam_jax.datasets.sim import simulate_run
+from gslam_jax.errors import ArgumentError
 from gslam_jax.vo.localmap import LocalMapParams
 from gslam_jax.run import validate_run
 
@@ -58,7 +59,7 @@ def test_local_maps_are_fused_with_vo_poses(short_run) -> None:
 
 
 def test_unknown_course_is_named() -> None:
-    with pytest.raises(ValueError, match="valid courses: mars-yard-a"):
+    with pytest.raises(ArgumentError, match="course must be one of mars-yard-a, .*got 'mars-yard'"):
         simulate_run("mars-yard", 0, PARAMS)
 
 

@@ -172,7 +172,8 @@ SHARED: dict[str, dict] = {
         "replace an existing output: an --out folder as a whole once the new results are "
         "complete; a --save-run, --viewer-save or --save-config file once the new one is")),
     "--config": dict(type=Path, metavar="FILE.toml", help=(
-        "TOML config (default: the built-in settings, `gslam config` prints them); a Table I "
+        "TOML config (default: the built-in settings, `gslam config` prints them: the paper's, "
+        "configs/paper.toml, except " + ", ".join(paper_differences()) + "); a Table I "
         "config's [course.<name>.*] tables apply to that simulated course in run, search, "
         "tune, fit-motion and table1, not in compare or config")),
     "--set": dict(action="append", metavar="SECTION.KEY=VALUE", help=(

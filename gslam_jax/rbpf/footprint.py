@@ -1,5 +1,5 @@
-"""Where a local map lands: each particle's footprint in its global map (paper 6.1, "rotate and
-translate the observation"), the compacted observation, and what an update reads there."""
+"""Each particle's footprint in its global map (where a local map lands, ``placement``), the
+compacted observation, and what an update reads there."""
 
 from __future__ import annotations
 
@@ -10,10 +10,11 @@ import jax.numpy as jnp
 from jax import Array
 
 from gslam_jax.rbpf import maps
+from gslam_jax.rbpf.placement import observation_cells
 from gslam_jax.rbpf.types import FilterConfig, Observation
 
-__all__ = ["Footprint", "Borrowed", "compact_observation", "observation_cells", "read_borrowed",
-           "footprint_at", "read_footprints"]
+__all__ = ["Footprint", "Borrowed", "compact_observation", "read_borrowed", "footprint_at",
+           "read_footprints"]
 
 
 def compact_observation(local_obs: Array, cfg: FilterConfig,
@@ -30,35 +31,6 @@ def compact_observation(local_obs: Array, cfg: FilterConfig,
     return Observation(index, jnp.where(valid, k[index], 0.0), jnp.where(valid, S[index], 0.0),
                        jnp.maximum(count - M, 0).astype(jnp.int32),
                        jnp.asarray(lattice_heading, jnp.float32))
-
-
-def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig,
-                      lattice_heading: Array | float = 0.0) -> tuple[Array, Array]:
-    """The map cell under each given local cell seen from ``pose`` (paper 6.1: "rotate and
-    translate the observation"): flat map indices and whether each lies inside the map.
-
-    Local cell (a, b) (flat index a * L + b) covers x in [a - L/2, a - L/2 + 1) cells (y
-    likewise with b) on the local map's lattice, which is turned by ``lattice_heading``
-    against the robot frame; its centre is rotated by the particle's heading plus that angle,
-    translated to its position, and takes the map cell it falls in. Every local cell lands in
-    exactly one map cell, so no observation is dropped; off-map cells get index H*W and are
-    masked, never wrapped. Where the lattice lies turned against the map's (the particle's
-    heading plus ``lattice_heading`` far from a multiple of 90 degrees), some map cells take
-    two local cells and others none (docs/notebook/results.md, "The map frame's orientation").
-    """
-    H, W = cfg.map_shape
-    L = cfg.local_size
-    # Robot position in cells, and local cell centres in cells (small numbers: float32-safe).
-    px = (pose[0] - cfg.map_origin[0]) / cfg.resolution
-    py = (pose[1] - cfg.map_origin[1]) / cfg.resolution
-    ca = (local_index // L).astype(jnp.float32) - (L // 2) + 0.5
-    cb = (local_index % L).astype(jnp.float32) - (L // 2) + 0.5
-    heading = pose[2] + lattice_heading
-    c, s = jnp.cos(heading), jnp.sin(heading)
-    gi = jnp.floor(px + (c * ca - s * cb)).astype(jnp.int32)
-    gj = jnp.floor(py + (s * ca + c * cb)).astype(jnp.int32)
-    on_map = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
-    return jnp.where(on_map, gi * W + gj, H * W), on_map
 
 
 class Footprint(NamedTuple):

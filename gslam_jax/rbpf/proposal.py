@@ -54,7 +54,7 @@ from gslam_jax.rbpf.importance import cell_noise, log_lambda
 from gslam_jax.rbpf.motion import MotionParams, apply_motion, motion_stds, world_step
 from gslam_jax.rbpf.types import FilterConfig, FilterParams, FilterState, Observation
 
-__all__ = ["Draw", "Score", "Exponent", "propagate_mean", "motion_covariance_step",
+__all__ = ["Draw", "Score", "Exponent", "propagate_mean", "motion_covariance_step", "prior_factor",
            "candidate_grid", "candidate_window", "WINDOW_BYTES", "thin_observation",
            "score_candidates", "candidate_scorer", "update_exponent", "fit_proposal", "draw",
            "quadratic_design", "quadratic_hessian", "JITTER", "Proposal", "move_by_motion",
@@ -102,7 +102,7 @@ def candidate_grid(points: int, span: float) -> tuple[Array, float]:
     return g[order], 2.0 * span / (points - 1)
 
 
-def _factor(cov: Array) -> Array:
+def prior_factor(cov: Array) -> Array:
     """Lower Cholesky factor [J, 3, 3] of the prior covariance with the JITTER floor."""
     return jnp.linalg.cholesky(cov + jnp.diag(jnp.asarray(JITTER, cov.dtype)))
 
@@ -319,7 +319,7 @@ def draw(store: maps.Maps, mean: Array, cov: Array, z: Array,
 
     With ``cfg.proposal_points == 1`` no candidate is scored: the proposal is the prior
     N(m_j, P_j), the correction is exactly 0 and phi is left to the update (NaN here)."""
-    chol = _factor(cov)
+    chol = prior_factor(cov)
     J = mean.shape[0]
     if cfg.proposal_points == 1:
         return Draw(mean + jnp.einsum("jab,jb->ja", chol, z), jnp.zeros(J, mean.dtype),

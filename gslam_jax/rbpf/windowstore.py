@@ -16,7 +16,7 @@ so memory is J x (C^2 + path) plus the local maps, whatever the area. After each
 (``finish_update``) the window moves towards the particle (at most ``step`` cells per axis);
 the cells that enter it are zeroed and refilled by replaying, in update order, the past local
 maps whose footprint box meets them, from the particle's pose at each, with the scatter the
-update used (``footprint.observation_cells``): the same additions in the same order as the
+update used (``placement.observation_cells``): the same additions in the same order as the
 dense map's, so the values are the dense store's. The update's reads and writes must fall in
 the window: C = 2 (reach + step) holds a footprint from anywhere within ``step`` cells of the
 window's centre; a written cell outside it sets ``MISSED`` (an error on the host).
@@ -35,7 +35,7 @@ import jax.numpy as jnp
 from jax import Array, lax
 
 from gslam_jax.rbpf.densestore import gather_particles
-from gslam_jax.rbpf.footprint import observation_cells
+from gslam_jax.rbpf.placement import observation_cells
 from gslam_jax.rbpf.types import FilterConfig, Observation
 
 __all__ = ["WindowMaps", "MISSED", "HISTORY_FULL", "REFILL_OVERFLOW", "UNSET", "side",
