@@ -11,8 +11,8 @@ import sys
 
 import numpy as np
 import pytest
-from scipy.special import gammaln
 from synthetic import make_run
+from reference_maps import expected_std
 
 from gslam_jax.app.cli import main
 from gslam_jax.app.geotiff import geotiff_transform
@@ -35,13 +35,6 @@ def gps_run(run_file):
     assert main(["run", str(run_file), "--set", "filter.particles=8", "--gps", "sim",
                  "--out", str(out)]) == 0
     return out
-
-
-def _expected_std(k: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """E[h^-1/2] for h ~ Gamma(k/2, rate S/2) (k > 1), sqrt(S/k) for 0 < k <= 1, NaN else."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        bayes = np.sqrt(S / 2) * np.exp(gammaln((k - 1) / 2) - gammaln(k / 2))
-        return np.where(k > 1, bayes, np.where(k > 0, np.sqrt(S / k), np.nan))
 
 
 def test_transform_and_crs_agree_with_gps_alignment(gps_run):
@@ -78,7 +71,7 @@ def test_transform_and_crs_agree_with_gps_alignment(gps_run):
             centre = R @ np.array([x0 + (i + 0.5) * res, y0 + (j + 0.5) * res]) + shift + site
             row, col = ds.index(*centre)
             assert (row, col) == (ny - 1 - j, i)
-    std = _expected_std(k, S)
+    std = expected_std(k, S)
     want_std = np.where(k > 0, std, -9999.0)[:, ::-1].T
     np.testing.assert_allclose(std_band, want_std, rtol=1e-4)  # the map's std is float32
     np.testing.assert_array_equal(k_band, np.where(k > 0, k, -9999.0)[:, ::-1].T)

@@ -9,8 +9,8 @@ import json
 
 import numpy as np
 import pytest
-from scipy.special import gammaln
 from synthetic import make_run
+from reference_maps import expected_std
 
 from gslam_jax.app import occupancy, plots
 from gslam_jax.app.cli import main
@@ -26,13 +26,6 @@ def gps_run(tmp_path_factory):
     assert main(["run", str(folder / "r.npz"), "--set", "filter.particles=8", "--gps", "sim",
                  "--out", str(out)]) == 0
     return out
-
-
-def _expected_std(k: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """E[h^-1/2] for h ~ Gamma(k/2, rate S/2) (k > 1), sqrt(S/k) for 0 < k <= 1, NaN else."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        bayes = np.sqrt(S / 2) * np.exp(gammaln((k - 1) / 2) - gammaln(k / 2))
-        return np.where(k > 1, bayes, np.where(k > 0, np.sqrt(S / k), np.nan))
 
 
 # -- north-up GeoTIFF -------------------------------------------------------------------------
@@ -173,7 +166,7 @@ def test_a_runs_occupancy_grid_is_its_map(gps_run):
     assert meta["origin"][:2] == pytest.approx([x0, y0])
     width, height, _, pixels = _read_pgm(gps_run / "map_occupancy.pgm")
     assert (width, height) == k.shape
-    std = _expected_std(k, S)
+    std = expected_std(k, S)
     # the float32 map's std against float64 here: cells within rounding of the threshold aside
     clear = ~np.isfinite(std) | (np.abs(std - occupancy.ROUGH_STD_M) > 1e-5)
     want = np.where(np.isnan(std), -1, np.where(std > occupancy.ROUGH_STD_M, 100, 0))
