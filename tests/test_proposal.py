@@ -175,7 +175,7 @@ def test_candidate_scores_match_brute_force_eq_26(stride):
     cfg = cfg._replace(proposal_cell_stride=stride)
     params = FilterParams()
     obs = compact_observation(local, cfg)
-    chol = proposal._factor(state.prior_cov)
+    chol = proposal.prior_factor(state.prior_cov)
     grid, _ = proposal.candidate_grid(3, 2.0)
     g = jnp.broadcast_to(grid, (cfg.num_particles,) + grid.shape)
     got = np.asarray(proposal.score_candidates(state.maps, state.pose, chol, g,
@@ -204,7 +204,7 @@ def test_one_candidate_reduces_to_the_motion_proposals_update():
     params = kernel.FilterParams()
     informed, info_i = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params,
                                      cfg, z)
-    drawn = state.pose + jnp.einsum("jab,jb->ja", proposal._factor(state.prior_cov), z)
+    drawn = state.pose + jnp.einsum("jab,jb->ja", proposal.prior_factor(state.prior_cov), z)
     motion_cfg = cfg._replace(proposal="motion")
     moved = state._replace(pose=drawn, prior_cov=None)
     plain, info_m = kernel.update(moved, local, jnp.zeros((cfg.num_particles, 0)), params,
@@ -256,7 +256,7 @@ def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
     params = kernel.FilterParams()
     _, info = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
     grid, _ = proposal.candidate_grid(3, 2.0)
-    chol = np.asarray(proposal._factor(state.prior_cov))
+    chol = np.asarray(proposal.prior_factor(state.prior_cov))
     poses = np.asarray(state.pose)[:, None, :] + np.einsum("jab,kb->jka", chol, np.asarray(grid))
     lam = np.array([[_brute_log_lambda(p.astype(np.float64), np.asarray(local), k, S, cfg,
                                        float(params.beta_prev)) for p in row] for row in poses])
@@ -298,7 +298,7 @@ def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std, win
     store_ = maps.init(cfg, (jnp.asarray(k), jnp.asarray(S)))
     J = cfg.num_particles
     var = jnp.asarray([prior_std ** 2, prior_std ** 2, 0.002], jnp.float32)
-    chol = proposal._factor(jnp.broadcast_to(jnp.diag(var), (J, 3, 3)))
+    chol = proposal.prior_factor(jnp.broadcast_to(jnp.diag(var), (J, 3, 3)))
     grid, _ = proposal.candidate_grid(3, 2.0)
     g = jnp.broadcast_to(grid, (J,) + grid.shape)
     u = jax.random.uniform(jax.random.key(5), (J, cfg.unknown_samples))
