@@ -36,11 +36,12 @@ WINDOW_TILE = 16  # [map] tile of the window store: cells it may move between lo
 
 def _config(store: str, J: int):
     from gslam_jax.config import layered_config
+    from gslam_jax.sim.courses import COURSES
 
     extra = [f"map.tile={WINDOW_TILE}"] if store == "window" else []
     return layered_config(Path("configs/table1.toml"), "arroyo-a",
                           SETTINGS + extra + [f"map.store={store}", f"filter.particles={J}",
-                                              "filter.seed=0"])
+                                              "filter.seed=0"], courses=COURSES)
 
 
 def cached_run(cache: Path):

@@ -28,10 +28,10 @@ def _config(store: str, J: int = 8, history: int = 0, **kw) -> rbpf.FilterConfig
 
 
 def _loop_run(rng: np.random.Generator, updates: int = 88):
-    """A square loop of side 9 m from (4, 4) m driven twice round (so the second lap revisits
-    what the first mapped), a local map every 0.5 m of travel and a frame between; controls in
+    """A square loop of side 13 m from (4, 4) m driven twice round (so the second lap revisits
+    what the first mapped), a local map every 0.72 m of travel and a frame between; controls in
     the robot frame, local maps of random cells (k in 0..6)."""
-    corners = np.array([[4.0, 4.0], [13.0, 4.0], [13.0, 13.0], [4.0, 13.0]])
+    corners = np.array([[4.0, 4.0], [17.0, 4.0], [17.0, 17.0], [4.0, 17.0]])
     pts = []
     for lap in range(2):
         for c in range(4):
@@ -137,7 +137,7 @@ def test_memory_is_known_before_the_run_and_refused_with_the_figure():
     assert cfg.pool_tiles == 500
     C = windowstore.side(cfg)
     need = maps.map_bytes(cfg)
-    assert need == 1000 * (C * C * 8 + 8 + 500 * 12) + 500 * (L * L * 12 + 4) + 8
+    assert need == 1000 * (C * C * 8 + 8 + 500 * 12) + 500 * (L * L * 12 + 4 + 16) + 8
     maps.check_memory(cfg, need)
     with pytest.raises(ConfigError, match=f"{need / 2**30:.2f} GiB"):
         maps.check_memory(cfg, need - 1)

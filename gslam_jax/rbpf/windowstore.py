@@ -12,14 +12,16 @@ memory is J x the area; this store keeps
   (i, j) lives in slot (i mod C, j mod C) while it lies in the particle's window
   [origin, origin + C)^2. Every cell in the window holds the particle's full sum.
 
-so memory is J x (C^2 + path) plus the local maps, whatever the area. After each update
-(``finish_update``) the window moves towards the particle (at most ``step`` cells per axis);
-the cells that enter it are zeroed and refilled by replaying, in update order, the past local
-maps whose footprint box meets them, from the particle's pose at each, with the scatter the
-update used (``placement.observation_cells``): the same additions in the same order as the
-dense map's, so the values are the dense store's. The update's reads and writes must fall in
-the window: C = 2 (reach + step) holds a footprint from anywhere within ``step`` cells of the
-window's centre; a written cell outside it sets ``MISSED`` (an error on the host).
+so memory is J x (C^2 + path) plus the local maps, whatever the area. A window holds the
+footprint of a particle within ``step`` cells of its safe range (``_safe``), which is 2 step
+cells wide; after each update (``finish_update``) the windows of the particles that left it
+move (``_move``: in jumps of at least a step, so most updates move few windows, and only
+those are visited), and the cells that enter them are zeroed and refilled by replaying, in
+update order, the past local maps whose box of written cells meets them, from the particle's
+pose at each, with the placement the update used (``placement.observation_cells``): the same
+additions in the same order as the dense map's, so the values are the dense store's. A
+written cell outside the window (a particle that moved more than ``step`` cells) sets
+``MISSED`` (an error on the host).
 
 Only eq. 30 (``unknown_cells = "ignore"``) and maps that start empty: eq. 31 draws known
 cells uniformly from the whole map, which this store does not hold (``rbpf.maps`` refuses
@@ -59,15 +61,16 @@ class WindowMaps(NamedTuple):
     obs_k: Array      # [U, M] float32 its k (0: padding)
     obs_S: Array      # [U, M] float32 its S
     obs_heading: Array  # [U] float32 the local map's lattice heading
+    obs_box: Array    # [U, 4] float32 the box of its written cells (``_extent``)
     count: Array      # [] int32 updates recorded
     status: Array     # [] int32 sticky error bits (MISSED | HISTORY_FULL | REFILL_OVERFLOW)
 
 
 def side(cfg: FilterConfig) -> int:
-    """C: window side in cells, 2 (reach + step) rounded up to a multiple of 8, where ``step``
-    (``cfg.tile``) is how far the particle may move between updates before its footprint
-    leaves the window."""
-    return -(-2 * (cfg.reach + cfg.tile) // 8) * 8
+    """C: window side in cells, 2 (reach + step) + slack rounded up to a multiple of 8, where
+    ``step`` (``cfg.tile``) is how far the particle may move between updates, and the slack
+    (2 step) how far it may drift before its window moves (``_move``)."""
+    return -(-(2 * (cfg.reach + cfg.tile) + 2 * cfg.tile) // 8) * 8
 
 
 def history(cfg: FilterConfig) -> int:
@@ -86,14 +89,16 @@ def init(cfg: FilterConfig) -> WindowMaps:
                       path=jnp.zeros((J, U, 3), jnp.float32),
                       obs_index=jnp.zeros((U, M), jnp.int32),
                       obs_k=jnp.zeros((U, M), jnp.float32), obs_S=jnp.zeros((U, M), jnp.float32),
-                      obs_heading=jnp.zeros((U,), jnp.float32), count=jnp.int32(0),
+                      obs_heading=jnp.zeros((U,), jnp.float32),
+                      obs_box=jnp.zeros((U, 4), jnp.float32), count=jnp.int32(0),
                       status=jnp.int32(0))
 
 
 def nbytes(cfg: FilterConfig) -> int:
-    """Bytes ``init`` allocates: J windows of k and S, J paths of U poses, U local maps."""
+    """Bytes ``init`` allocates: J windows of k and S, J paths of U poses, U local maps (their
+    cells, heading and box)."""
     J, C, U, M = cfg.num_particles, side(cfg), history(cfg), cfg.max_observed
-    return J * (C * C * 8 + 8 + U * 12) + U * (M * 12 + 4) + 8
+    return J * (C * C * 8 + 8 + U * 12) + U * (M * 12 + 20) + 8
 
 
 def _slots(store: WindowMaps, rows: Array, cells_: Array, width: int
@@ -160,8 +165,10 @@ def write(store: WindowMaps, rows: Array, cells_: Array, k: Array, S: Array,
                           status=store.status | jnp.where(missed, MISSED, 0))
 
 
-def _record(store: WindowMaps, pose: Array, obs: Observation) -> WindowMaps:
-    """The update just written appended to the history: its local map and every pose."""
+def _record(store: WindowMaps, pose: Array, obs: Observation, cfg: FilterConfig
+            ) -> WindowMaps:
+    """The update just written appended to the history: its local map (and the box of its
+    written cells, ``_extent``) and every pose."""
     U = store.obs_k.shape[0]
     u = jnp.minimum(store.count, U - 1)
     full = store.count >= U
@@ -171,6 +178,7 @@ def _record(store: WindowMaps, pose: Array, obs: Observation) -> WindowMaps:
         obs_index=store.obs_index.at[u].set(keep(obs.index, store.obs_index[u])),
         obs_k=store.obs_k.at[u].set(keep(obs.k, store.obs_k[u])),
         obs_S=store.obs_S.at[u].set(keep(obs.S, store.obs_S[u])),
+        obs_box=store.obs_box.at[u].set(keep(_extent(obs, cfg.local_size), store.obs_box[u])),
         obs_heading=store.obs_heading.at[u].set(
             keep(jnp.asarray(obs.lattice_heading, jnp.float32), store.obs_heading[u])),
         count=jnp.minimum(store.count + 1, U),
@@ -182,118 +190,191 @@ def _entered(old: Array, new: Array, C: int) -> tuple[Array, Array]:
     return jnp.where(new > old, old + C, new), jnp.where(new > old, new + C, old)
 
 
-def _zero_band(x: Array, lo: Array, hi: Array, step: int, axis: int) -> Array:
-    """x [C, C] with the slots of global rows (axis 0) or columns (axis 1) [lo, hi) zeroed
-    (hi - lo <= step)."""
-    C = x.shape[0]
-    t = jnp.arange(step)
-    idx = (lo + t) % C
-    keep = (t >= hi - lo)[:, None] if axis == 0 else (t >= hi - lo)[None, :]
-    if axis == 0:
-        return x.at[idx].set(jnp.where(keep, x[idx], 0.0))
-    return x.at[:, idx].set(jnp.where(keep, x[:, idx], 0.0))
-
-
 class _Move(NamedTuple):
-    """One particle's window move: the new origin, and the rows and columns it takes in."""
+    """Windows' moves: the new origins, and the rows and columns each takes in."""
 
-    origin: Array  # [2]
-    rows: Array    # [2] [lo, hi)
-    cols: Array    # [2] [lo, hi)
+    origin: Array  # [..., 2]
+    rows: Array    # [..., 2] [lo, hi)
+    cols: Array    # [..., 2] [lo, hi)
 
 
-def _move(origin: Array, pose: Array, C: int, step: int, cfg: FilterConfig) -> _Move:
-    """The window moved towards centring the particle's cell, at most ``step`` cells an axis."""
+def _safe(C: int, cfg: FilterConfig) -> tuple[int, int]:
+    """[lo, hi]: the particle's cell less its window's origin, per axis, from which a move of
+    up to ``step`` cells keeps the next footprint (``reach`` around it) in the window."""
+    return cfg.reach + cfg.tile, C - 1 - cfg.reach - cfg.tile
+
+
+def _jump(C: int, cfg: FilterConfig) -> int:
+    """The most cells a window moves an axis in one update: from a particle ``step`` cells past
+    one end of the safe range to a quarter of the range from the other (``_move``)."""
+    lo, hi = _safe(C, cfg)
+    return hi - lo + cfg.tile
+
+
+def _move(origin: Array, pose: Array, C: int, cfg: FilterConfig) -> _Move:
+    """The window of a particle that left its safe range (``_safe``) moved so that the
+    particle sits a quarter of the range from the end it left by (it has three quarters of
+    the range ahead before the window moves again); otherwise it stays. Moves are clipped to
+    ``_jump`` (a particle that moved more than ``step`` cells is reported by ``write``)."""
     cell = jnp.floor((pose[:2] - jnp.asarray(cfg.map_origin, jnp.float32))
                      / cfg.resolution)
     cell = jnp.clip(jnp.nan_to_num(cell), -2 ** 24, 2 ** 24).astype(jnp.int32)
-    target = cell - C // 2
-    new = jnp.where(origin == UNSET, origin, origin + jnp.clip(target - origin, -step, step))
+    lo, hi = _safe(C, cfg)
+    lead = (hi - lo) // 4
+    f = cell - origin
+    f_new = jnp.where(f > hi, lo + lead, jnp.where(f < lo, hi - lead, f))
+    jump = jnp.clip(f - f_new, -_jump(C, cfg), _jump(C, cfg))
+    new = jnp.where(origin == UNSET, origin, origin + jump)
     r0, r1 = _entered(origin[0], new[0], C)
     c0, c1 = _entered(origin[1], new[1], C)
     return _Move(new, jnp.stack([r0, r1]), jnp.stack([c0, c1]))
 
 
-def _hits(path: Array, count: Array, mv: _Move, C: int, cfg: FilterConfig) -> Array:
-    """[U] past updates of one particle whose footprint box (its cell +- reach) meets the cells
-    its window takes in."""
+def _extent(obs: Observation, L: int) -> Array:
+    """[4] float32 the box (a_lo, a_hi, b_lo, b_hi) of the centres of a local map's written
+    cells (k or S nonzero), in cells from the local map's centre, as ``observation_cells``
+    places them; a_lo > a_hi when it wrote nothing."""
+    used = (obs.k != 0) | (obs.S != 0)
+    ca = (obs.index // L).astype(jnp.float32) - (L // 2) + 0.5
+    cb = (obs.index % L).astype(jnp.float32) - (L // 2) + 0.5
+    big = jnp.float32(L)
+    return jnp.stack([jnp.min(jnp.where(used, ca, big)), jnp.max(jnp.where(used, ca, -big)),
+                      jnp.min(jnp.where(used, cb, big)), jnp.max(jnp.where(used, cb, -big))])
+
+
+def _hits(path: Array, count: Array, box: Array, heading: Array, mv: _Move, C: int,
+          cfg: FilterConfig) -> Array:
+    """[U] past updates of one particle whose footprint box meets the cells its window takes
+    in: the written cells' box (``_extent``) turned by the particle's heading there, its
+    bounding box in map cells widened by a cell for rounding (``observation_cells``' floor)."""
     U = path.shape[0]
-    cell = jnp.floor((path[:, :2] - jnp.asarray(cfg.map_origin, jnp.float32))
-                     / cfg.resolution)
-    cell = jnp.clip(jnp.nan_to_num(cell), -2 ** 24, 2 ** 24).astype(jnp.int32)
-    lo, hi = cell - cfg.reach, cell + cfg.reach + 1  # [U, 2] box [lo, hi)
+    px = (path[:, 0] - cfg.map_origin[0]) / cfg.resolution
+    py = (path[:, 1] - cfg.map_origin[1]) / cfg.resolution
+    t = path[:, 2] + heading
+    c, s = jnp.abs(jnp.cos(t)), jnp.abs(jnp.sin(t))
+    ma, mb = 0.5 * (box[:, 0] + box[:, 1]), 0.5 * (box[:, 2] + box[:, 3])
+    ha, hb = 0.5 * (box[:, 1] - box[:, 0]), 0.5 * (box[:, 3] - box[:, 2])
+    ci = px + jnp.cos(t) * ma - jnp.sin(t) * mb
+    cj = py + jnp.sin(t) * ma + jnp.cos(t) * mb
+    ei, ej = c * ha + s * hb, s * ha + c * hb
+
+    def cell(x):
+        return jnp.clip(jnp.nan_to_num(jnp.floor(x)), -2 ** 24, 2 ** 24).astype(jnp.int32)
+
+    lo_i, hi_i = cell(ci - ei) - 1, cell(ci + ei) + 2  # [lo, hi) map rows
+    lo_j, hi_j = cell(cj - ej) - 1, cell(cj + ej) + 2
     o = mv.origin
 
     def meets(a0, a1, b0, b1):
         return (a0 < b1) & (b0 < a1)
 
-    in_rows = meets(lo[:, 0], hi[:, 0], o[0], o[0] + C)
-    in_cols = meets(lo[:, 1], hi[:, 1], o[1], o[1] + C)
-    new_rows = meets(lo[:, 0], hi[:, 0], mv.rows[0], mv.rows[1]) & (mv.rows[1] > mv.rows[0])
-    new_cols = meets(lo[:, 1], hi[:, 1], mv.cols[0], mv.cols[1]) & (mv.cols[1] > mv.cols[0])
-    return (jnp.arange(U) < count) & ((new_rows & in_cols) | (new_cols & in_rows))
+    in_rows = meets(lo_i, hi_i, o[0], o[0] + C)
+    in_cols = meets(lo_j, hi_j, o[1], o[1] + C)
+    new_rows = meets(lo_i, hi_i, mv.rows[0], mv.rows[1]) & (mv.rows[1] > mv.rows[0])
+    new_cols = meets(lo_j, hi_j, mv.cols[0], mv.cols[1]) & (mv.cols[1] > mv.cols[0])
+    wrote = box[:, 0] <= box[:, 1]
+    return (jnp.arange(U) < count) & wrote & ((new_rows & in_cols) | (new_cols & in_rows))
 
 
-def _replay(k: Array, S: Array, pose: Array, index: Array, ok: Array, oS: Array,
-            heading: Array, mv: _Move, cfg: FilterConfig) -> tuple[Array, Array]:
-    """One past local map (its pose, cells and heading) added to the window k, S [C, C] at the
-    cells the window took in (``mv``), with the update's own scatter."""
-    C = k.shape[0]
-    H, W = cfg.map_shape
+def _zero_entered(x: Array, ids: Array, mv: _Move, width: int) -> Array:
+    """x [J, C, C] with the slots of the rows and columns that the windows of particles
+    ``ids`` [P] (J: none) take in (``mv``, at most ``width`` of each) zeroed."""
+    J, C = x.shape[0], x.shape[1]
+    t = jnp.arange(width)
+
+    def slots(band):  # [P, width] slots of global rows (or columns) [lo, hi); C: none
+        g = band[:, :1] + t
+        return jnp.where((g < band[:, 1:]) & (ids[:, None] < J), g % C, C)
+
+    rows = jnp.where(slots(mv.rows) < C, ids[:, None] * C + slots(mv.rows), J * C)
+    x = x.reshape(J * C, C).at[rows].set(0.0, mode="drop").reshape(J, C, C)
+    return x.at[ids[:, None], :, slots(mv.cols)].set(0.0, mode="drop")
+
+
+def _replay_slots(pose: Array, index: Array, mv: _Move, C: int, cfg: FilterConfig,
+                  heading: Array) -> Array:
+    """[M] window slot (C * C: none) of each cell of one past local map seen from ``pose``
+    that lands in the cells the window took in (``mv``), with the update's own placement."""
+    W = cfg.map_shape[1]
     flat, on_map = observation_cells(pose, index, cfg, heading)
     gi, gj = flat // W, flat % W
     o = mv.origin
     inside = (gi >= o[0]) & (gi < o[0] + C) & (gj >= o[1]) & (gj < o[1] + C)
     entered = (((gi >= mv.rows[0]) & (gi < mv.rows[1]))
                | ((gj >= mv.cols[0]) & (gj < mv.cols[1])))
-    use = on_map & inside & entered
-    slot = jnp.where(use, (gi % C) * C + gj % C, 0)
-
-    def put(x, v):
-        return x.reshape(-1).at[slot].add(jnp.where(use, v, 0.0),
-                                          mode="promise_in_bounds").reshape(C, C)
-
-    return put(k, ok), put(S, oS)
+    return jnp.where(on_map & inside & entered, (gi % C) * C + gj % C, C * C)
 
 
-def finish_update(store: WindowMaps, pose: Array, obs: Observation, cfg: FilterConfig,
-                  replays: int = 128) -> WindowMaps:
-    """After an update from ``pose`` [J, 3] with the local map ``obs`` wrote the maps: the
-    update recorded, every window moved towards its particle (``_move``), the cells it takes in
-    zeroed and refilled from the past local maps whose footprint meets them, in update order
-    (``_hits``, ``_replay``; the dense store's additions in its order). A particle whose new
-    cells meet more than ``replays`` past local maps sets ``REFILL_OVERFLOW``."""
-    C, step = store.k.shape[1], cfg.tile
-    store = _record(store, pose, obs)
-    moves = jax.vmap(lambda o, p: _move(o, p, C, step, cfg))(store.origin, pose)
-    k = jax.vmap(lambda x, m: _zero_band(_zero_band(x, m.rows[0], m.rows[1], step, 0),
-                                         m.cols[0], m.cols[1], step, 1))(store.k, moves)
-    S = jax.vmap(lambda x, m: _zero_band(_zero_band(x, m.rows[0], m.rows[1], step, 0),
-                                         m.cols[0], m.cols[1], step, 1))(store.S, moves)
+def _refill(store: WindowMaps, k: Array, S: Array, ids: Array, mv: _Move, cfg: FilterConfig,
+            R: int) -> tuple[Array, Array, Array]:
+    """k, S [J, C, C] with the cells that the windows of particles ``ids`` [P] (J: none) took
+    in refilled from the past local maps that meet them (``_hits``), each particle's in update
+    order with the update's own scatter: the dense store's additions in its order. Also
+    whether a particle met more than ``R`` of them."""
+    J, C = k.shape[0], k.shape[1]
     U = store.obs_k.shape[0]
-    R = min(replays, U)
-    hit = jax.vmap(lambda p, m: _hits(p, store.count, m, C, cfg))(store.path, moves)
+    live = ids < J
+    idc = jnp.minimum(ids, J - 1)
+    path = store.path[idc]
+    hit = jax.vmap(lambda p, m: _hits(p, store.count, store.obs_box, store.obs_heading, m, C,
+                                      cfg))(path, mv) & live[:, None]
     n_hits = jnp.sum(hit, axis=1)
-    which = jax.vmap(lambda h: jnp.nonzero(h, size=R, fill_value=U)[0])(hit)  # [J, R] in order
+    which = jax.vmap(lambda h: jnp.nonzero(h, size=R, fill_value=U)[0])(hit)  # [P, R] in order
 
     def one(r, kS):
         k, S = kS
         u = which[:, r]
         uc = jnp.minimum(u, U - 1)
-        live = u < U
-        p = jnp.take_along_axis(store.path, uc[:, None, None], axis=1)[:, 0]
-        zero = jnp.zeros_like(store.obs_k[0])
+        pose = jnp.take_along_axis(path, uc[:, None, None], axis=1)[:, 0]
+        slot = jax.vmap(lambda p, u1, m: _replay_slots(p, store.obs_index[u1], m, C, cfg,
+                                                       store.obs_heading[u1]))(pose, uc, mv)
+        use = (slot < C * C) & (u < U)[:, None]
+        flat = jnp.where(use, ids[:, None] * (C * C) + slot, J * C * C).reshape(-1)
 
-        def rep(k1, S1, p1, u1, l1, m1):
-            ok = jnp.where(l1, store.obs_k[u1], zero)
-            oS = jnp.where(l1, store.obs_S[u1], zero)
-            return _replay(k1, S1, p1, store.obs_index[u1], ok, oS, store.obs_heading[u1], m1,
-                           cfg)
+        def put(x, v):
+            return x.reshape(-1).at[flat].add(v.reshape(-1), mode="drop").reshape(x.shape)
 
-        return jax.vmap(rep)(k, S, p, uc, live, moves)
+        return put(k, store.obs_k[uc]), put(S, store.obs_S[uc])
 
     k, S = lax.fori_loop(0, jnp.minimum(jnp.max(n_hits), R), one, (k, S))
-    overflow = jnp.any(n_hits > R)
+    return k, S, jnp.any(n_hits > R)
+
+
+def chunk(J: int) -> int:
+    """Particles whose windows move handled per pass of ``finish_update``."""
+    return max(1, -(-J // 8))
+
+
+def finish_update(store: WindowMaps, pose: Array, obs: Observation, cfg: FilterConfig,
+                  replays: int = 128) -> WindowMaps:
+    """After an update from ``pose`` [J, 3] with the local map ``obs`` wrote the maps: the
+    update recorded; the windows of the particles that left their safe range moved
+    (``_move``), the cells they take in zeroed and refilled from the past local maps whose
+    footprint meets them, in update order (``_refill``; the dense store's additions in its
+    order). Only the particles whose windows move are visited, ``chunk(J)`` at a time. A
+    particle whose new cells meet more than ``replays`` past local maps sets
+    ``REFILL_OVERFLOW``."""
+    J, C = store.k.shape[0], store.k.shape[1]
+    store = _record(store, pose, obs, cfg)
+    moves = jax.vmap(lambda o, p: _move(o, p, C, cfg))(store.origin, pose)
+    moved = jnp.any(moves.origin != store.origin, axis=1)
+    P = chunk(J)
+    n_chunks = -(-J // P)
+    order = jnp.nonzero(moved, size=n_chunks * P, fill_value=J)[0]  # movers first, then J
+    R = min(replays, store.obs_k.shape[0])
+
+    def one(c, carry):
+        k, S, overflow = carry
+        ids = lax.dynamic_slice(order, (c * P,), (P,))
+        mv = jax.tree_util.tree_map(lambda x: x[jnp.minimum(ids, J - 1)], moves)
+        k = _zero_entered(k, ids, mv, _jump(C, cfg))
+        S = _zero_entered(S, ids, mv, _jump(C, cfg))
+        k, S, over = _refill(store, k, S, ids, mv, cfg, R)
+        return k, S, overflow | over
+
+    n_moved = jnp.sum(moved)
+    k, S, overflow = lax.fori_loop(0, (n_moved + P - 1) // P, one,
+                                   (store.k, store.S, jnp.bool_(False)))
     return store._replace(k=k, S=S, origin=moves.origin,
                           status=store.status | jnp.where(overflow, REFILL_OVERFLOW, 0))
 
