@@ -75,9 +75,9 @@ def point(store: str, J: int, frames: int, cache: Path) -> dict:
 
     import numpy as np
 
-    from gslam_jax import slam
+    from gslam_jax.driver import slam
     from gslam_jax.config import apply_overrides
-    from gslam_jax.relocalise import run_prefix
+    from gslam_jax.gridmap.relocalise import run_prefix
 
     run, margin = cached_run(cache)
     if frames:
@@ -93,7 +93,7 @@ def point(store: str, J: int, frames: int, cache: Path) -> dict:
             "map_alloc_MB": res.map_bytes / 2 ** 20,
             "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             "resamplings": int(np.sum(res.resampled)),
-            "best_path_end": np.asarray(res.best_path)[-1].tolist()}
+            "best_path_end": np.asarray(res.best_pose)[-1].tolist()}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         store, J, frames = args.point
         print(json.dumps(point(store, int(J), int(frames), args.cache)))
         return 0
-    from gslam_jax.machine import environment
+    from gslam_jax.driver.machine import environment
 
     env = environment()
     print(f"# {env['date']} | {env.get('cpu', '')} | {env['cpus']} cpus | jax {env['jax']}",
