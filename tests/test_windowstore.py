@@ -137,7 +137,7 @@ def test_memory_is_known_before_the_run_and_refused_with_the_figure():
     assert cfg.pool_tiles == 500
     C = windowstore.side(cfg)
     need = maps.map_bytes(cfg)
-    assert need == 1000 * (C * C * 8 + 8 + 500 * 12) + 500 * (L * L * 12 + 4 + 16) + 8
+    assert need == 1000 * (C * C * 8 + 8 + 500 * 12) + 500 * (L * L * 12 + 4 + windowstore.groups(L * L) * 16) + 8
     maps.check_memory(cfg, need)
     with pytest.raises(ConfigError, match=f"{need / 2**30:.2f} GiB"):
         maps.check_memory(cfg, need - 1)

@@ -61,7 +61,7 @@ class WindowMaps(NamedTuple):
     obs_k: Array      # [U, M] float32 its k (0: padding)
     obs_S: Array      # [U, M] float32 its S
     obs_heading: Array  # [U] float32 the local map's lattice heading
-    obs_box: Array    # [U, 4] float32 the box of its written cells (``_extent``)
+    obs_box: Array    # [U, G, 4] float32 the box of the written cells of each group (``_extent``)
     count: Array      # [] int32 updates recorded
     status: Array     # [] int32 sticky error bits (MISSED | HISTORY_FULL | REFILL_OVERFLOW)
 
@@ -71,6 +71,12 @@ def side(cfg: FilterConfig) -> int:
     ``step`` (``cfg.tile``) is how far the particle may move between updates, and the slack
     (2 step) how far it may drift before its window moves (``_move``)."""
     return -(-(2 * (cfg.reach + cfg.tile) + 2 * cfg.tile) // 8) * 8
+
+
+def groups(M: int) -> int:
+    """G: the groups of consecutive observed cells (local rows, in the local map's row-major
+    order) a local map is replayed by: the most of 16, 8, 4, 2 that divides M, else 1."""
+    return next(g for g in (16, 8, 4, 2, 1) if M % g == 0)
 
 
 def history(cfg: FilterConfig) -> int:
@@ -90,15 +96,15 @@ def init(cfg: FilterConfig) -> WindowMaps:
                       obs_index=jnp.zeros((U, M), jnp.int32),
                       obs_k=jnp.zeros((U, M), jnp.float32), obs_S=jnp.zeros((U, M), jnp.float32),
                       obs_heading=jnp.zeros((U,), jnp.float32),
-                      obs_box=jnp.zeros((U, 4), jnp.float32), count=jnp.int32(0),
+                      obs_box=jnp.zeros((U, groups(M), 4), jnp.float32), count=jnp.int32(0),
                       status=jnp.int32(0))
 
 
 def nbytes(cfg: FilterConfig) -> int:
     """Bytes ``init`` allocates: J windows of k and S, J paths of U poses, U local maps (their
-    cells, heading and box)."""
+    cells, heading and groups' boxes)."""
     J, C, U, M = cfg.num_particles, side(cfg), history(cfg), cfg.max_observed
-    return J * (C * C * 8 + 8 + U * 12) + U * (M * 12 + 20) + 8
+    return J * (C * C * 8 + 8 + U * 12) + U * (M * 12 + 4 + groups(M) * 16) + 8
 
 
 def _slots(store: WindowMaps, rows: Array, cells_: Array, width: int
@@ -168,7 +174,7 @@ def write(store: WindowMaps, rows: Array, cells_: Array, k: Array, S: Array,
 def _record(store: WindowMaps, pose: Array, obs: Observation, cfg: FilterConfig
             ) -> WindowMaps:
     """The update just written appended to the history: its local map (and the box of its
-    written cells, ``_extent``) and every pose."""
+    written cells' groups, ``_extent``) and every pose."""
     U = store.obs_k.shape[0]
     u = jnp.minimum(store.count, U - 1)
     full = store.count >= U
@@ -178,7 +184,9 @@ def _record(store: WindowMaps, pose: Array, obs: Observation, cfg: FilterConfig
         obs_index=store.obs_index.at[u].set(keep(obs.index, store.obs_index[u])),
         obs_k=store.obs_k.at[u].set(keep(obs.k, store.obs_k[u])),
         obs_S=store.obs_S.at[u].set(keep(obs.S, store.obs_S[u])),
-        obs_box=store.obs_box.at[u].set(keep(_extent(obs, cfg.local_size), store.obs_box[u])),
+        obs_box=store.obs_box.at[u].set(keep(_extent(obs, cfg.local_size,
+                                                     store.obs_box.shape[1]),
+                                             store.obs_box[u])),
         obs_heading=store.obs_heading.at[u].set(
             keep(jnp.asarray(obs.lattice_heading, jnp.float32), store.obs_heading[u])),
         count=jnp.minimum(store.count + 1, U),
@@ -230,33 +238,37 @@ def _move(origin: Array, pose: Array, C: int, cfg: FilterConfig) -> _Move:
     return _Move(new, jnp.stack([r0, r1]), jnp.stack([c0, c1]))
 
 
-def _extent(obs: Observation, L: int) -> Array:
-    """[4] float32 the box (a_lo, a_hi, b_lo, b_hi) of the centres of a local map's written
-    cells (k or S nonzero), in cells from the local map's centre, as ``observation_cells``
-    places them; a_lo > a_hi when it wrote nothing."""
-    used = (obs.k != 0) | (obs.S != 0)
-    ca = (obs.index // L).astype(jnp.float32) - (L // 2) + 0.5
-    cb = (obs.index % L).astype(jnp.float32) - (L // 2) + 0.5
+def _extent(obs: Observation, L: int, G: int) -> Array:
+    """[G, 4] float32 for each of G groups of a local map's consecutive observed cells, the box
+    (a_lo, a_hi, b_lo, b_hi) of the centres of its written cells (k or S nonzero), in cells
+    from the local map's centre, as ``observation_cells`` places them; a_lo > a_hi where the
+    group wrote nothing."""
+    used = ((obs.k != 0) | (obs.S != 0)).reshape(G, -1)
+    index = obs.index.reshape(G, -1)
+    ca = (index // L).astype(jnp.float32) - (L // 2) + 0.5
+    cb = (index % L).astype(jnp.float32) - (L // 2) + 0.5
     big = jnp.float32(L)
-    return jnp.stack([jnp.min(jnp.where(used, ca, big)), jnp.max(jnp.where(used, ca, -big)),
-                      jnp.min(jnp.where(used, cb, big)), jnp.max(jnp.where(used, cb, -big))])
+    return jnp.stack([jnp.min(jnp.where(used, ca, big), axis=1),
+                      jnp.max(jnp.where(used, ca, -big), axis=1),
+                      jnp.min(jnp.where(used, cb, big), axis=1),
+                      jnp.max(jnp.where(used, cb, -big), axis=1)], axis=1)
 
 
 def _hits(path: Array, count: Array, box: Array, heading: Array, mv: _Move, C: int,
           cfg: FilterConfig) -> Array:
-    """[U] past updates of one particle whose footprint box meets the cells its window takes
-    in: the written cells' box (``_extent``) turned by the particle's heading there, its
-    bounding box in map cells widened by a cell for rounding (``observation_cells``' floor)."""
+    """[U, G] the groups of the past local maps of one particle whose written cells may land in
+    the cells its window takes in: each group's box of written cells (``_extent``) turned by
+    the particle's heading at that update, its bounding box in map cells widened by a cell
+    for rounding (``observation_cells``' floor), against the window and the entering band."""
     U = path.shape[0]
-    px = (path[:, 0] - cfg.map_origin[0]) / cfg.resolution
-    py = (path[:, 1] - cfg.map_origin[1]) / cfg.resolution
-    t = path[:, 2] + heading
-    c, s = jnp.abs(jnp.cos(t)), jnp.abs(jnp.sin(t))
-    ma, mb = 0.5 * (box[:, 0] + box[:, 1]), 0.5 * (box[:, 2] + box[:, 3])
-    ha, hb = 0.5 * (box[:, 1] - box[:, 0]), 0.5 * (box[:, 3] - box[:, 2])
-    ci = px + jnp.cos(t) * ma - jnp.sin(t) * mb
-    cj = py + jnp.sin(t) * ma + jnp.cos(t) * mb
-    ei, ej = c * ha + s * hb, s * ha + c * hb
+    px = ((path[:, 0] - cfg.map_origin[0]) / cfg.resolution)[:, None]
+    py = ((path[:, 1] - cfg.map_origin[1]) / cfg.resolution)[:, None]
+    t = (path[:, 2] + heading)[:, None]
+    c, s = jnp.cos(t), jnp.sin(t)
+    ma, mb = 0.5 * (box[..., 0] + box[..., 1]), 0.5 * (box[..., 2] + box[..., 3])
+    ha, hb = 0.5 * (box[..., 1] - box[..., 0]), 0.5 * (box[..., 3] - box[..., 2])
+    ci, cj = px + c * ma - s * mb, py + s * ma + c * mb
+    ei, ej = jnp.abs(c) * ha + jnp.abs(s) * hb, jnp.abs(s) * ha + jnp.abs(c) * hb
 
     def cell(x):
         return jnp.clip(jnp.nan_to_num(jnp.floor(x)), -2 ** 24, 2 ** 24).astype(jnp.int32)
@@ -272,8 +284,9 @@ def _hits(path: Array, count: Array, box: Array, heading: Array, mv: _Move, C: i
     in_cols = meets(lo_j, hi_j, o[1], o[1] + C)
     new_rows = meets(lo_i, hi_i, mv.rows[0], mv.rows[1]) & (mv.rows[1] > mv.rows[0])
     new_cols = meets(lo_j, hi_j, mv.cols[0], mv.cols[1]) & (mv.cols[1] > mv.cols[0])
-    wrote = box[:, 0] <= box[:, 1]
-    return (jnp.arange(U) < count) & wrote & ((new_rows & in_cols) | (new_cols & in_rows))
+    wrote = box[..., 0] <= box[..., 1]
+    recorded = (jnp.arange(U) < count)[:, None]
+    return recorded & wrote & ((new_rows & in_cols) | (new_cols & in_rows))
 
 
 def _zero_entered(x: Array, ids: Array, mv: _Move, width: int) -> Array:
@@ -293,8 +306,9 @@ def _zero_entered(x: Array, ids: Array, mv: _Move, width: int) -> Array:
 
 def _replay_slots(pose: Array, index: Array, mv: _Move, C: int, cfg: FilterConfig,
                   heading: Array) -> Array:
-    """[M] window slot (C * C: none) of each cell of one past local map seen from ``pose``
-    that lands in the cells the window took in (``mv``), with the update's own placement."""
+    """Window slot (C * C: none) of each of the cells ``index`` of a past local map seen from
+    ``pose`` that lands in the cells the window took in (``mv``), placed as the update placed
+    them."""
     W = cfg.map_shape[1]
     flat, on_map = observation_cells(pose, index, cfg, heading)
     gi, gj = flat // W, flat % W
@@ -308,36 +322,50 @@ def _replay_slots(pose: Array, index: Array, mv: _Move, C: int, cfg: FilterConfi
 def _refill(store: WindowMaps, k: Array, S: Array, ids: Array, mv: _Move, cfg: FilterConfig,
             R: int) -> tuple[Array, Array, Array]:
     """k, S [J, C, C] with the cells that the windows of particles ``ids`` [P] (J: none) took
-    in refilled from the past local maps that meet them (``_hits``), each particle's in update
-    order with the update's own scatter: the dense store's additions in its order. Also
-    whether a particle met more than ``R`` of them."""
+    in refilled from the groups of past local maps that may land there (``_hits``), each
+    particle's in update order and within an update in cell order, with the update's own
+    placement: the dense store's additions in its order. G groups are replayed per particle
+    per pass. Also whether a particle met more than ``R`` past local maps."""
     J, C = k.shape[0], k.shape[1]
-    U = store.obs_k.shape[0]
+    U, G = store.obs_box.shape[:2]
+    n = store.obs_k.shape[1] // G
     live = ids < J
     idc = jnp.minimum(ids, J - 1)
     path = store.path[idc]
     hit = jax.vmap(lambda p, m: _hits(p, store.count, store.obs_box, store.obs_heading, m, C,
-                                      cfg))(path, mv) & live[:, None]
-    n_hits = jnp.sum(hit, axis=1)
-    which = jax.vmap(lambda h: jnp.nonzero(h, size=R, fill_value=U)[0])(hit)  # [P, R] in order
+                                      cfg))(path, mv) & live[:, None, None]  # [P, U, G]
+    maps_hit = jnp.any(hit, axis=2)
+    n_maps = jnp.sum(maps_hit, axis=1)
+    which = jax.vmap(lambda h: jnp.nonzero(h, size=R, fill_value=U)[0])(maps_hit)  # [P, R]
+    pair_hit = jnp.take_along_axis(hit, jnp.minimum(which, U - 1)[:, :, None], axis=1)
+    pair_hit = (pair_hit & (which < U)[:, :, None]).reshape(-1, R * G)
+    pairs = jax.vmap(lambda h: jnp.nonzero(h, size=R * G, fill_value=R * G)[0])(pair_hit)
+    n_pairs = jnp.sum(pair_hit, axis=1)
+    pairs = jnp.concatenate([pairs, jnp.full((pairs.shape[0], G), R * G, pairs.dtype)], 1)
+    index = store.obs_index.reshape(U, G, n)
+    ok, oS = store.obs_k.reshape(U, G, n), store.obs_S.reshape(U, G, n)
 
     def one(r, kS):
         k, S = kS
-        u = which[:, r]
-        uc = jnp.minimum(u, U - 1)
-        pose = jnp.take_along_axis(path, uc[:, None, None], axis=1)[:, 0]
-        slot = jax.vmap(lambda p, u1, m: _replay_slots(p, store.obs_index[u1], m, C, cfg,
-                                                       store.obs_heading[u1]))(pose, uc, mv)
-        use = (slot < C * C) & (u < U)[:, None]
-        flat = jnp.where(use, ids[:, None] * (C * C) + slot, J * C * C).reshape(-1)
+        q = lax.dynamic_slice_in_dim(pairs, r * G, G, axis=1)  # [P, G] in order
+        live_q = q < R * G
+        u = jnp.take_along_axis(which, jnp.minimum(q, R * G - 1) // G, axis=1)
+        u = jnp.where(live_q, jnp.minimum(u, U - 1), 0)
+        g = jnp.where(live_q, q % G, 0)
+        pose = jax.vmap(lambda p, uu: p[uu])(path, u)  # [P, G, 3]
+        slot = jax.vmap(jax.vmap(lambda p, u1, g1, m: _replay_slots(
+            p, index[u1, g1], m, C, cfg, store.obs_heading[u1]), in_axes=(0, 0, 0, None)))(
+                pose, u, g, mv)  # [P, G, n]
+        use = (slot < C * C) & live_q[:, :, None]
+        flat = jnp.where(use, ids[:, None, None] * (C * C) + slot, J * C * C).reshape(-1)
 
         def put(x, v):
-            return x.reshape(-1).at[flat].add(v.reshape(-1), mode="drop").reshape(x.shape)
+            return x.reshape(-1).at[flat].add(v[u, g].reshape(-1), mode="drop").reshape(x.shape)
 
-        return put(k, store.obs_k[uc]), put(S, store.obs_S[uc])
+        return put(k, ok), put(S, oS)
 
-    k, S = lax.fori_loop(0, jnp.minimum(jnp.max(n_hits), R), one, (k, S))
-    return k, S, jnp.any(n_hits > R)
+    k, S = lax.fori_loop(0, (jnp.max(n_pairs) + G - 1) // G, one, (k, S))
+    return k, S, jnp.any(n_maps > R)
 
 
 def chunk(J: int) -> int:
