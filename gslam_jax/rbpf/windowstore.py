@@ -30,17 +30,20 @@ both with a ConfigError).
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array, lax
 
 from gslam_jax.rbpf.densestore import gather_particles
 from gslam_jax.rbpf.placement import observation_cells
 from gslam_jax.rbpf.types import FilterConfig, Observation
 
-__all__ = ["WindowMaps", "MISSED", "HISTORY_FULL", "REFILL_OVERFLOW", "UNSET", "side",
+__all__ = ["WindowMaps", "MISSED", "HISTORY_FULL", "REFILL_OVERFLOW", "UNSET", "observed_reach",
+           "reach", "groups", "chunk", "side",
            "init", "nbytes", "read", "write", "finish_update", "resample", "to_dense",
            "particle_map"]
 
@@ -66,11 +69,33 @@ class WindowMaps(NamedTuple):
     status: Array     # [] int32 sticky error bits (MISSED | HISTORY_FULL | REFILL_OVERFLOW)
 
 
+def observed_reach(local_maps) -> int:
+    """Cells from a particle's cell to the farthest map cell the observed cells (k > 0) of
+    ``local_maps`` [n, L, L, 2] (host arrays) can land in: the farthest observed cell centre
+    from the local map's centre, rounded up, plus one for the particle's own cell (as
+    ``FilterConfig.reach`` for the whole local map); 0 when nothing is observed."""
+    k = np.asarray(local_maps)[..., 0]
+    if k.size == 0 or not np.any(k > 0):
+        return 0
+    L = k.shape[-1]
+    seen = np.any(k > 0, axis=0)
+    centre = np.arange(L) - L // 2 + 0.5
+    d = np.hypot(centre[:, None], centre[None, :])
+    return int(math.ceil(float(np.max(d[seen])))) + 1
+
+
+def reach(cfg: FilterConfig) -> int:
+    """Cells from a particle's cell to the farthest cell its update writes: the run's
+    ``observed_reach`` where sized, else the local map's diagonal (``FilterConfig.reach``)."""
+    return cfg.observed_reach or cfg.reach
+
+
 def side(cfg: FilterConfig) -> int:
     """C: window side in cells, 2 (reach + step) + slack rounded up to a multiple of 8, where
-    ``step`` (``cfg.tile``) is how far the particle may move between updates, and the slack
-    (2 step) how far it may drift before its window moves (``_move``)."""
-    return -(-(2 * (cfg.reach + cfg.tile) + 2 * cfg.tile) // 8) * 8
+    ``reach`` is ``reach(cfg)``, ``step`` (``cfg.tile``) how far the particle may move between
+    updates, and the slack (2 step) how far it may drift before its window moves
+    (``_move``)."""
+    return -(-(2 * (reach(cfg) + cfg.tile) + 2 * cfg.tile) // 8) * 8
 
 
 def groups(M: int) -> int:
@@ -209,7 +234,7 @@ class _Move(NamedTuple):
 def _safe(C: int, cfg: FilterConfig) -> tuple[int, int]:
     """[lo, hi]: the particle's cell less its window's origin, per axis, from which a move of
     up to ``step`` cells keeps the next footprint (``reach`` around it) in the window."""
-    return cfg.reach + cfg.tile, C - 1 - cfg.reach - cfg.tile
+    return reach(cfg) + cfg.tile, C - 1 - reach(cfg) - cfg.tile
 
 
 def _jump(C: int, cfg: FilterConfig) -> int:
