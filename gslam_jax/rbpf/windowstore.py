@@ -246,8 +246,9 @@ def _jump(C: int, cfg: FilterConfig) -> int:
 
 def _move(origin: Array, pose: Array, C: int, cfg: FilterConfig) -> _Move:
     """The window of a particle that left its safe range (``_safe``) moved so that the
-    particle sits a quarter of the range from the end it left by (it has three quarters of
-    the range ahead before the window moves again); otherwise it stays. Moves are clipped to
+    particle sits a quarter of the range from the other end (it has three quarters of the
+    range ahead, in the direction it left by, before the window moves again); otherwise it
+    stays. Moves are clipped to
     ``_jump`` (a particle that moved more than ``step`` cells is reported by ``write``)."""
     cell = jnp.floor((pose[:2] - jnp.asarray(cfg.map_origin, jnp.float32))
                      / cfg.resolution)
