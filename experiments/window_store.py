@@ -5,6 +5,13 @@ in the same invocation, with the machine and versions printed beside them.
     python -m experiments.window_store --particles 2000 --stores shared window
     python -m experiments.window_store --particles 2000 --frames 1500   # the first 1500 frames
     python -m experiments.window_store --point window 2000 1500         # one point (JSON)
+    python -m experiments.window_store --revisit 200 --stores dense window  # out and back
+
+``--revisit J``: the update's cost on new ground and on a revisit, without the loop's data:
+J particles (0.3 m, 0.05 rad apart) drive 30 local maps 1.12 m apart straight out and the
+same 30 back over what they mapped, with the benchmark's synthetic 128 x 128 local map
+(``bench.synthetic_local_map``, its first 4096 observed cells), ``[map] tile = 16``; each
+store compiled on a copy first, then the two legs timed from empty maps.
 
 The loop: poses 200-1633 of ../shared/data/kitti-poses/00.txt driven through the Arroyo A
 corridor world (``--source sim-path``), its 20 m overlap and the Arroyo settings of
@@ -36,11 +43,12 @@ WINDOW_TILE = 16  # [map] tile of the window store: cells it may move between lo
 
 def _config(store: str, J: int):
     from gslam_jax.config import layered_config
+    from gslam_jax.sim.courses import COURSES
 
     extra = [f"map.tile={WINDOW_TILE}"] if store == "window" else []
     return layered_config(Path("configs/table1.toml"), "arroyo-a",
                           SETTINGS + extra + [f"map.store={store}", f"filter.particles={J}",
-                                              "filter.seed=0"])
+                                              "filter.seed=0"], courses=COURSES)
 
 
 def cached_run(cache: Path):
@@ -74,9 +82,9 @@ def point(store: str, J: int, frames: int, cache: Path) -> dict:
 
     import numpy as np
 
-    from gslam_jax import slam
+    from gslam_jax.driver import slam
     from gslam_jax.config import apply_overrides
-    from gslam_jax.relocalise import run_prefix
+    from gslam_jax.gridmap.relocalise import run_prefix
 
     run, margin = cached_run(cache)
     if frames:
@@ -92,7 +100,50 @@ def point(store: str, J: int, frames: int, cache: Path) -> dict:
             "map_alloc_MB": res.map_bytes / 2 ** 20,
             "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             "resamplings": int(np.sum(res.resampled)),
-            "best_path_end": np.asarray(res.best_path)[-1].tolist()}
+            "best_path_end": np.asarray(res.best_pose)[-1].tolist()}
+
+
+def revisit(J: int, store: str, legs: int = 30) -> dict:
+    """us per particle per update of ``store`` out over new ground and back over it
+    (``--revisit``)."""
+    import time
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    from jax import lax
+
+    from gslam_jax import rbpf
+    from gslam_jax.app.bench import synthetic_local_map
+    from gslam_jax.rbpf import maps
+
+    L, H, W, res = 128, 1024, 320, 0.16
+    cfg = maps.resolve_history(rbpf.FilterConfig(
+        num_particles=J, map_shape=(H, W), map_origin=(0.0, 0.0), resolution=res, local_size=L,
+        observed_cells=4096, store=store, tile=WINDOW_TILE, unknown_cells="ignore"), 2 * legs)
+    rng = np.random.default_rng(0)
+    obs, params = synthetic_local_map(rng, L), rbpf.FilterParams()
+    noise = rbpf.update_noise(jax.random.key(0), cfg)
+    start = np.array([20.0, 0.5 * W * res, 0.0], np.float32)
+    spread = rng.normal(0.0, [0.3, 0.3, 0.05], (J, 3)).astype(np.float32)
+    state = rbpf.init(cfg, jnp.asarray(start))._replace(pose=jnp.asarray(start + spread))
+
+    def drive(s, steps):
+        def one(s, d):
+            s = s._replace(pose=s.pose + d)
+            return rbpf.update(s, obs, noise.unknown_u, params, cfg)[0], None
+        return lax.scan(one, s, steps)[0]
+
+    drive = jax.jit(drive, donate_argnums=0)
+    out = jnp.broadcast_to(jnp.asarray([1.12, 0.0, 0.0], jnp.float32), (legs, J, 3))
+    jax.block_until_ready(drive(jax.tree_util.tree_map(jnp.copy, state), out))
+    times = []
+    for steps in (out, -out):
+        t = time.perf_counter()
+        state = jax.block_until_ready(drive(state, steps))
+        times.append(1e6 * (time.perf_counter() - t) / legs / J)
+    return {"store": store, "particles": J, "new_ground_us": times[0], "revisit_us": times[1],
+            "map_status": int(maps.status(state.maps))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -103,12 +154,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=Path("results/window_store"))
     ap.add_argument("--json", type=Path)
     ap.add_argument("--point", nargs=3, metavar=("STORE", "J", "FRAMES"))
+    ap.add_argument("--revisit", type=int, metavar="J",
+                    help="time --stores out and back over synthetic local maps at J particles")
     args = ap.parse_args(argv)
+    if args.revisit:
+        for store in args.stores:
+            print(json.dumps(revisit(args.revisit, store)), flush=True)
+        return 0
     if args.point:
         store, J, frames = args.point
         print(json.dumps(point(store, int(J), int(frames), args.cache)))
         return 0
-    from gslam_jax.machine import environment
+    from gslam_jax.driver.machine import environment
 
     env = environment()
     print(f"# {env['date']} | {env.get('cpu', '')} | {env['cpus']} cpus | jax {env['jax']}",

@@ -28,10 +28,11 @@ def _config(store: str, J: int = 8, history: int = 0, **kw) -> rbpf.FilterConfig
 
 
 def _loop_run(rng: np.random.Generator, updates: int = 88):
-    """A square loop of side 9 m from (4, 4) m driven twice round (so the second lap revisits
-    what the first mapped), a local map every 0.5 m of travel and a frame between; controls in
-    the robot frame, local maps of random cells (k in 0..6)."""
-    corners = np.array([[4.0, 4.0], [13.0, 4.0], [13.0, 13.0], [4.0, 13.0]])
+    """A square loop of side 13 m from (4, 4) m driven twice round (so the second lap revisits
+    what the first mapped), a local map every 0.72 m of travel and a frame between; controls in
+    the robot frame, local maps of random cells (k in 0..6) observed within 6.5 cells of
+    their centre (so the window store's observed reach is shorter than the diagonal)."""
+    corners = np.array([[4.0, 4.0], [17.0, 4.0], [17.0, 17.0], [4.0, 17.0]])
     pts = []
     for lap in range(2):
         for c in range(4):
@@ -56,6 +57,8 @@ def _loop_run(rng: np.random.Generator, updates: int = 88):
     n = T // 2
     k = rng.integers(0, 7, (n, L, L)).astype(np.float32)
     k[:, :, :3] = 0.0  # some unobserved cells
+    centre = np.arange(L) - L // 2 + 0.5
+    k[:, np.hypot(centre[:, None], centre[None, :]) > 6.5] = 0.0
     S = k * rng.gamma(2.0, 0.01, k.shape).astype(np.float32)
     return (jnp.asarray(np.array(controls, np.float32)), jnp.asarray(obs_index),
             jnp.asarray(np.stack([k, S], -1)), jnp.asarray(start))
@@ -68,10 +71,33 @@ def runs():
     params = rbpf.FilterParams()
     out = {}
     for store in ("dense", "window"):
-        cfg = maps.resolve_history(_config(store, resample_ratio=0.6), n_maps)
+        cfg = maps.resolve_history(_config(store, resample_ratio=0.6), n_maps,
+                                   np.asarray(local_obs))
         out[store] = (cfg, jax.jit(rbpf.run_filter, static_argnums=5)(
             jax.random.key(7), params, controls, obs_index, local_obs, cfg, start))
     return out
+
+
+def test_the_window_is_sized_by_the_observed_reach(runs):
+    """The observed cells lie within 6.5 cells of the local map's centre: the window's reach
+    is 7 + 1 cells, not the 16-cell local map's diagonal (12 + 1)."""
+    cfg, _ = runs["window"]
+    assert (cfg.observed_reach, cfg.reach) == (8, 13)
+    assert windowstore.side(cfg) == 48  # 2 (8 + 8) + 2 x 8, a multiple of 8
+    assert runs["dense"][0].observed_reach == 0  # other stores keep the whole local map's
+
+
+def test_observed_reach_of_single_cells():
+    """One observed cell: its centre's distance from the local map's centre, rounded up,
+    plus one (worked by hand)."""
+    one = np.zeros((1, L, L, 2), np.float32)
+    corner = one.copy()
+    corner[0, 0, 0, 0] = 1.0  # centre (-7.5, -7.5): 10.61 cells
+    assert windowstore.observed_reach(corner) == 12
+    middle = one.copy()
+    middle[0, 8, 8, 0] = 3.0  # centre (0.5, 0.5): 0.71 cells
+    assert windowstore.observed_reach(middle) == 2
+    assert windowstore.observed_reach(one) == 0
 
 
 def test_the_path_leaves_the_window_and_comes_back(runs):
@@ -104,8 +130,8 @@ def test_weights_resampling_and_ancestors_match_the_dense_store(runs):
 def test_every_particle_map_is_the_dense_one(runs):
     """The whole maps replayed from the paths (``to_dense``) and the windows' cells against the
     dense maps: equal (the same additions in the same order)."""
-    cfg, dense = runs["dense"]
-    _, window = runs["window"]
+    _, dense = runs["dense"]
+    cfg, window = runs["window"]
     dk, dS = np.asarray(dense.final_state.maps.k), np.asarray(dense.final_state.maps.S)
     wk, wS, _ = (np.asarray(x) for x in maps.to_dense(window.final_state.maps, cfg))
     assert dk.sum() > 0
@@ -137,7 +163,7 @@ def test_memory_is_known_before_the_run_and_refused_with_the_figure():
     assert cfg.pool_tiles == 500
     C = windowstore.side(cfg)
     need = maps.map_bytes(cfg)
-    assert need == 1000 * (C * C * 8 + 8 + 500 * 12) + 500 * (L * L * 12 + 4) + 8
+    assert need == 1000 * (C * C * 8 + 8 + 500 * 12) + 500 * (L * L * 12 + 4 + windowstore.groups(L * L) * 16) + 8
     maps.check_memory(cfg, need)
     with pytest.raises(ConfigError, match=f"{need / 2**30:.2f} GiB"):
         maps.check_memory(cfg, need - 1)

@@ -136,7 +136,8 @@ def filter_config(config: Config, run: Run, prior: PriorMap | None = None
     available, what = map_memory()
     if prior is not None and cfg.store == "shared" and not cfg.pool_tiles:
         cfg = _prior_pool(cfg, prior)
-    cfg = maps.resolve_history(cfg, int(np.sum(np.asarray(run.obs_index) >= 0)))
+    cfg = maps.resolve_history(cfg, int(np.sum(np.asarray(run.obs_index) >= 0)),
+                               run.local_maps)
     try:
         maps.check_memory(cfg, available, what, extent=_extent_cause(run, config))
     except ConfigError as err:

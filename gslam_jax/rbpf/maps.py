@@ -81,11 +81,18 @@ def _check_window(cfg: FilterConfig, prior) -> None:
                           '``maps.resolve_history``)')
 
 
-def resolve_history(cfg: FilterConfig, num_updates: int) -> FilterConfig:
+def resolve_history(cfg: FilterConfig, num_updates: int, local_maps=None) -> FilterConfig:
     """The window store's history (``[map] pool_tiles``, 0: automatic) sized to the run's
     ``num_updates`` local maps, so that ``map_bytes`` is the whole run's need before it
-    starts; other stores unchanged."""
-    if cfg.store != "window" or cfg.pool_tiles:
+    starts, and its window to the reach of the observed cells of the run's ``local_maps``
+    [n, L, L, 2] (``windowstore.observed_reach``; None: the local map's diagonal); other
+    stores unchanged."""
+    if cfg.store != "window":
+        return cfg
+    if local_maps is not None:
+        cfg = cfg._replace(observed_reach=min(windowstore.observed_reach(local_maps),
+                                              cfg.reach))
+    if cfg.pool_tiles:
         return cfg
     return cfg._replace(pool_tiles=max(int(num_updates), 1))
 
@@ -342,7 +349,8 @@ def _window_status(bits: int, cfg: FilterConfig, where: str) -> None:
         raise WindowStoreError(
             where + f"the window map store's window ({windowstore.side(cfg)} cells) missed "
             f"cells an update wrote: a particle moved more than [map] tile = {cfg.tile} cells "
-            f"between local maps; raise [map] tile")
+            f"between local maps (or a local map reached past the {windowstore.reach(cfg)} "
+            f"cells the window was sized for); raise [map] tile")
     if bits & windowstore.HISTORY_FULL:
         raise WindowStoreError(
             where + f"the window map store's history of [map] pool_tiles = {cfg.pool_tiles} "

@@ -71,6 +71,10 @@ class FilterConfig(NamedTuple):
     proposal_draws: str = choices.AUTO_PROPOSAL_DRAWS["points"]
     # > 1: each particle's own factor on the motion stds (``FilterState.noise_scale``)
     noise_spread: float = MotionSection.noise_spread
+    # cells from a particle's cell to the farthest cell its observed local cells can land in,
+    # sized from the run's local maps for the window store (``maps.resolve_history``; 0: the
+    # local map's diagonal, ``reach``)
+    observed_reach: int = 0
 
     @property
     def update_block(self) -> int:
@@ -140,6 +144,9 @@ class FilterConfig(NamedTuple):
         if min(H, W) < self.window:
             raise ValueError(f"map_shape {self.map_shape} is smaller than the update window "
                              f"{self.window} cells")
+        if not 0 <= self.observed_reach <= self.reach:
+            raise ValueError(f"observed_reach {self.observed_reach} must lie in [0, "
+                             f"{self.reach}] (0: the local map's diagonal)")
         if not 0 <= self.observed_cells <= self.local_size ** 2:
             raise ValueError(f"observed_cells {self.observed_cells} must lie in [0, "
                              f"{self.local_size ** 2}] (0: every local cell)")
@@ -160,7 +167,8 @@ def _config_keys() -> dict[str, tuple[str, str]]:
 CONFIG_KEYS = _config_keys()
 """FilterConfig field -> (section, key) of the config setting it is built from."""
 
-GIVEN_FIELDS = ("map_shape", "map_origin", "local_size", "update_map", "observed_cells")
+GIVEN_FIELDS = ("map_shape", "map_origin", "local_size", "update_map", "observed_cells",
+                "observed_reach")
 """FilterConfig fields no setting holds: sized from the run (or a test's switch)."""
 
 

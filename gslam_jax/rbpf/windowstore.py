@@ -12,14 +12,16 @@ memory is J x the area; this store keeps
   (i, j) lives in slot (i mod C, j mod C) while it lies in the particle's window
   [origin, origin + C)^2. Every cell in the window holds the particle's full sum.
 
-so memory is J x (C^2 + path) plus the local maps, whatever the area. After each update
-(``finish_update``) the window moves towards the particle (at most ``step`` cells per axis);
-the cells that enter it are zeroed and refilled by replaying, in update order, the past local
-maps whose footprint box meets them, from the particle's pose at each, with the scatter the
-update used (``placement.observation_cells``): the same additions in the same order as the
-dense map's, so the values are the dense store's. The update's reads and writes must fall in
-the window: C = 2 (reach + step) holds a footprint from anywhere within ``step`` cells of the
-window's centre; a written cell outside it sets ``MISSED`` (an error on the host).
+so memory is J x (C^2 + path) plus the local maps, whatever the area. A window holds the
+footprint of a particle within ``step`` cells of its safe range (``_safe``), which is 2 step
+cells wide; after each update (``finish_update``) the windows of the particles that left it
+move (``_move``: in jumps of at least a step, so most updates move few windows, and only
+those are visited), and the cells that enter them are zeroed and refilled by replaying, in
+update order, the past local maps whose box of written cells meets them, from the particle's
+pose at each, with the placement the update used (``placement.observation_cells``): the same
+additions in the same order as the dense map's, so the values are the dense store's. A
+written cell outside the window (a particle that moved more than ``step`` cells) sets
+``MISSED`` (an error on the host).
 
 Only eq. 30 (``unknown_cells = "ignore"``) and maps that start empty: eq. 31 draws known
 cells uniformly from the whole map, which this store does not hold (``rbpf.maps`` refuses
@@ -28,17 +30,20 @@ both with a ConfigError).
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array, lax
 
 from gslam_jax.rbpf.densestore import gather_particles
 from gslam_jax.rbpf.placement import observation_cells
 from gslam_jax.rbpf.types import FilterConfig, Observation
 
-__all__ = ["WindowMaps", "MISSED", "HISTORY_FULL", "REFILL_OVERFLOW", "UNSET", "side",
+__all__ = ["WindowMaps", "MISSED", "HISTORY_FULL", "REFILL_OVERFLOW", "UNSET", "observed_reach",
+           "reach", "groups", "chunk", "side",
            "init", "nbytes", "read", "write", "finish_update", "resample", "to_dense",
            "particle_map"]
 
@@ -59,15 +64,44 @@ class WindowMaps(NamedTuple):
     obs_k: Array      # [U, M] float32 its k (0: padding)
     obs_S: Array      # [U, M] float32 its S
     obs_heading: Array  # [U] float32 the local map's lattice heading
+    obs_box: Array    # [U, G, 4] float32 the box of the written cells of each group (``_extent``)
     count: Array      # [] int32 updates recorded
     status: Array     # [] int32 sticky error bits (MISSED | HISTORY_FULL | REFILL_OVERFLOW)
 
 
+def observed_reach(local_maps) -> int:
+    """Cells from a particle's cell to the farthest map cell the observed cells (k > 0) of
+    ``local_maps`` [n, L, L, 2] (host arrays) can land in: the farthest observed cell centre
+    from the local map's centre, rounded up, plus one for the particle's own cell (as
+    ``FilterConfig.reach`` for the whole local map); 0 when nothing is observed."""
+    k = np.asarray(local_maps)[..., 0]
+    if k.size == 0 or not np.any(k > 0):
+        return 0
+    L = k.shape[-1]
+    seen = np.any(k > 0, axis=0)
+    centre = np.arange(L) - L // 2 + 0.5
+    d = np.hypot(centre[:, None], centre[None, :])
+    return int(math.ceil(float(np.max(d[seen])))) + 1
+
+
+def reach(cfg: FilterConfig) -> int:
+    """Cells from a particle's cell to the farthest cell its update writes: the run's
+    ``observed_reach`` where sized, else the local map's diagonal (``FilterConfig.reach``)."""
+    return cfg.observed_reach or cfg.reach
+
+
 def side(cfg: FilterConfig) -> int:
-    """C: window side in cells, 2 (reach + step) rounded up to a multiple of 8, where ``step``
-    (``cfg.tile``) is how far the particle may move between updates before its footprint
-    leaves the window."""
-    return -(-2 * (cfg.reach + cfg.tile) // 8) * 8
+    """C: window side in cells, 2 (reach + step) + slack rounded up to a multiple of 8, where
+    ``reach`` is ``reach(cfg)``, ``step`` (``cfg.tile``) how far the particle may move between
+    updates, and the slack (2 step) how far it may drift before its window moves
+    (``_move``)."""
+    return -(-(2 * (reach(cfg) + cfg.tile) + 2 * cfg.tile) // 8) * 8
+
+
+def groups(M: int) -> int:
+    """G: the groups of consecutive observed cells (local rows, in the local map's row-major
+    order) a local map is replayed by: the most of 16, 8, 4, 2 that divides M, else 1."""
+    return next(g for g in (16, 8, 4, 2, 1) if M % g == 0)
 
 
 def history(cfg: FilterConfig) -> int:
@@ -86,14 +120,16 @@ def init(cfg: FilterConfig) -> WindowMaps:
                       path=jnp.zeros((J, U, 3), jnp.float32),
                       obs_index=jnp.zeros((U, M), jnp.int32),
                       obs_k=jnp.zeros((U, M), jnp.float32), obs_S=jnp.zeros((U, M), jnp.float32),
-                      obs_heading=jnp.zeros((U,), jnp.float32), count=jnp.int32(0),
+                      obs_heading=jnp.zeros((U,), jnp.float32),
+                      obs_box=jnp.zeros((U, groups(M), 4), jnp.float32), count=jnp.int32(0),
                       status=jnp.int32(0))
 
 
 def nbytes(cfg: FilterConfig) -> int:
-    """Bytes ``init`` allocates: J windows of k and S, J paths of U poses, U local maps."""
+    """Bytes ``init`` allocates: J windows of k and S, J paths of U poses, U local maps (their
+    cells, heading and groups' boxes)."""
     J, C, U, M = cfg.num_particles, side(cfg), history(cfg), cfg.max_observed
-    return J * (C * C * 8 + 8 + U * 12) + U * (M * 12 + 4) + 8
+    return J * (C * C * 8 + 8 + U * 12) + U * (M * 12 + 4 + groups(M) * 16) + 8
 
 
 def _slots(store: WindowMaps, rows: Array, cells_: Array, width: int
@@ -160,8 +196,10 @@ def write(store: WindowMaps, rows: Array, cells_: Array, k: Array, S: Array,
                           status=store.status | jnp.where(missed, MISSED, 0))
 
 
-def _record(store: WindowMaps, pose: Array, obs: Observation) -> WindowMaps:
-    """The update just written appended to the history: its local map and every pose."""
+def _record(store: WindowMaps, pose: Array, obs: Observation, cfg: FilterConfig
+            ) -> WindowMaps:
+    """The update just written appended to the history: its local map (and the box of its
+    written cells' groups, ``_extent``) and every pose."""
     U = store.obs_k.shape[0]
     u = jnp.minimum(store.count, U - 1)
     full = store.count >= U
@@ -171,6 +209,9 @@ def _record(store: WindowMaps, pose: Array, obs: Observation) -> WindowMaps:
         obs_index=store.obs_index.at[u].set(keep(obs.index, store.obs_index[u])),
         obs_k=store.obs_k.at[u].set(keep(obs.k, store.obs_k[u])),
         obs_S=store.obs_S.at[u].set(keep(obs.S, store.obs_S[u])),
+        obs_box=store.obs_box.at[u].set(keep(_extent(obs, cfg.local_size,
+                                                     store.obs_box.shape[1]),
+                                             store.obs_box[u])),
         obs_heading=store.obs_heading.at[u].set(
             keep(jnp.asarray(obs.lattice_heading, jnp.float32), store.obs_heading[u])),
         count=jnp.minimum(store.count + 1, U),
@@ -182,118 +223,212 @@ def _entered(old: Array, new: Array, C: int) -> tuple[Array, Array]:
     return jnp.where(new > old, old + C, new), jnp.where(new > old, new + C, old)
 
 
-def _zero_band(x: Array, lo: Array, hi: Array, step: int, axis: int) -> Array:
-    """x [C, C] with the slots of global rows (axis 0) or columns (axis 1) [lo, hi) zeroed
-    (hi - lo <= step)."""
-    C = x.shape[0]
-    t = jnp.arange(step)
-    idx = (lo + t) % C
-    keep = (t >= hi - lo)[:, None] if axis == 0 else (t >= hi - lo)[None, :]
-    if axis == 0:
-        return x.at[idx].set(jnp.where(keep, x[idx], 0.0))
-    return x.at[:, idx].set(jnp.where(keep, x[:, idx], 0.0))
-
-
 class _Move(NamedTuple):
-    """One particle's window move: the new origin, and the rows and columns it takes in."""
+    """Windows' moves: the new origins, and the rows and columns each takes in."""
 
-    origin: Array  # [2]
-    rows: Array    # [2] [lo, hi)
-    cols: Array    # [2] [lo, hi)
+    origin: Array  # [..., 2]
+    rows: Array    # [..., 2] [lo, hi)
+    cols: Array    # [..., 2] [lo, hi)
 
 
-def _move(origin: Array, pose: Array, C: int, step: int, cfg: FilterConfig) -> _Move:
-    """The window moved towards centring the particle's cell, at most ``step`` cells an axis."""
+def _safe(C: int, cfg: FilterConfig) -> tuple[int, int]:
+    """[lo, hi]: the particle's cell less its window's origin, per axis, from which a move of
+    up to ``step`` cells keeps the next footprint (``reach`` around it) in the window."""
+    return reach(cfg) + cfg.tile, C - 1 - reach(cfg) - cfg.tile
+
+
+def _jump(C: int, cfg: FilterConfig) -> int:
+    """The most cells a window moves an axis in one update: from a particle ``step`` cells past
+    one end of the safe range to a quarter of the range from the other (``_move``)."""
+    lo, hi = _safe(C, cfg)
+    return hi - lo + cfg.tile
+
+
+def _move(origin: Array, pose: Array, C: int, cfg: FilterConfig) -> _Move:
+    """The window of a particle that left its safe range (``_safe``) moved so that the
+    particle sits a quarter of the range from the other end (it has three quarters of the
+    range ahead, in the direction it left by, before the window moves again); otherwise it
+    stays. Moves are clipped to
+    ``_jump`` (a particle that moved more than ``step`` cells is reported by ``write``)."""
     cell = jnp.floor((pose[:2] - jnp.asarray(cfg.map_origin, jnp.float32))
                      / cfg.resolution)
     cell = jnp.clip(jnp.nan_to_num(cell), -2 ** 24, 2 ** 24).astype(jnp.int32)
-    target = cell - C // 2
-    new = jnp.where(origin == UNSET, origin, origin + jnp.clip(target - origin, -step, step))
+    lo, hi = _safe(C, cfg)
+    lead = (hi - lo) // 4
+    f = cell - origin
+    f_new = jnp.where(f > hi, lo + lead, jnp.where(f < lo, hi - lead, f))
+    jump = jnp.clip(f - f_new, -_jump(C, cfg), _jump(C, cfg))
+    new = jnp.where(origin == UNSET, origin, origin + jump)
     r0, r1 = _entered(origin[0], new[0], C)
     c0, c1 = _entered(origin[1], new[1], C)
     return _Move(new, jnp.stack([r0, r1]), jnp.stack([c0, c1]))
 
 
-def _hits(path: Array, count: Array, mv: _Move, C: int, cfg: FilterConfig) -> Array:
-    """[U] past updates of one particle whose footprint box (its cell +- reach) meets the cells
-    its window takes in."""
+def _extent(obs: Observation, L: int, G: int) -> Array:
+    """[G, 4] float32 for each of G groups of a local map's consecutive observed cells, the box
+    (a_lo, a_hi, b_lo, b_hi) of the centres of its written cells (k or S nonzero), in cells
+    from the local map's centre, as ``observation_cells`` places them; a_lo > a_hi where the
+    group wrote nothing."""
+    used = ((obs.k != 0) | (obs.S != 0)).reshape(G, -1)
+    index = obs.index.reshape(G, -1)
+    ca = (index // L).astype(jnp.float32) - (L // 2) + 0.5
+    cb = (index % L).astype(jnp.float32) - (L // 2) + 0.5
+    big = jnp.float32(L)
+    return jnp.stack([jnp.min(jnp.where(used, ca, big), axis=1),
+                      jnp.max(jnp.where(used, ca, -big), axis=1),
+                      jnp.min(jnp.where(used, cb, big), axis=1),
+                      jnp.max(jnp.where(used, cb, -big), axis=1)], axis=1)
+
+
+def _hits(path: Array, count: Array, box: Array, heading: Array, mv: _Move, C: int,
+          cfg: FilterConfig) -> Array:
+    """[U, G] the groups of the past local maps of one particle whose written cells may land in
+    the cells its window takes in: each group's box of written cells (``_extent``) turned by
+    the particle's heading at that update, its bounding box in map cells widened by a cell
+    for rounding (``observation_cells``' floor), against the window and the entering band."""
     U = path.shape[0]
-    cell = jnp.floor((path[:, :2] - jnp.asarray(cfg.map_origin, jnp.float32))
-                     / cfg.resolution)
-    cell = jnp.clip(jnp.nan_to_num(cell), -2 ** 24, 2 ** 24).astype(jnp.int32)
-    lo, hi = cell - cfg.reach, cell + cfg.reach + 1  # [U, 2] box [lo, hi)
+    px = ((path[:, 0] - cfg.map_origin[0]) / cfg.resolution)[:, None]
+    py = ((path[:, 1] - cfg.map_origin[1]) / cfg.resolution)[:, None]
+    t = (path[:, 2] + heading)[:, None]
+    c, s = jnp.cos(t), jnp.sin(t)
+    ma, mb = 0.5 * (box[..., 0] + box[..., 1]), 0.5 * (box[..., 2] + box[..., 3])
+    ha, hb = 0.5 * (box[..., 1] - box[..., 0]), 0.5 * (box[..., 3] - box[..., 2])
+    ci, cj = px + c * ma - s * mb, py + s * ma + c * mb
+    ei, ej = jnp.abs(c) * ha + jnp.abs(s) * hb, jnp.abs(s) * ha + jnp.abs(c) * hb
+
+    def cell(x):
+        return jnp.clip(jnp.nan_to_num(jnp.floor(x)), -2 ** 24, 2 ** 24).astype(jnp.int32)
+
+    lo_i, hi_i = cell(ci - ei) - 1, cell(ci + ei) + 2  # [lo, hi) map rows
+    lo_j, hi_j = cell(cj - ej) - 1, cell(cj + ej) + 2
     o = mv.origin
 
     def meets(a0, a1, b0, b1):
         return (a0 < b1) & (b0 < a1)
 
-    in_rows = meets(lo[:, 0], hi[:, 0], o[0], o[0] + C)
-    in_cols = meets(lo[:, 1], hi[:, 1], o[1], o[1] + C)
-    new_rows = meets(lo[:, 0], hi[:, 0], mv.rows[0], mv.rows[1]) & (mv.rows[1] > mv.rows[0])
-    new_cols = meets(lo[:, 1], hi[:, 1], mv.cols[0], mv.cols[1]) & (mv.cols[1] > mv.cols[0])
-    return (jnp.arange(U) < count) & ((new_rows & in_cols) | (new_cols & in_rows))
+    in_rows = meets(lo_i, hi_i, o[0], o[0] + C)
+    in_cols = meets(lo_j, hi_j, o[1], o[1] + C)
+    new_rows = meets(lo_i, hi_i, mv.rows[0], mv.rows[1]) & (mv.rows[1] > mv.rows[0])
+    new_cols = meets(lo_j, hi_j, mv.cols[0], mv.cols[1]) & (mv.cols[1] > mv.cols[0])
+    wrote = box[..., 0] <= box[..., 1]
+    recorded = (jnp.arange(U) < count)[:, None]
+    return recorded & wrote & ((new_rows & in_cols) | (new_cols & in_rows))
 
 
-def _replay(k: Array, S: Array, pose: Array, index: Array, ok: Array, oS: Array,
-            heading: Array, mv: _Move, cfg: FilterConfig) -> tuple[Array, Array]:
-    """One past local map (its pose, cells and heading) added to the window k, S [C, C] at the
-    cells the window took in (``mv``), with the update's own scatter."""
-    C = k.shape[0]
-    H, W = cfg.map_shape
+def _zero_entered(x: Array, ids: Array, mv: _Move, width: int) -> Array:
+    """x [J, C, C] with the slots of the rows and columns that the windows of particles
+    ``ids`` [P] (J: none) take in (``mv``, at most ``width`` of each) zeroed."""
+    J, C = x.shape[0], x.shape[1]
+    t = jnp.arange(width)
+
+    def slots(band):  # [P, width] slots of global rows (or columns) [lo, hi); C: none
+        g = band[:, :1] + t
+        return jnp.where((g < band[:, 1:]) & (ids[:, None] < J), g % C, C)
+
+    rows = jnp.where(slots(mv.rows) < C, ids[:, None] * C + slots(mv.rows), J * C)
+    x = x.reshape(J * C, C).at[rows].set(0.0, mode="drop").reshape(J, C, C)
+    return x.at[ids[:, None], :, slots(mv.cols)].set(0.0, mode="drop")
+
+
+def _replay_slots(pose: Array, index: Array, mv: _Move, C: int, cfg: FilterConfig,
+                  heading: Array) -> Array:
+    """Window slot (C * C: none) of each of the cells ``index`` of a past local map seen from
+    ``pose`` that lands in the cells the window took in (``mv``), placed as the update placed
+    them."""
+    W = cfg.map_shape[1]
     flat, on_map = observation_cells(pose, index, cfg, heading)
     gi, gj = flat // W, flat % W
     o = mv.origin
     inside = (gi >= o[0]) & (gi < o[0] + C) & (gj >= o[1]) & (gj < o[1] + C)
     entered = (((gi >= mv.rows[0]) & (gi < mv.rows[1]))
                | ((gj >= mv.cols[0]) & (gj < mv.cols[1])))
-    use = on_map & inside & entered
-    slot = jnp.where(use, (gi % C) * C + gj % C, 0)
+    return jnp.where(on_map & inside & entered, (gi % C) * C + gj % C, C * C)
 
-    def put(x, v):
-        return x.reshape(-1).at[slot].add(jnp.where(use, v, 0.0),
-                                          mode="promise_in_bounds").reshape(C, C)
 
-    return put(k, ok), put(S, oS)
+def _refill(store: WindowMaps, k: Array, S: Array, ids: Array, mv: _Move, cfg: FilterConfig,
+            R: int) -> tuple[Array, Array, Array]:
+    """k, S [J, C, C] with the cells that the windows of particles ``ids`` [P] (J: none) took
+    in refilled from the groups of past local maps that may land there (``_hits``), each
+    particle's in update order and within an update in cell order, with the update's own
+    placement: the dense store's additions in its order. G groups are replayed per particle
+    per pass. Also whether a particle met more than ``R`` past local maps."""
+    J, C = k.shape[0], k.shape[1]
+    U, G = store.obs_box.shape[:2]
+    n = store.obs_k.shape[1] // G
+    live = ids < J
+    idc = jnp.minimum(ids, J - 1)
+    path = store.path[idc]
+    hit = jax.vmap(lambda p, m: _hits(p, store.count, store.obs_box, store.obs_heading, m, C,
+                                      cfg))(path, mv) & live[:, None, None]  # [P, U, G]
+    maps_hit = jnp.any(hit, axis=2)
+    n_maps = jnp.sum(maps_hit, axis=1)
+    which = jax.vmap(lambda h: jnp.nonzero(h, size=R, fill_value=U)[0])(maps_hit)  # [P, R]
+    pair_hit = jnp.take_along_axis(hit, jnp.minimum(which, U - 1)[:, :, None], axis=1)
+    pair_hit = (pair_hit & (which < U)[:, :, None]).reshape(-1, R * G)
+    pairs = jax.vmap(lambda h: jnp.nonzero(h, size=R * G, fill_value=R * G)[0])(pair_hit)
+    n_pairs = jnp.sum(pair_hit, axis=1)
+    pairs = jnp.concatenate([pairs, jnp.full((pairs.shape[0], G), R * G, pairs.dtype)], 1)
+    index = store.obs_index.reshape(U, G, n)
+    ok, oS = store.obs_k.reshape(U, G, n), store.obs_S.reshape(U, G, n)
+
+    def one(r, kS):
+        k, S = kS
+        q = lax.dynamic_slice_in_dim(pairs, r * G, G, axis=1)  # [P, G] in order
+        live_q = q < R * G
+        u = jnp.take_along_axis(which, jnp.minimum(q, R * G - 1) // G, axis=1)
+        u = jnp.where(live_q, jnp.minimum(u, U - 1), 0)
+        g = jnp.where(live_q, q % G, 0)
+        pose = jax.vmap(lambda p, uu: p[uu])(path, u)  # [P, G, 3]
+        slot = jax.vmap(jax.vmap(lambda p, u1, g1, m: _replay_slots(
+            p, index[u1, g1], m, C, cfg, store.obs_heading[u1]), in_axes=(0, 0, 0, None)))(
+                pose, u, g, mv)  # [P, G, n]
+        use = (slot < C * C) & live_q[:, :, None]
+        flat = jnp.where(use, ids[:, None, None] * (C * C) + slot, J * C * C).reshape(-1)
+
+        def put(x, v):
+            return x.reshape(-1).at[flat].add(v[u, g].reshape(-1), mode="drop").reshape(x.shape)
+
+        return put(k, ok), put(S, oS)
+
+    k, S = lax.fori_loop(0, (jnp.max(n_pairs) + G - 1) // G, one, (k, S))
+    return k, S, jnp.any(n_maps > R)
+
+
+def chunk(J: int) -> int:
+    """Particles whose windows move handled per pass of ``finish_update``."""
+    return max(1, -(-J // 8))
 
 
 def finish_update(store: WindowMaps, pose: Array, obs: Observation, cfg: FilterConfig,
                   replays: int = 128) -> WindowMaps:
     """After an update from ``pose`` [J, 3] with the local map ``obs`` wrote the maps: the
-    update recorded, every window moved towards its particle (``_move``), the cells it takes in
-    zeroed and refilled from the past local maps whose footprint meets them, in update order
-    (``_hits``, ``_replay``; the dense store's additions in its order). A particle whose new
-    cells meet more than ``replays`` past local maps sets ``REFILL_OVERFLOW``."""
-    C, step = store.k.shape[1], cfg.tile
-    store = _record(store, pose, obs)
-    moves = jax.vmap(lambda o, p: _move(o, p, C, step, cfg))(store.origin, pose)
-    k = jax.vmap(lambda x, m: _zero_band(_zero_band(x, m.rows[0], m.rows[1], step, 0),
-                                         m.cols[0], m.cols[1], step, 1))(store.k, moves)
-    S = jax.vmap(lambda x, m: _zero_band(_zero_band(x, m.rows[0], m.rows[1], step, 0),
-                                         m.cols[0], m.cols[1], step, 1))(store.S, moves)
-    U = store.obs_k.shape[0]
-    R = min(replays, U)
-    hit = jax.vmap(lambda p, m: _hits(p, store.count, m, C, cfg))(store.path, moves)
-    n_hits = jnp.sum(hit, axis=1)
-    which = jax.vmap(lambda h: jnp.nonzero(h, size=R, fill_value=U)[0])(hit)  # [J, R] in order
+    update recorded; the windows of the particles that left their safe range moved
+    (``_move``), the cells they take in zeroed and refilled from the past local maps whose
+    footprint meets them, in update order (``_refill``; the dense store's additions in its
+    order). Only the particles whose windows move are visited, ``chunk(J)`` at a time. A
+    particle whose new cells meet more than ``replays`` past local maps sets
+    ``REFILL_OVERFLOW``."""
+    J, C = store.k.shape[0], store.k.shape[1]
+    store = _record(store, pose, obs, cfg)
+    moves = jax.vmap(lambda o, p: _move(o, p, C, cfg))(store.origin, pose)
+    moved = jnp.any(moves.origin != store.origin, axis=1)
+    P = chunk(J)
+    n_chunks = -(-J // P)
+    order = jnp.nonzero(moved, size=n_chunks * P, fill_value=J)[0]  # movers first, then J
+    R = min(replays, store.obs_k.shape[0])
 
-    def one(r, kS):
-        k, S = kS
-        u = which[:, r]
-        uc = jnp.minimum(u, U - 1)
-        live = u < U
-        p = jnp.take_along_axis(store.path, uc[:, None, None], axis=1)[:, 0]
-        zero = jnp.zeros_like(store.obs_k[0])
+    def one(c, carry):
+        k, S, overflow = carry
+        ids = lax.dynamic_slice(order, (c * P,), (P,))
+        mv = jax.tree_util.tree_map(lambda x: x[jnp.minimum(ids, J - 1)], moves)
+        k = _zero_entered(k, ids, mv, _jump(C, cfg))
+        S = _zero_entered(S, ids, mv, _jump(C, cfg))
+        k, S, over = _refill(store, k, S, ids, mv, cfg, R)
+        return k, S, overflow | over
 
-        def rep(k1, S1, p1, u1, l1, m1):
-            ok = jnp.where(l1, store.obs_k[u1], zero)
-            oS = jnp.where(l1, store.obs_S[u1], zero)
-            return _replay(k1, S1, p1, store.obs_index[u1], ok, oS, store.obs_heading[u1], m1,
-                           cfg)
-
-        return jax.vmap(rep)(k, S, p, uc, live, moves)
-
-    k, S = lax.fori_loop(0, jnp.minimum(jnp.max(n_hits), R), one, (k, S))
-    overflow = jnp.any(n_hits > R)
+    n_moved = jnp.sum(moved)
+    k, S, overflow = lax.fori_loop(0, (n_moved + P - 1) // P, one,
+                                   (store.k, store.S, jnp.bool_(False)))
     return store._replace(k=k, S=S, origin=moves.origin,
                           status=store.status | jnp.where(overflow, REFILL_OVERFLOW, 0))
 
