@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gslam_jax.machine import environment
+from gslam_jax.driver.machine import environment
 
 
 def _best(fn, repeats: int) -> float:
