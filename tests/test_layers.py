@@ -124,3 +124,20 @@ def test_the_map_stores_are_reached_only_through_rbpf():
     wrong = sorted(f"{m} imports {t}" for m, imp in importers.items() for t in imp
                    if t in STORE_MODULES)
     assert not wrong, "\n".join(wrong)
+
+
+def test_every_experiment_imports():
+    """The experiments follow the package's moves: each of them imports (a moved module left
+    ``experiments/machine_floor.py`` importing ``gslam_jax.machine``, unnoticed)."""
+    import importlib
+
+    root = PACKAGE.parent / "experiments"
+    failed = {}
+    for path in sorted(root.glob("*.py")):
+        if path.stem == "__init__":
+            continue
+        try:
+            importlib.import_module(f"experiments.{path.stem}")
+        except ImportError as err:
+            failed[path.name] = str(err)
+    assert not failed, failed
