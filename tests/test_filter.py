@@ -12,6 +12,7 @@ from synthetic import World, make_run
 from gslam_jax import rbpf
 from gslam_jax.config import Config, FilterSection, MotionSection
 from gslam_jax.driver import observations, sizing, slam
+from gslam_jax.driver.results import SlamResult
 from gslam_jax.rbpf import unknown
 from gslam_jax.rbpf.cells import obs_from_stats
 from gslam_jax.rbpf.placement import observation_cells
@@ -28,6 +29,7 @@ LM = LocalMapParams(resolution=RES, max_range=5.0, cells=64)
 # and tests that check different properties of the same filter run share that run.
 _make_run = functools.lru_cache(make_run)
 _observe = jax.jit(rbpf.observe, static_argnames=("cfg",))
+_step = jax.jit(rbpf.step, static_argnames=("cfg",))
 
 
 def _cfg(J, mode="ignore", **kw):
@@ -88,8 +90,8 @@ def test_best_particle_survives_resampling():
     assert np.ptp(np.asarray(info.log_w)) == 0.0  # equal weights: argmax would say slot 0
     assert int(np.argmax(kept_info.log_w)) == 7 == int(kept.best)
     np.testing.assert_array_equal(resampled.pose[resampled.best], state.pose[7])
-    moved, moved_info = rbpf.step(jax.random.key(1), resampled, jnp.zeros(3), None, params,
-                                  resample_cfg)
+    moved, moved_info = _step(jax.random.key(1), resampled, jnp.zeros(3), None, params,
+                              resample_cfg)
     assert int(moved_info.best) == int(resampled.best) == int(moved.best)
 
 
@@ -112,13 +114,19 @@ def _config(J=32, mode="sample", seed=0):
                                motion=MotionSection(alpha_theta_d=0.02))
 
 
+@functools.lru_cache
+def _loop_slam(seed: int = 0, chunk: int = 512) -> SlamResult:
+    """``run_slam`` of the 80-step loop with VO heading drift, 64 particles, filter seed
+    ``seed``: one compiled scan per chunk length, shared by the tests below."""
+    run, _ = _make_run(seed=4, steps=80, drift=0.004)
+    return slam.run_slam(run, _config(J=64, seed=seed), chunk=chunk)
+
+
 @pytest.mark.slow
 def test_same_seed_is_bit_identical_and_seeds_differ():
-    run, _ = _make_run(seed=2, steps=30)
-    a = slam.run_slam(run, _config(seed=5))
-    b = slam.run_slam(run, _config(seed=5), chunk=7)  # chunking (and padding 30 to 35) must
-    # not change anything
-    c = slam.run_slam(run, _config(seed=6))
+    a = _loop_slam(seed=0)
+    b = _loop_slam(seed=0, chunk=7)  # chunking (and padding 80 to 84) must not change anything
+    c = _loop_slam(seed=1)
     np.testing.assert_array_equal(a.best_path, b.best_path)
     np.testing.assert_array_equal(a.ess, b.ess)
     np.testing.assert_array_equal(a.kmap, b.kmap)
@@ -127,8 +135,8 @@ def test_same_seed_is_bit_identical_and_seeds_differ():
 
 @pytest.mark.slow
 def test_slam_corrects_vo_heading_drift_on_a_loop():
-    run, _ = make_run(seed=4, steps=80, drift=0.004)
-    res = slam.run_slam(run, _config(J=64))
+    run, _ = _make_run(seed=4, steps=80, drift=0.004)
+    res = _loop_slam(seed=0)
     gt = run.ground_truth[:, :2]
     vo_err = np.linalg.norm(res.vo_path[:, :2] - gt, axis=1)
     slam_err = np.linalg.norm(res.best_path[:, :2] - gt, axis=1)

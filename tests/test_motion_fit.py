@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from synthetic import make_run
+from cached_runs import shared_run
 
 from gslam_jax.app.cli import main
 from gslam_jax.config import load_config
@@ -158,11 +158,11 @@ def test_windows_keep_independent_errors_and_widen_for_correlated_ones():
 
 
 def test_update_interval_is_the_median_spacing_of_the_local_maps():
-    run, _ = make_run(steps=30)
-    obs = -np.ones(30, np.int32)
+    run = shared_run(40)  # _noisy_run_file's Run, built once
+    obs = -np.ones(40, np.int32)
     obs[[0, 4, 8, 11, 15, 19]] = np.arange(6)
     assert update_interval(run._replace(obs_index=obs)) == 4
-    assert update_interval(run._replace(obs_index=-np.ones(30, np.int32))) == 1
+    assert update_interval(run._replace(obs_index=-np.ones(40, np.int32))) == 1
 
 
 def test_too_few_frames_or_no_ground_truth_are_named_errors():
@@ -179,7 +179,7 @@ def test_too_few_frames_or_no_ground_truth_are_named_errors():
 
 
 def _noisy_run_file(tmp_path, steps=40):
-    run, _ = make_run(steps=steps)
+    run = shared_run(steps)
     rng = np.random.default_rng(3)
     noise = rng.normal(0.0, [0.01, 0.002, 0.003], run.controls.shape)
     path = tmp_path / "r.npz"
@@ -207,8 +207,7 @@ def test_cli_writes_a_config_with_the_fitted_motion(tmp_path, capsys):
 
 
 def test_cli_without_ground_truth_exits_2(tmp_path, capsys):
-    run, _ = make_run(steps=10)
-    save_run(tmp_path / "r.npz", run._replace(ground_truth=None))
+    save_run(tmp_path / "r.npz", shared_run(40)._replace(ground_truth=None))
     assert main(["fit-motion", str(tmp_path / "r.npz")]) == 2
     assert "no ground truth" in capsys.readouterr().err
 

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 import pytest
-from synthetic import make_run
+from cached_runs import shared_run
 
 from gslam_jax.app.cli import main
 from gslam_jax.driver import slam
@@ -24,7 +24,7 @@ MARKER = "COMPLETE"  # the documented name of the completeness marker
 
 @pytest.fixture(scope="module")
 def run_file(tmp_path_factory):
-    run, _ = make_run(steps=20)
+    run = shared_run()  # the CLI tests' Run, built once per process
     path = tmp_path_factory.mktemp("run") / "r.npz"
     save_run(path, run)
     return run, path

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -102,11 +103,14 @@ def log_likelihood_given_precision(v: Array, k: Array, h: Array) -> Array:
     return a * jnp.log(rate) - gammaln(a) + (a - 1.0) * jnp.log(v) - rate * v
 
 
+@jax.jit
 def expected_std(k: Array, S: Array) -> Array:
     """Posterior expected standard deviation of a cell's heights, E[h^-1/2] (for display).
 
     With h ~ Gamma(k/2, rate S/2): E[h^-1/2] = sqrt(S/2) Gamma((k-1)/2) / Gamma(k/2), finite for
     k > 1; cells with 0 < k <= 1 fall back to sqrt(S/k); unknown cells (k = 0) are NaN.
+    Jitted: called on whole maps of many shapes by the figures and exports, one compilation per
+    shape instead of one per operation.
     """
     k = jnp.asarray(k)
     S = jnp.asarray(S)
