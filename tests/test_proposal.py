@@ -5,6 +5,7 @@ and the filter with it."""
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gslam_jax.rbpf import proposal
+from gslam_jax.rbpf import kernel, proposal
 from gslam_jax.rbpf.motion import MotionParams, apply_motion
 
 
@@ -22,19 +23,36 @@ def _quadratic_score(g: np.ndarray, centre: np.ndarray, precision: np.ndarray) -
     return -0.5 * np.einsum("...a,ab,...b->...", d, precision, d)
 
 
-def _fit(centre: np.ndarray, precision: np.ndarray, phi: float, points: int = 3,
-         stages: int = 2):
-    """The staged fit of one particle whose score is ``_quadratic_score``."""
-    c, A = jnp.asarray(centre, jnp.float32), jnp.asarray(precision, jnp.float32)
-
+@partial(jax.jit, static_argnames=("points", "stages"))
+def _fit_jitted(c: jax.Array, A: jax.Array, phi: jax.Array, points: int, stages: int):
     def score(g):  # traced: the stages are one lax.scan
         d = g - c
         return -0.5 * jnp.einsum("...a,ab,...b->...", d, A, d)
 
-    mu, q_chol, got = proposal.fit_proposal(score, 1, points, 2.0, stages,
-                                            lambda log_lam, log_prior: jnp.float32(phi))
+    return proposal.fit_proposal(score, 1, points, 2.0, stages, lambda log_lam, log_prior: phi)
+
+
+def _fit(centre: np.ndarray, precision: np.ndarray, phi: float, points: int = 3,
+         stages: int = 2):
+    """The staged fit of one particle whose score is ``_quadratic_score`` (one compilation
+    for every centre, precision and exponent)."""
+    mu, q_chol, got = _fit_jitted(jnp.asarray(centre, jnp.float32),
+                                  jnp.asarray(precision, jnp.float32), jnp.float32(phi),
+                                  points, stages)
     assert float(got) == pytest.approx(phi)
     return mu, q_chol
+
+
+@jax.jit
+def _proposal_draws_and_correction(mu: jax.Array, q_chol: jax.Array):
+    """200,000 draws g from N(mu, Q) and their log N(g; 0, I) - log N(g; mu, Q)."""
+    z = jax.random.normal(jax.random.key(0), (200_000, 3))
+    g = mu + z @ q_chol[0].T
+    eye = jnp.broadcast_to(jnp.eye(3), (g.shape[0], 3, 3))
+    correction = (proposal._log_normal(g, jnp.zeros_like(g), eye)
+                  - proposal._log_normal(g, jnp.broadcast_to(mu, g.shape),
+                                         jnp.broadcast_to(q_chol, eye.shape)))
+    return g, correction
 
 
 @pytest.mark.slow
@@ -46,12 +64,7 @@ def test_weights_are_exact_importance_weights_of_the_tempered_target(precision):
     centre = np.array([0.8, -0.5, 0.3])
     phi = 0.7
     mu, q_chol = _fit(centre, precision, phi)
-    z = jax.random.normal(jax.random.key(0), (200_000, 3))
-    g = mu + z @ q_chol[0].T
-    eye = jnp.broadcast_to(jnp.eye(3), (g.shape[0], 3, 3))
-    correction = (proposal._log_normal(g, jnp.zeros_like(g), eye)
-                  - proposal._log_normal(g, jnp.broadcast_to(mu, g.shape),
-                                         jnp.broadcast_to(q_chol, eye.shape)))
+    g, correction = _proposal_draws_and_correction(mu, q_chol)
     w = np.exp(np.asarray(correction, np.float64)
                + phi * _quadratic_score(np.asarray(g, np.float64), centre, precision))
     axis = np.linspace(-7, 7, 141)
@@ -86,25 +99,39 @@ def test_the_grid_starts_at_the_prior_mean():
     assert grid.shape == (1, 3) and spacing == 0.0
 
 
+@jax.jit
+def _propagated_and_sampled(controls: jax.Array, params: MotionParams):
+    """The proposal's mean and accumulated covariance over ``controls`` from the origin, and
+    100,000 samples of the motion model over the same controls (frame t's normals from key t)."""
+    def frame(carry, xs):
+        pose, cov, samples = carry
+        t, u = xs
+        pose, cov = proposal.propagate_mean(pose, cov, u, params)
+        eps = jax.random.normal(jax.random.key(t), samples.shape)
+        return (pose, cov, apply_motion(samples, u, eps, params)), None
+
+    start = (jnp.zeros(3), jnp.zeros((3, 3)), jnp.zeros((100_000, 3)))
+    (pose, cov, samples), _ = jax.lax.scan(frame, start,
+                                           (jnp.arange(controls.shape[0]), controls))
+    return pose, cov, samples
+
+
 @pytest.mark.parametrize("alpha_cross", [0.0, 0.03])
 def test_accumulated_covariance_matches_monte_carlo_of_the_motion_model(alpha_cross):
     params = MotionParams(0.05, 0.01, 0.05, alpha_cross)
     controls = jnp.asarray(np.tile([0.3, 0.0, 0.02], (20, 1)), jnp.float32)
-    pose = jnp.zeros(3)
-    cov = jnp.zeros((3, 3))
-    for u in controls:
-        pose, cov = proposal.propagate_mean(pose, cov, u, params)
-    n = 100_000
-    samples = jnp.zeros((n, 3))
-    for t, u in enumerate(controls):
-        eps = jax.random.normal(jax.random.key(t), (n, 3))
-        samples = apply_motion(samples, u, eps, params)
+    pose, cov, samples = _propagated_and_sampled(controls, params)
     emp = np.cov(np.asarray(samples, np.float64).T)
     np.testing.assert_allclose(np.asarray(samples).mean(0), np.asarray(pose), atol=3e-3)
     np.testing.assert_allclose(np.asarray(cov), emp, rtol=0.08, atol=2e-5)
 
 
 # ------------------------------------------------------------------ the filter with it
+
+# The filter's functions as the tests call them, each compiled once per configuration rather
+# than dispatched op by op.
+_update = jax.jit(kernel.update, static_argnames=("cfg",))
+_score_candidates = jax.jit(proposal.score_candidates, static_argnames=("cfg",))
 
 
 def _small_case(points: int = 3, J: int = 4, seed: int = 0):
@@ -178,9 +205,8 @@ def test_candidate_scores_match_brute_force_eq_26(stride):
     chol = proposal.prior_factor(state.prior_cov)
     grid, _ = proposal.candidate_grid(3, 2.0)
     g = jnp.broadcast_to(grid, (cfg.num_particles,) + grid.shape)
-    got = np.asarray(proposal.score_candidates(state.maps, state.pose, chol, g,
-                                               jnp.zeros((cfg.num_particles, 0)), obs, params,
-                                               cfg))
+    got = np.asarray(_score_candidates(state.maps, state.pose, chol, g,
+                                       jnp.zeros((cfg.num_particles, 0)), obs, params, cfg))
     poses = np.asarray(state.pose)[:, None, :] + np.einsum("jab,kb->jka", np.asarray(chol),
                                                            np.asarray(grid))
     for j, kk in [(0, 0), (1, 5), (2, 13), (3, 26)]:
@@ -197,17 +223,15 @@ def test_candidate_scores_match_brute_force_eq_26(stride):
 def test_one_candidate_reduces_to_the_motion_proposals_update():
     """proposal_points = 1: the pose is a draw of the prior, and the update is exactly the
     motion proposal's update at that pose (no correction, the same weights and maps)."""
-    from gslam_jax.rbpf import kernel
-
     cfg, state, local, _ = _small_case(points=1)
     z = jax.random.normal(jax.random.key(3), (cfg.num_particles, 3))
     params = kernel.FilterParams()
-    informed, info_i = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params,
+    informed, info_i = _update(state, local, jnp.zeros((cfg.num_particles, 0)), params,
                                      cfg, z)
     drawn = state.pose + jnp.einsum("jab,jb->ja", proposal.prior_factor(state.prior_cov), z)
     motion_cfg = cfg._replace(proposal="motion")
     moved = state._replace(pose=drawn, prior_cov=None)
-    plain, info_m = kernel.update(moved, local, jnp.zeros((cfg.num_particles, 0)), params,
+    plain, info_m = _update(moved, local, jnp.zeros((cfg.num_particles, 0)), params,
                                   motion_cfg)
     np.testing.assert_array_equal(informed.pose, drawn)
     np.testing.assert_array_equal(informed.log_w, plain.log_w)
@@ -221,13 +245,13 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     """The update's weights with the informed proposal: phi log lambda at the drawn pose (eq.
     26, brute force, every observed cell even when the fit scored every third) plus the
     proposal's correction, normalised."""
-    from gslam_jax.rbpf import kernel
     from gslam_jax.rbpf.footprint import compact_observation
 
     cfg, state, local, (k, S) = _small_case(points=3)
     cfg = cfg._replace(proposal_cell_stride=stride)
     z = jax.random.normal(jax.random.key(4), (cfg.num_particles, 3))
     params = kernel.FilterParams()
+    # eager, not jitted: the update and the draw then share their compiled pieces
     new, info = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
     d = proposal.draw(state.maps, state.pose, state.prior_cov, z, lambda lam, p: jnp.float32(1.0),
                       jnp.zeros((cfg.num_particles, 0)), compact_observation(local, cfg),
@@ -248,13 +272,13 @@ def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
     the first grid's brute-force scores (eq. 26): the candidate cloud's conditional ESS over
     the prior ("prior") or the per-particle normalisers' ("normaliser"), and the normaliser's
     exponent is the larger (it does not count the spread the proposal absorbs)."""
-    from gslam_jax.rbpf import kernel, tempering
+    from gslam_jax.rbpf import tempering
 
     cfg, state, local, (k, S) = _small_case(points=3, J=6)
     cfg = cfg._replace(tempering="adaptive", ess_target=0.9, proposal_exponent=rule)
     z = jax.random.normal(jax.random.key(5), (cfg.num_particles, 3))
     params = kernel.FilterParams()
-    _, info = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
+    _, info = _update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
     grid, _ = proposal.candidate_grid(3, 2.0)
     chol = np.asarray(proposal.prior_factor(state.prior_cov))
     poses = np.asarray(state.pose)[:, None, :] + np.einsum("jab,kb->jka", chol, np.asarray(grid))
@@ -262,14 +286,34 @@ def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
                                        float(params.beta_prev)) for p in row] for row in poses])
     log_prior = np.broadcast_to(-0.5 * np.sum(np.asarray(grid) ** 2, axis=1), lam.shape)
     lam32, prior32 = jnp.asarray(lam, jnp.float32), jnp.asarray(log_prior, jnp.float32)
-    by_normaliser = float(tempering.normaliser_exponent(state.log_w, lam32, prior32, 0.9))
     cloud = np.asarray(state.log_w)[:, None] + log_prior
     cloud = cloud - np.logaddexp.reduce(cloud.ravel())
-    by_prior = float(tempering.adaptive_exponent(jnp.asarray(cloud.ravel(), jnp.float32),
-                                                 lam32.ravel(), 0.9))
+
+    @jax.jit  # one compilation for the rules' functions, not one per operation
+    def exponents(log_w, lam, prior, cloud):
+        return (tempering.normaliser_exponent(log_w, lam, prior, 0.9),
+                tempering.adaptive_exponent(cloud, lam.ravel(), 0.9))
+
+    by_normaliser, by_prior = map(float, exponents(state.log_w, lam32, prior32,
+                                                   jnp.asarray(cloud.ravel(), jnp.float32)))
     assert 0.0 < by_prior < by_normaliser
     want = by_normaliser if rule == "normaliser" else by_prior
     assert float(info.exponent) == pytest.approx(want, rel=2e-3)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def _scores_by_update_reads(store_, pose, chol, grid, u, obs, params, cfg):
+    """Each candidate's log lambda (eq. 26) from the update's own footprint reads at its pose
+    [J, K]."""
+    from gslam_jax.rbpf import cells
+    from gslam_jax.rbpf.footprint import read_footprints
+    from gslam_jax.rbpf.importance import log_lambda
+
+    rows = jnp.arange(cfg.num_particles, dtype=jnp.int32)
+    log_v = cells.log_v_obs(obs.k, obs.S)
+    return jax.lax.map(lambda t: log_lambda(read_footprints(
+        store_, pose + jnp.einsum("jab,b->ja", chol, t), rows, u, obs, cfg),
+        log_v, params, cfg), grid).T
 
 
 @pytest.mark.slow
@@ -284,9 +328,8 @@ def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std, win
     its candidates; its scores are those of the update's own footprint reads
     (``read_footprints``) at each candidate pose, inside the window or not ("dense" with
     "ignore" inside it: ``test_candidate_scores_match_brute_force_eq_26``)."""
-    from gslam_jax.rbpf import cells, maps
-    from gslam_jax.rbpf.footprint import compact_observation, read_footprints
-    from gslam_jax.rbpf.importance import log_lambda
+    from gslam_jax.rbpf import maps
+    from gslam_jax.rbpf.footprint import compact_observation
     from gslam_jax.rbpf.types import FilterParams
 
     if window_bytes is not None:
@@ -304,18 +347,13 @@ def test_windowed_candidate_scores_equal_the_updates_reads(store, prior_std, win
     u = jax.random.uniform(jax.random.key(5), (J, cfg.unknown_samples))
     obs = compact_observation(local, cfg)
     params = FilterParams()
-    got = np.asarray(jax.jit(proposal.score_candidates, static_argnums=7)(
-        store_, state.pose, chol, g, u, obs, params, cfg))
+    # a wrapper of its own: a trace cached by an earlier case with the same cfg would keep
+    # that case's WINDOW_BYTES
+    score_candidates = jax.jit(partial(proposal.score_candidates), static_argnames=("cfg",))
+    got = np.asarray(score_candidates(store_, state.pose, chol, g, u, obs, params, cfg))
 
-    @jax.jit
-    def per_candidate(store_, pose, u):
-        rows = jnp.arange(J, dtype=jnp.int32)
-        log_v = cells.log_v_obs(obs.k, obs.S)
-        return jax.lax.map(lambda t: log_lambda(read_footprints(
-            store_, pose + jnp.einsum("jab,b->ja", chol, t), rows, u, obs, cfg),
-            log_v, params, cfg), grid).T
-
-    want = np.asarray(per_candidate(store_, state.pose, u))
+    want = np.asarray(_scores_by_update_reads(store_, state.pose, chol, grid, u, obs, params,
+                                              cfg))
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
     # the wide prior's outer candidates do leave the window (the fallback path is exercised)
     reach = prior_std * 2.0 / cfg.resolution
@@ -362,7 +400,7 @@ def test_a_start_spread_is_the_informed_proposals_first_prior():
     local = np.zeros((16, 16, 2), np.float32)
     local[4:12, 4:12] = (5.0, 0.05)
     z = jax.random.normal(jax.random.key(1), (J, 3))
-    new, _ = rbpf.update(state, jnp.asarray(local), jnp.zeros((J, 0)), rbpf.FilterParams(),
+    new, _ = _update(state, jnp.asarray(local), jnp.zeros((J, 0)), rbpf.FilterParams(),
                          cfg, z)
     drawn = (np.asarray(new.pose, np.float64) - start) / sigma
     for axis in range(3):  # standard normal per axis

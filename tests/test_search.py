@@ -211,7 +211,8 @@ def test_rms_scores_position_only_ground_truth(small_run):
 def test_result_times_are_named_for_what_they_hold(small_run, tmp_path):
     """total_seconds includes compilation; first_chunk_seconds is a part of it."""
     space = SP.parse_space({"alpha_d": [0.01, 0.1]})
-    res = S.search(small_run, CONFIG, space, n=4, objective="loglik", batch=2)
+    # batch=1: four chunks, compiled as test_rms_needs_a_frame_with_ground_truth's loglik
+    res = S.search(small_run, CONFIG, space, n=4, objective="loglik", batch=1)
     assert 0 < res.first_chunk_seconds <= res.total_seconds
     res.to_json(tmp_path / "r.json")
     doc = json.loads((tmp_path / "r.json").read_text())

@@ -322,7 +322,8 @@ def test_filter_reports_pool_exhaustion_per_frame():
     _, (infos, _, _) = gf.scan_frames(
         state, keys, jnp.asarray(np.asarray(run.controls, np.float32)),
         jnp.asarray(np.asarray(run.obs_index, np.int32)),
-        observations.map_observations(run, config), sizing.filter_params(config), cfg)
+        observations.map_observations(run, config), sizing.filter_params(config), cfg,
+        jnp.asarray(run.lattice_heading_array()), None)
     status = np.asarray(infos.map_status)
     assert status[-1] & ts.POOL_EXHAUSTED
     assert np.all(np.diff(status) >= 0)  # sticky: the frame it first happened stays findable
