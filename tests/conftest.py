@@ -10,10 +10,6 @@ user set (``JAX_COMPILATION_CACHE_DIR``) is left as it is. Compilations under 0.
 cached: caching every one was faster on two CLI-heavy files (84 s against 93 s) but not on the
 whole suite in fresh-clone CI here (951 and 991 s against 904 s).
 
-Optimisation level: the suite compiles at LLVM level 0 (``_lower_optimisation`` below; about a
-fifth less CPU on compile-bound files), checked against the default level by
-``tests/test_optimisation_level.py``; ``GSLAM_TEST_XLA_DEFAULT=1`` runs it at the default level.
-
 Markers (registered in pyproject.toml's ``[tool.pytest.ini_options]``):
 
 - ``slow``: a test that compiles or runs the filter at a configuration of its own (seconds to
@@ -40,31 +36,6 @@ def _cache_dir() -> str:
         return chosen
     return str(Path(tempfile.gettempdir()) / f"gslam-jax-test-cache-{getpass.getuser()}")
 
-
-TEST_OPTIMISATION = "--xla_backend_optimization_level=0"
-DEFAULT_LEVEL_ENV = "GSLAM_TEST_XLA_DEFAULT"
-
-
-def _lower_optimisation() -> None:
-    """Compile at LLVM level 0 in this process and the ``gslam`` subprocesses it starts.
-
-    The suite's time is XLA compiling (each filter configuration a test checks is its own
-    program), and LLVM's optimisation is most of a compilation; the tests check what the
-    programs compute (against brute force, SciPy, the tiled reference, or each other), which
-    does not depend on how well the machine code was optimised. The numbers are IEEE either way,
-    though not always bitwise the default level's (FMA contraction), so results a test compares
-    bitwise are both made here. ``tests/test_optimisation_level.py`` runs a filter at the
-    default level in a subprocess and compares it with this level's. Set
-    ``GSLAM_TEST_XLA_DEFAULT=1`` to run the suite at the default level; a level the user put in
-    ``XLA_FLAGS`` is kept.
-    """
-    flags = os.environ.get("XLA_FLAGS", "")
-    if os.environ.get(DEFAULT_LEVEL_ENV) or "xla_backend_optimization_level" in flags:
-        return
-    os.environ["XLA_FLAGS"] = f"{flags} {TEST_OPTIMISATION}".strip()
-
-
-_lower_optimisation()
 
 if "JAX_COMPILATION_CACHE_DIR" not in os.environ and _cache_dir():
     # Environment variables, before JAX is imported: this process and every subprocess read them.
