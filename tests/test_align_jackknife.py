@@ -15,6 +15,9 @@ from gslam_jax.gridmap.align import AlignParams, align_maps, map_blocks
 RES = 0.16
 
 
+import pytest  # noqa: E402
+pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
+
 def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Height variance at world points: smooth ground plus scattered rocks."""
     rng = np.random.default_rng(3)

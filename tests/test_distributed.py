@@ -12,6 +12,8 @@ distributed = pytest.importorskip(
     "distributed", reason="Dask distributed is the optional [distributed] extra (also in [dev])")
 
 
+pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
+
 def test_two_worker_cluster_equals_single_process_search():
     from gslam_jax.tuning.distributed import distributed_search
 

@@ -17,6 +17,9 @@ from gslam_jax.evaluation.metrics import rms_after_fit
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "own_rig.py"
 
 
+import pytest  # noqa: E402
+pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
+
 def test_own_rig_example(tmp_path, monkeypatch, capsys):
     folder = tmp_path / "rig"
     monkeypatch.setattr("sys.argv", [str(EXAMPLE), str(folder)])

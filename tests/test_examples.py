@@ -11,6 +11,9 @@ from pathlib import Path
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
+import pytest  # noqa: E402
+pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
+
 def _run(name: str, frames: int, monkeypatch, capsys) -> str:
     monkeypatch.setenv("GSLAM_EXAMPLE_FRAMES", str(frames))
     runpy.run_path(str(EXAMPLES / name), run_name="__main__")
