@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from gslam_jax.gridmap import GridMap
 from gslam_jax.gridmap.align import AlignParams, align_maps, map_blocks
@@ -15,8 +16,8 @@ from gslam_jax.gridmap.align import AlignParams, align_maps, map_blocks
 RES = 0.16
 
 
-import pytest  # noqa: E402
 pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
+
 
 def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Height variance at world points: smooth ground plus scattered rocks."""

@@ -10,15 +10,15 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy.ndimage import map_coordinates
 
 from gslam_jax.evaluation.metrics import rms_after_fit
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "own_rig.py"
 
-
-import pytest  # noqa: E402
 pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
+
 
 def test_own_rig_example(tmp_path, monkeypatch, capsys):
     folder = tmp_path / "rig"

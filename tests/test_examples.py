@@ -7,12 +7,12 @@ import re
 import runpy
 from pathlib import Path
 
+import pytest
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
-
-import pytest  # noqa: E402
 pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
+
 
 def _run(name: str, frames: int, monkeypatch, capsys) -> str:
     monkeypatch.setenv("GSLAM_EXAMPLE_FRAMES", str(frames))
