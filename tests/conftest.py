@@ -1,14 +1,15 @@
-"""Test-session set-up: one persistent JAX compilation cache for the whole session.
+"""Test-session set-up: no persistent compilation cache, crashed workers end the run, file order.
 
-Most of the suite's time is XLA compiling the same filter programs again: in each xdist worker,
-and in each ``gslam`` command a test runs as a subprocess. JAX's persistent cache keys an
-executable on its HLO, the compiler flags, the JAX version and the device, so a hit is the same
-program as a fresh compilation, and the numbers are unchanged (the determinism tests compare
-bits). The cache goes to ``GSLAM_TEST_JAX_CACHE`` (unset: a folder under the system's temporary
-directory; empty: no cache), and is handed to subprocesses through the environment. A cache the
-user set (``JAX_COMPILATION_CACHE_DIR``) is left as it is. Compilations under 0.2 s are not
-cached: caching every one was faster on two CLI-heavy files (84 s against 93 s) but not on the
-whole suite in fresh-clone CI here (951 and 991 s against 904 s).
+No persistent JAX compilation cache by default, in the test processes or in the ``gslam``
+commands they start (``GSLAM_JAX_CACHE`` is set empty for those). Reading a cached program
+once crashed an xdist worker in CI (a segmentation fault in the executable's deserialisation),
+and the cache did not pay for itself: the whole suite took about as long without it
+(docs/notebook/test-suite.md has the figures). ``GSLAM_TEST_JAX_CACHE=DIR`` turns it on in DIR, for this process
+and every subprocess; a cache the user set (``JAX_COMPILATION_CACHE_DIR``) is left as it is.
+
+A worker that crashes ends the run (``--max-worker-restart 0``) with the test it ran named:
+with ``--dist loadfile``, pytest-xdist's replacement worker can wait forever for work (its
+issues 784 and 1378), so a crash would otherwise hold CI until its time limit.
 
 Markers (registered in pyproject.toml's ``[tool.pytest.ini_options]``):
 
@@ -24,31 +25,32 @@ file does not start last and keep one core busy while the other waits.
 
 from __future__ import annotations
 
-import getpass
 import os
-import tempfile
-from pathlib import Path
 
 
 def _cache_dir() -> str:
-    chosen = os.environ.get("GSLAM_TEST_JAX_CACHE")
-    if chosen is not None:
-        return chosen
-    return str(Path(tempfile.gettempdir()) / f"gslam-jax-test-cache-{getpass.getuser()}")
+    """The folder of ``GSLAM_TEST_JAX_CACHE``; empty when it is unset or empty (no cache)."""
+    return os.environ.get("GSLAM_TEST_JAX_CACHE", "").strip()
 
 
-if "JAX_COMPILATION_CACHE_DIR" not in os.environ and _cache_dir():
-    # Environment variables, before JAX is imported: this process and every subprocess read them.
-    os.environ["JAX_COMPILATION_CACHE_DIR"] = _cache_dir()
-    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
-    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+# Environment variables, before JAX is imported: this process and every subprocess read them.
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    if _cache_dir():
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = _cache_dir()
+        os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
+        os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+    else:
+        os.environ.setdefault("GSLAM_JAX_CACHE", "")  # and no user cache in ``gslam`` commands
 
 
 def pytest_configure(config) -> None:
     """Keep the collection order below as the order pytest-xdist hands out files
-    (``--no-loadscope-reorder``; by default it orders them by number of tests alone)."""
+    (``--no-loadscope-reorder``; by default it orders them by number of tests alone), and end
+    the run at a worker's crash (``--max-worker-restart 0`` unless given)."""
     if hasattr(config.option, "loadscopereorder"):
         config.option.loadscopereorder = False
+    if getattr(config.option, "maxworkerrestart", "") is None:
+        config.option.maxworkerrestart = 0
 
 
 def pytest_collection_modifyitems(config, items) -> None:
