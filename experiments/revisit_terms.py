@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from functools import partial
 from pathlib import Path
 
 import jax
@@ -86,6 +87,19 @@ def group_medians(values: dict[str, np.ndarray], groups: dict[str, np.ndarray]
     return out
 
 
+@partial(jax.jit, static_argnames=("cfg",))
+def _known_cell_terms(store: maps.Maps, cfg: rbpf.FilterConfig, pose: jax.Array,
+                      rows: jax.Array, local_obs: jax.Array, lattice_heading: jax.Array,
+                      key: jax.Array, params: rbpf.FilterParams) -> tuple[jax.Array, jax.Array]:
+    """(known [J, M], eq. 26 per observed cell [J, M]): ``local_obs`` scored from ``pose``
+    [J, 3] against the ``rows`` [J] of ``store``, one compiled program per ``cfg``."""
+    obs = compact_observation(local_obs, cfg, lattice_heading)
+    u = jax.random.uniform(key, (cfg.num_particles, cfg.unknown_samples))
+    fp = read_footprints(store, pose, rows, u, obs, cfg)
+    return known_cell_terms(fp.k_obs, fp.S_obs, fp.k_prior, fp.S_prior,
+                            cell_noise(obs.index, params))
+
+
 class _Scorer:
     """Scores one update's local map for every particle against the given maps."""
 
@@ -100,12 +114,10 @@ class _Scorer:
         """(known [J, M], eq. 26 per observed cell [J, M]) at ``pose`` [J, 3] against the
         ``rows`` of ``store`` (``cfg``: the one the store was made with; a shared pool may
         have grown since the snapshot)."""
-        obs = compact_observation(local_obs, cfg, lattice_heading)
-        u = jax.random.uniform(jax.random.key(frame), (cfg.num_particles, cfg.unknown_samples))
-        fp = read_footprints(store, jnp.asarray(pose, jnp.float32), jnp.asarray(rows, jnp.int32),
-                             u, obs, cfg)
-        known, lam = known_cell_terms(fp.k_obs, fp.S_obs, fp.k_prior, fp.S_prior,
-                                      cell_noise(obs.index, self.params))
+        known, lam = _known_cell_terms(store, cfg, jnp.asarray(pose, jnp.float32),
+                                       jnp.asarray(rows, jnp.int32), jnp.asarray(local_obs),
+                                       jnp.float32(lattice_heading), jax.random.key(frame),
+                                       self.params)
         return np.asarray(known), np.asarray(lam)
 
 
