@@ -8,7 +8,7 @@ from synthetic import make_run
 from gslam_jax.config import ConfigError
 from gslam_jax.driver.sizing import check_float32_reach, map_extent
 from gslam_jax.run import Run, RunError, integrate_controls, load_run, save_run, validate_run
-from gslam_jax.run.checks import MAX_SPEED, coordinate_limit, float32_limit, float32_spacing
+from gslam_jax.run.checks import BLOCK_MAPS, MAX_SPEED, coordinate_limit, float32_limit, float32_spacing
 
 
 @pytest.fixture(scope="module")
@@ -74,6 +74,29 @@ def test_rounding_in_the_variance_is_tolerated(tmp_path, run):
     maps[0, 0, 1] = [7, z.sum(), z @ z * (1 - 1e-12)]
     back = load_run(_save(tmp_path, run, local_maps=maps))
     np.testing.assert_array_equal(back.local_maps, maps)
+
+
+def test_statistics_are_checked_block_by_block_as_one_array(run):
+    """The checks take the local maps ``BLOCK_MAPS`` at a time: the first bad cell and the
+    count are still those of all the maps, and float32 rounding is allowed only where every
+    block holds float32 values."""
+    base = run.local_maps.astype(np.float32).astype(np.float64)
+    M = 3 * BLOCK_MAPS + 5
+    maps = np.concatenate([base] * (M // len(base) + 1))[:M].copy()
+    late, later = 2 * BLOCK_MAPS + 3, 3 * BLOCK_MAPS + 1
+    bad = maps.copy()
+    bad[later, 4, 5] = [4.0, 2.0, 0.5]
+    bad[late, 2, 3] = [4.0, 2.0, 0.5]
+    with pytest.raises(RunError, match=rf"negative variance .* local map {late} \(used by no "
+                                       rf"frame\), cell \(2, 3\) \(2 cells in all\)"):
+        validate_run(run._replace(local_maps=bad))
+    # a deficit of 5e-6 relative: within float32 rounding at n = 7, beyond float64's
+    near = maps.copy()
+    near[late, 2, 3] = [7.0, np.float32(0.7), np.float32(0.07 * (1 - 1e-5))]
+    validate_run(run._replace(local_maps=near))
+    near[later, 0, 0] = [1.0, 0.1, 0.01]  # not float32 values: float64's tolerance for all
+    with pytest.raises(RunError, match=rf"negative variance .* local map {late} .*cell \(2, 3\)"):
+        validate_run(run._replace(local_maps=near))
 
 
 def test_non_boolean_vo_failed(tmp_path, run):

@@ -113,6 +113,27 @@ def check_controls(controls: np.ndarray, timestamps: np.ndarray, fail) -> None:
              "mis-scaled or corrupt control (controls are metres, timestamps seconds)")
 
 
+BLOCK_MAPS = 32  # local maps checked at a time: the checks' temporaries stay a block's size
+
+
+def _blocks(maps: np.ndarray):
+    """``maps`` [M, ...] in consecutive blocks of ``BLOCK_MAPS`` along the first axis."""
+    for start in range(0, maps.shape[0], BLOCK_MAPS):
+        yield maps[start:start + BLOCK_MAPS]
+
+
+def _rounding_dtype(maps: np.ndarray, stored: np.dtype) -> np.dtype:
+    """The dtype whose eps bounds the statistics' rounding (``variance_tolerance``)."""
+    stored = np.dtype(stored)
+    if stored.kind != "f":
+        return np.dtype(np.float64)
+    if stored.itemsize > 4:
+        with np.errstate(over="ignore", invalid="ignore"):
+            if all(np.array_equal(b.astype(np.float32), b) for b in _blocks(maps)):
+                return np.dtype(np.float32)
+    return stored
+
+
 def variance_tolerance(maps: np.ndarray, stored: np.dtype) -> np.ndarray:
     """[M, L, L] relative tolerance of n sum z^2 - (sum z)^2 < 0 for the statistics ``maps``
     [M, L, L, 3] stored as ``stored``: max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING n eps).
@@ -120,34 +141,43 @@ def variance_tolerance(maps: np.ndarray, stored: np.dtype) -> np.ndarray:
     eps is the stored dtype's; integers (no rounding of their own) count as float64, and wider
     floats whose every value is a float32 count as float32 (statistics accumulated in float32
     and widened, e.g. a float32 Run file loaded and saved again)."""
-    stored = np.dtype(stored)
-    if stored.kind != "f":
-        stored = np.dtype(np.float64)
-    elif stored.itemsize > 4:
-        with np.errstate(over="ignore", invalid="ignore"):
-            if np.array_equal(maps.astype(np.float32), maps):
-                stored = np.dtype(np.float32)
+    eps = np.finfo(_rounding_dtype(maps, stored)).eps
     n = np.asarray(maps[..., 0], np.float64)
-    return np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * np.finfo(stored).eps)
+    return np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * eps)
 
 
 def check_statistics(maps: np.ndarray, stored: np.dtype, fail, where) -> None:
     """Local-map statistics [M, L, L, 3] (n, sum z, sum z^2) as only point heights give them:
     finite, n a whole number >= 0, the variance not negative beyond ``variance_tolerance``.
-    ``fail(message)`` raises; ``where(bad_cells [M, L, L])`` names the first bad cell."""
-    finite = np.isfinite(maps).all(axis=-1)
-    if not finite.all():
-        fail(f"non-finite statistics in {where(~finite)}")
-    n, sz, szz = (maps[..., c].astype(np.float64) for c in range(3))
-    if (n < 0).any():
-        fail(f"negative point count n in {where(n < 0)}")
-    if (n != np.round(n)).any():
-        fail(f"non-integer point count n in {where(n != np.round(n))}")
-    spread = n * szz - sz * sz  # n^2 times the variance of the heights
-    tol = variance_tolerance(maps, stored)
-    negative = spread < -tol * (n * np.abs(szz) + sz * sz)
-    if negative.any():
-        fail(f"negative variance (n sum z^2 < (sum z)^2) in {where(negative)}")
+    ``fail(message)`` raises; ``where(bad_cells [M, L, L])`` names the first bad cell.
+    The maps are checked ``BLOCK_MAPS`` at a time, so the check needs a block's temporaries,
+    not several copies of all the maps; the whole mask is built only for a failing check."""
+    eps = np.finfo(_rounding_dtype(maps, stored)).eps
+
+    def non_finite(b: np.ndarray) -> np.ndarray:
+        return ~np.isfinite(b).all(axis=-1)
+
+    def negative_n(b: np.ndarray) -> np.ndarray:
+        return b[..., 0].astype(np.float64) < 0
+
+    def fractional_n(b: np.ndarray) -> np.ndarray:
+        n = b[..., 0].astype(np.float64)
+        return n != np.round(n)
+
+    def negative_variance(b: np.ndarray) -> np.ndarray:
+        n, sz, szz = (b[..., c].astype(np.float64) for c in range(3))
+        spread = n * szz - sz * sz  # n^2 times the variance of the heights
+        tol = np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * eps)
+        return spread < -tol * (n * np.abs(szz) + sz * sz)
+
+    for bad, message in ((non_finite, "non-finite statistics in {}"),
+                         (negative_n, "negative point count n in {}"),
+                         (fractional_n, "non-integer point count n in {}"),
+                         (negative_variance,
+                          "negative variance (n sum z^2 < (sum z)^2) in {}")):
+        with np.errstate(invalid="ignore", over="ignore"):
+            if any(bad(b).any() for b in _blocks(maps)):
+                fail(message.format(where(np.concatenate([bad(b) for b in _blocks(maps)]))))
 
 
 def describe_cells(bad_cells: np.ndarray, obs_index: np.ndarray) -> str:
