@@ -14,7 +14,7 @@ from gslam_jax.config import Config, MapSection
 from gslam_jax.gridmap.pose_maps import local_cell_centres
 from gslam_jax.rbpf import cells
 from gslam_jax.run import Run, RunError
-from gslam_jax.run.checks import describe_cells
+from gslam_jax.run.checks import BLOCK_MAPS, describe_cells
 
 __all__ = ["local_observations", "raw_observations", "ObsSettings", "obs_settings",
            "refine_observations", "map_observations", "range_noise_profile", "run_range_noise",
@@ -28,15 +28,19 @@ PROFILE_MAPS = 256    # local maps sampled (evenly) for the profile
 def local_observations(run: Run, min_variance: float, weight: float = 1.0,
                        min_points: int = 2) -> np.ndarray:
     """[max(M, 1), L, L, 2] float32 observations (k, S) (``cells.obs_from_stats`` with the
-    ``[map]`` settings min_variance, obs_weight and min_points); float64 on the host, then cast.
+    ``[map]`` settings min_variance, obs_weight and min_points); float64 on the host, then cast,
+    ``BLOCK_MAPS`` local maps at a time.
 
     A RunError, naming the local map and a frame that uses it, when a value is not finite in
     float32 (statistics finite in float64 may overflow float32's range, about 3.4e38)."""
     if run.num_local_maps == 0:
         return np.zeros((1, 8, 8, 2), np.float32)
+    maps = run.local_maps
+    obs = np.empty(maps.shape[:3] + (2,), np.float32)
     with np.errstate(over="ignore", invalid="ignore"):
-        obs = cells.obs_from_stats(run.local_maps, min_variance, weight,
-                                   min_points).astype(np.float32)
+        for start in range(0, len(maps), BLOCK_MAPS):  # a block's float64 temporaries at a time
+            block = slice(start, start + BLOCK_MAPS)
+            obs[block] = cells.obs_from_stats(maps[block], min_variance, weight, min_points)
     bad = ~np.isfinite(obs).all(axis=-1)
     if bad.any():
         m, i, j = (int(v) for v in np.argwhere(bad)[0])
