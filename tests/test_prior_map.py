@@ -276,8 +276,8 @@ def test_start_without_a_prior_map_is_refused(capsys):
     assert "give --prior-map RUN_A too" in capsys.readouterr().err
 
 
-def test_a_shared_pool_smaller_than_the_prior_is_a_config_error():
-    run = _run(World(0), 1, 0.004, steps=20)
+def test_a_shared_pool_smaller_than_the_prior_is_a_config_error(runs):
+    run = runs.a
     config = dataclasses.replace(_config(), map=MapSection(margin=2.0, store="shared", tile=16,
                                                            pool_tiles=3))
     cfg = sizing.filter_config(config, run)
