@@ -373,15 +373,15 @@ def dense_pool_run():
 def test_a_chunk_that_exhausts_an_automatic_pool_runs_again_in_a_grown_one(monkeypatch,
                                                                             dense_pool_run):
     """The whole run as one chunk, an automatic pool of 120 tiles: the chunk runs out, is run
-    again from its start with the pool grown (as often as it takes), says so, and the run is
-    the dense store's bit for bit."""
+    again from its start with the pool grown (to 240 tiles, which hold the run), says so, and
+    the run is the dense store's bit for bit."""
     from gslam_jax.driver import slam
     from gslam_jax.rbpf import maps
 
     run, config = _pool_run_and_config()
     automatic = _automatic(config, monkeypatch)
     with pytest.warns(maps.MapStoreNotice, match=r"^frame \d+: .*pool ran out; frames from 0 "
-                                                 r"run again after it grew from 120 to \d+ tiles"):
+                                                 r"run again after it grew from 120 to 240 tiles"):
         shared = slam.run_slam(run, automatic, chunk=run.num_frames)
     dense = dense_pool_run
     np.testing.assert_array_equal(shared.best_path, dense.best_path)
