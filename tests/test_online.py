@@ -129,15 +129,18 @@ def test_a_size_in_metres_covers_the_square_around_the_start():
     np.testing.assert_allclose(live.particles().pose, np.tile(start, (8, 1)), atol=1e-6)
 
 
-def test_the_map_edge_is_refused_naming_the_frame(frames):
+def test_the_map_edge_is_refused_naming_the_frame(frames, batch):
+    """The batch run's map (about 41 m across, around a loop 5 m across; its compiled step is
+    the first test's) with the loop driven at ten times its size: a local map reaches past the
+    edge."""
     run, _ = frames
-    live = Online(CONFIG, 0.0)  # a map of one local map's reach around the start
+    live = Online(CONFIG, filter_config=batch[1])
     with pytest.raises(MapEdgeError, match=r"frame \d+: the local map reached past the edge "
                                            r"of the live map .* give Online a larger "
                                            r"map_extent"):
-        for t in range(run.num_frames):  # the loop driven at three times its size
+        for t in range(run.num_frames):
             m = run.obs_index[t]
-            live.push(run.controls[t] * [3.0, 3.0, 1.0],
+            live.push(run.controls[t] * [10.0, 10.0, 1.0],
                       run.local_maps[m] if m >= 0 else None)
 
 

@@ -32,6 +32,11 @@ from gslam_jax.vo.localmap import LocalMapParams, build_local_maps
 
 J, SHAPE, TILE = 5, (64, 80), 16
 
+# The store operations as the filter runs them, compiled (op by op they take longer)
+init = jax.jit(rbpf.init, static_argnums=0)
+write = jax.jit(maps.write, static_argnames="cfg")
+to_dense = jax.jit(maps.to_dense, static_argnames="cfg")
+
 
 def _np_bits(known: np.ndarray) -> np.ndarray:
     """unknown.pack_known in NumPy: bit r * 8 + c of block (bi, bj), two uint32 words."""
@@ -62,8 +67,8 @@ def _cfg(store: str, mode: str) -> rbpf.FilterConfig:
 def test_init_gives_every_particle_the_prior(store, mode):
     k, S = _prior()
     cfg = _cfg(store, mode)
-    state = rbpf.init(cfg, jnp.zeros(3), (jnp.asarray(k), jnp.asarray(S)))
-    kd, Sd, bits = (np.asarray(x) for x in maps.to_dense(state.maps, cfg))
+    state = init(cfg, jnp.zeros(3), (jnp.asarray(k), jnp.asarray(S)))
+    kd, Sd, bits = (np.asarray(x) for x in to_dense(state.maps, cfg))
     for j in range(J):
         np.testing.assert_array_equal(kd[j], k)
         np.testing.assert_array_equal(Sd[j], S)
@@ -91,13 +96,13 @@ def test_writes_on_a_shared_prior_copy_the_tile_and_leave_the_others():
     out = {}
     for store in ("dense", "shared"):
         cfg = _cfg(store, "sample")
-        state = rbpf.init(cfg, jnp.zeros(3), (jnp.asarray(k), jnp.asarray(S)))
+        state = init(cfg, jnp.zeros(3), (jnp.asarray(k), jnp.asarray(S)))
         # particle 2 writes two cells of a prior tile and one of a page the prior left empty
         cells_ = jnp.array([[35 * 80 + 20, 35 * 80 + 21, 20 * 80 + 50]], jnp.int32)
-        m = maps.write(state.maps, jnp.array([2], jnp.int32), cells_, jnp.float32(3.0),
-                       jnp.float32(0.5), cfg)
+        m = write(state.maps, jnp.array([2], jnp.int32), cells_, jnp.float32(3.0),
+                  jnp.float32(0.5), cfg=cfg)
         assert int(maps.status(m)) == 0
-        out[store] = [np.asarray(x) for x in maps.to_dense(m, cfg)]
+        out[store] = [np.asarray(x) for x in to_dense(m, cfg)]
     kd, Sd, bits = out["shared"]
     for a, b in zip(out["dense"][:2], out["shared"][:2]):  # the dense bits: at finish_update
         np.testing.assert_array_equal(a, b)
@@ -271,8 +276,8 @@ def test_start_without_a_prior_map_is_refused(capsys):
     assert "give --prior-map RUN_A too" in capsys.readouterr().err
 
 
-def test_a_shared_pool_smaller_than_the_prior_is_a_config_error():
-    run = _run(World(0), 1, 0.004, steps=20)
+def test_a_shared_pool_smaller_than_the_prior_is_a_config_error(runs):
+    run = runs.a
     config = dataclasses.replace(_config(), map=MapSection(margin=2.0, store="shared", tile=16,
                                                            pool_tiles=3))
     cfg = sizing.filter_config(config, run)

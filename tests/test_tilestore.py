@@ -1,5 +1,7 @@
 """Shared-tile map store against a brute-force NumPy model of dense per-particle maps."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -338,67 +340,90 @@ def test_run_slam_names_the_setting_and_frame_when_the_pool_runs_out():
         slam.run_slam(run, config)
 
 
-def test_a_chunk_that_exhausts_an_automatic_pool_runs_again_in_a_grown_one(monkeypatch):
-    """The whole run as one chunk, an automatic pool of 30 tiles: the chunk runs out, is run
-    again from its start with the pool grown (as often as it takes), says so, and the run is
-    the dense store's bit for bit."""
+# An automatic pool capped at 120 tiles: the 12-frame course's first frames fit, frame 5 (an
+# update and a resampling) does not, and 240 tiles hold the whole run (one regrow).
+AUTOMATIC_START = 120
+
+
+def _automatic(config, monkeypatch, start: int = AUTOMATIC_START):
+    """``config`` with an automatic pool (``[map] pool_tiles = 0``) that starts at ``start``
+    tiles."""
     import dataclasses
 
+    from gslam_jax.rbpf import maps
+
+    real = maps.pool_tiles
+    monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), start))
+    return dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
+
+
+@pytest.fixture(scope="module")
+def dense_pool_run():
+    """The pool tests' course on the dense store, one chunk: the reference for the runs on a
+    grown shared pool (results do not depend on the chunk: test_filter.py checks it)."""
+    import dataclasses
+
+    from gslam_jax.driver import slam
+
+    run, config = _pool_run_and_config()
+    return slam.run_slam(run, dataclasses.replace(
+        config, map=dataclasses.replace(config.map, store="dense")), chunk=run.num_frames)
+
+
+def test_a_chunk_that_exhausts_an_automatic_pool_runs_again_in_a_grown_one(monkeypatch,
+                                                                            dense_pool_run):
+    """The whole run as one chunk, an automatic pool of 120 tiles: the chunk runs out, is run
+    again from its start with the pool grown (to 240 tiles, which hold the run), says so, and
+    the run is the dense store's bit for bit."""
     from gslam_jax.driver import slam
     from gslam_jax.rbpf import maps
 
     run, config = _pool_run_and_config()
-    automatic = dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
-    real = maps.pool_tiles
-    monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 30))
+    automatic = _automatic(config, monkeypatch)
     with pytest.warns(maps.MapStoreNotice, match=r"^frame \d+: .*pool ran out; frames from 0 "
-                                                 r"run again after it grew from 30 to \d+ tiles"):
+                                                 r"run again after it grew from 120 to 240 tiles"):
         shared = slam.run_slam(run, automatic, chunk=run.num_frames)
-    dense = slam.run_slam(run, dataclasses.replace(
-        config, map=dataclasses.replace(config.map, store="dense")), chunk=run.num_frames)
+    dense = dense_pool_run
     np.testing.assert_array_equal(shared.best_path, dense.best_path)
     np.testing.assert_array_equal(shared.kmap, dense.kmap)
     np.testing.assert_array_equal(shared.ess, dense.ess)
 
 
 def test_an_automatic_pool_without_room_to_grow_says_it_is_automatic(monkeypatch):
-    """No memory to grow an automatic pool (30 tiles here) into: the error says the pool was
-    automatic and to fix its size, not that a setting of 30 was."""
-    import dataclasses
-
+    """No memory to grow an automatic pool (120 tiles here) into: the error says the pool was
+    automatic and to fix its size, not that a setting of 120 was. (The run compiled as the
+    previous test's first try.)"""
     from gslam_jax.driver import sizing, slam
     from gslam_jax.rbpf import maps
 
     run, config = _pool_run_and_config()
-    automatic = dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
-    real = maps.pool_tiles
-    monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 30))
+    automatic = _automatic(config, monkeypatch)
     cfg = sizing.filter_config(automatic, run)
     monkeypatch.setattr(slam, "map_memory", lambda: (3 * maps.map_bytes(cfg), "test memory"))
     with pytest.raises(tilebytes.PoolExhaustedError,
-                       match=r"^frame \d+: .*automatic pool of 30 tiles ran out, and the memory "
+                       match=r"^frame \d+: .*automatic pool of 120 tiles ran out, and the memory "
                              r"has no room to grow it.*set \[map\] pool_tiles to a fixed size "
-                             r"above 30"):
+                             r"above 120"):
         slam.run_slam(run, automatic, chunk=run.num_frames)
 
 
-def test_run_slam_grows_an_automatic_pool_and_gets_the_dense_stores_numbers(monkeypatch):
-    """An automatic pool that starts too small for the run (100 tiles; the run's first
-    frames take about 90, and it ends holding several hundred) grows between chunks, says so,
-    and the run is the dense store's bit for bit."""
-    import dataclasses
-
+def test_run_slam_grows_an_automatic_pool_and_gets_the_dense_stores_numbers(monkeypatch,
+                                                                             dense_pool_run):
+    """An automatic pool of 200 tiles, in two chunks of 6 frames: the first chunk fits, takes
+    about 120 tiles at once, and leaves fewer free than twice that plus an update's worth, so
+    the pool grows between the chunks (once), says so, and the run is the dense store's bit
+    for bit."""
     from gslam_jax.driver import sizing, slam
     from gslam_jax.rbpf import maps
 
     run, config = _pool_run_and_config()
-    automatic = dataclasses.replace(config, map=dataclasses.replace(config.map, pool_tiles=0))
-    real = maps.pool_tiles
-    monkeypatch.setattr(maps, "pool_tiles", lambda cfg: cfg.pool_tiles or min(real(cfg), 100))
-    with pytest.warns(maps.MapStoreNotice, match=r"^frame 1: .*pool grew from 100 to \d+ tiles"):
-        shared = slam.run_slam(run, automatic, chunk=1)
-    dense = slam.run_slam(run, dataclasses.replace(
-        config, map=dataclasses.replace(config.map, store="dense")), chunk=1)
+    automatic = _automatic(config, monkeypatch, start=200)
+    with pytest.warns(maps.MapStoreNotice) as notices:
+        shared = slam.run_slam(run, automatic, chunk=6)
+    said = [str(n.message) for n in notices]
+    assert len(said) == 1, said  # one growth, between the chunks (no chunk ran out)
+    assert re.match(r"^frame 6: .*pool grew from 200 to \d+ tiles", said[0]), said
+    dense = dense_pool_run
     np.testing.assert_array_equal(shared.best_path, dense.best_path)
     np.testing.assert_array_equal(shared.kmap, dense.kmap)
     np.testing.assert_array_equal(shared.smap, dense.smap)
