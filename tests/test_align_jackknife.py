@@ -14,6 +14,10 @@ from gslam_jax.gridmap import GridMap
 from gslam_jax.gridmap.align import AlignParams, align_maps, map_blocks
 
 RES = 0.16
+# Every search starts at 4 x 4 cells (0.64 m; the rocks spread 0.2-0.5 m), not at
+# the finer level the default budget allows maps this small: still global (every heading and
+# shift), refined to the fine lattice, and the brute force repeats it once per block.
+COARSE = 4
 
 
 pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
@@ -64,7 +68,7 @@ def _brute_jackknife(a: GridMap, b: GridMap, best: np.ndarray) -> np.ndarray:
                                b.origin[1] + (np.nonzero(b.known)[1] + 0.5) * RES])
     block = map_blocks(centres)
     rows, cols = np.nonzero(b.known)
-    params = AlignParams(mutual=False, jackknife=False)
+    params = AlignParams(mutual=False, jackknife=False, coarse=COARSE)
     fits = []
     for n in range(block.max() + 1):
         k, S = b.k.copy(), b.S.copy()
@@ -80,8 +84,8 @@ def _brute_jackknife(a: GridMap, b: GridMap, best: np.ndarray) -> np.ndarray:
 def test_jackknife_matches_the_brute_force_and_widens_a_bent_map() -> None:
     a = _strip(np.zeros(3), (4.5, 2.0), noise=1)
     truth = np.array([0.7, -0.4, 0.3])
-    curvature_only = AlignParams(mutual=False, jackknife=False)
-    with_blocks = AlignParams(mutual=False)
+    curvature_only = AlignParams(mutual=False, jackknife=False, coarse=COARSE)
+    with_blocks = AlignParams(mutual=False, coarse=COARSE)
 
     # a consistent map: with the jackknife its error is within 2 standard deviations per axis
     straight = _strip(truth, (3.0, 1.2), noise=2)
@@ -112,9 +116,9 @@ def _inverse_by_matrix(pose: np.ndarray) -> np.ndarray:
 def test_mutual_check_adds_half_the_two_searches_disagreement() -> None:
     a = _strip(np.zeros(3), (4.5, 2.0), noise=1)
     b = _strip(np.array([0.7, -0.4, 0.3]), (3.0, 1.2), noise=2, bend=0.35)
-    one_way = align_maps(a, b, AlignParams(mutual=False), refuse=False)
-    both = align_maps(a, b, AlignParams(), refuse=False)
-    reverse = align_maps(b, a, AlignParams(mutual=False), refuse=False)
+    one_way = align_maps(a, b, AlignParams(mutual=False, coarse=COARSE), refuse=False)
+    both = align_maps(a, b, AlignParams(coarse=COARSE), refuse=False)
+    reverse = align_maps(b, a, AlignParams(mutual=False, coarse=COARSE), refuse=False)
     d = one_way.pose - _inverse_by_matrix(reverse.pose)
     d[2] = math.remainder(d[2], 2 * math.pi)
     assert np.all(np.abs(d) > 1e-4)  # the two searches do disagree here

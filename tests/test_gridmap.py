@@ -190,8 +190,9 @@ def _map_key(grid: GridMap) -> tuple:
 
 
 class _AlignOnce:
-    """``align_maps`` remembered by its exact inputs (the maps' bytes and every setting): it is
-    a pure function, so a second call with the same maps (``gslam merge`` on the folders of
+    """``align_maps`` (or the search on the lattices' axes it runs, ``_align_lattices``, with
+    the same arguments) remembered by its exact inputs (the maps' bytes and every setting): it
+    is a pure function, so a second call with the same maps (``gslam merge`` on the folders of
     maps the API tests aligned) gets the same Alignment, or the same refusal, without the
     minute of search again. Any other input is aligned for real."""
 
@@ -228,10 +229,13 @@ def maps(tmp_path_factory) -> _Maps:
 @pytest.fixture(scope="module")
 def align(maps):
     """The alignment every test of this section makes, merge_maps and ``gslam merge`` included
-    (``_AlignOnce``): each pair of maps is searched once per module."""
+    (``_AlignOnce``): each pair of maps is searched once per module. The search on the
+    lattices' axes is remembered too: maps on turned lattices are searched as the same maps
+    on their axes, so the reverse search of their mutual check is the unturned pair's."""
     once = _AlignOnce(merge_mod.align_maps)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(merge_mod, "align_maps", once)
+        mp.setattr(align_mod, "_align_lattices", _AlignOnce(align_mod._align_lattices))
         yield once
 
 def test_align_refuses_unrelated_or_featureless_maps(maps, align) -> None:

@@ -69,7 +69,7 @@ def _equivalence() -> dict:
     from gslam_jax.app.dense_timing import DenseOutput
     from gslam_jax.driver.observations import local_observations
     from gslam_jax.driver.sizing import map_extent, observed_cells
-    from gslam_jax.tiled.reference import run_tiled
+    from gslam_jax.tiled.reference import draw_noise, run_tiled
     from gslam_jax.vo.localmap import LocalMapParams
 
     robot_run, _ = make_run(seed=0, steps=70)
@@ -114,12 +114,13 @@ def _equivalence() -> dict:
         dense = DenseOutput(i.pose, i.log_w, i.ess, i.resampled, np.asarray(d.final_state.maps.k),
                             np.asarray(d.final_state.maps.S), 0, 0.0, 0.0,
                             ancestors=np.asarray(i.ancestors))
+        draws = draw_noise(key, run.obs_index, cfg)  # the dense run's, for the reference's runs
         tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, tile_size=16 * 0.16,
-                          lattice_headings=headings, noise_scale=scale)
+                          lattice_headings=headings, noise_scale=scale, draws=draws)
         name = f"{mode}-{temper}" + ("" if lattice == "robot" else f"-{lattice}")
         out[name] = check_agreement(dense, tiled, cfg)
         if temper == "adaptive":  # following the dense decisions: real differences still show
-            out["follow"] = _follow_cases(dense, run, obs, cfg, key, params)
+            out["follow"] = _follow_cases(dense, run, obs, cfg, key, params, draws)
         out[name]["off_map_updates"] = int(np.sum(i.extent_violations))
         out[name]["max_shared"] = float(tiled.shared_mean.max())
         out[name]["mem_drops"] = int(np.sum(np.diff(tiled.memory_bytes) < 0))
@@ -127,10 +128,11 @@ def _equivalence() -> dict:
     return out
 
 
-def _follow_cases(dense, run, obs, cfg, key, params) -> dict:
+def _follow_cases(dense, run, obs, cfg, key, params, draws) -> dict:
     """The reference given the dense decisions as they are, and perturbed for real at the
     second resampling: one ancestor moved half the particles along, or the decision flipped
-    at an update whose ESS is nowhere near the threshold."""
+    at an update whose ESS is nowhere near the threshold (``draws``: the run's random numbers,
+    ``draw_noise(key, ...)``, made once for the three)."""
     from gslam_jax.app.compare import check_agreement
     from gslam_jax.tiled.reference import Decisions, run_tiled
 
@@ -149,7 +151,7 @@ def _follow_cases(dense, run, obs, cfg, key, params) -> dict:
     for case, decisions in (("as_is", Decisions(res, anc)), ("ancestor", Decisions(res, moved)),
                             ("decision", Decisions(flipped, flipped_anc))):
         tiled = run_tiled(key, params, run.controls, run.obs_index, obs, cfg, 16 * 0.16,
-                          follow=decisions)
+                          follow=decisions, draws=draws)
         perturbed = dense._replace(resampled=decisions.resampled, ancestors=decisions.ancestors)
         out[case] = check_agreement(dense if case == "as_is" else perturbed, tiled, cfg)
         out[case]["perturbed_at"] = {"as_is": None, "ancestor": t, "decision": flip_at}[case]
