@@ -23,9 +23,9 @@ class World:
         self.rough = rng.uniform(0.05, 0.4, n_bumps)
 
     def spread(self, xy: np.ndarray) -> np.ndarray:
-        # dx^2 + dy^2 as two arrays: the same numbers as a sum over a trailing axis of 2,
-        # without the slow reduction over it
-        d2 = (xy[:, 0, None] - self.centres[:, 0]) ** 2 + (xy[:, 1, None] - self.centres[:, 1]) ** 2
+        # x and y apart: no [N, bumps, 2] temporary; the same sums, so the same numbers
+        d2 = ((xy[:, 0, None] - self.centres[:, 0]) ** 2
+              + (xy[:, 1, None] - self.centres[:, 1]) ** 2)
         return 0.01 + (self.rough * np.exp(-0.5 * d2 / self.radii ** 2)).sum(-1)
 
     def observe(self, pose: np.ndarray, rng: np.random.Generator, n: int = 12000,

@@ -69,8 +69,9 @@ def test_a_noise_too_narrow_for_the_vo_is_widened_and_one_too_wide_narrowed(drif
 
 def test_a_noise_that_carries_particles_off_the_map_scores_nan_and_is_never_chosen(
         drifting_run):
-    fit = fit_noise_scale(drifting_run, CONFIG, (1.0, 1e4), seeds=(0,))
-    assert np.isfinite(fit.log_evidence[0]) and np.isnan(fit.log_evidence[1])
+    # three rungs, as the ladder test's: one compiled batch for both
+    fit = fit_noise_scale(drifting_run, CONFIG, (1.0, 1e4, 1e5), seeds=(0,))
+    assert np.isfinite(fit.log_evidence[0]) and np.all(np.isnan(fit.log_evidence[1:]))
     assert fit.factor == 1.0
 
 
@@ -120,7 +121,7 @@ def test_cli_notes_that_the_fit_is_not_for_stereo(tmp_path, drifting_run, capsys
     path = tmp_path / "r.npz"
     for sensor, noted in (("stereo", True), ("points", False)):
         save_run(path, drifting_run._replace(sensor=sensor))
-        assert main(["fit-motion", str(path), "--evidence", "--factors", "1", "2",
+        assert main(["fit-motion", str(path), "--evidence", "--factors", "1", "2", "4",
                      "--evidence-seeds", "0", "--set", "filter.particles=16",
                      "--set", "map.margin=3.0"]) == 0
         assert ("is for the point sensor" in capsys.readouterr().out) == noted
@@ -141,12 +142,12 @@ def test_the_experiment_runs_the_fitted_noise_it_reports(tmp_path, drifting_run,
     save_run(path, drifting_run)
     monkeypatch.setattr(sys, "argv", [
         "evidence_noise", "--runs", str(path), "--noise-scale", "4", "--seeds", "1",
-        "--factors", "0.25", "1", "--evidence-seeds", "0", "--set", "filter.particles=16",
+        "--factors", "0.25", "1", "4", "--evidence-seeds", "0", "--set", "filter.particles=16",
         "--set", "map.margin=3.0", "--json", str(out)])
     assert evidence_noise.main() == 0
     (row,) = [json.loads(line) for line in out.read_text().splitlines()]
     assert row["fitted_scale"] == pytest.approx(4 * row["factor"])
-    assert row["factor"] in (0.25, 1.0)
+    assert row["factor"] in (0.25, 1.0, 4.0)
     config = apply_overrides(Config(), ["filter.particles=16", "map.margin=3.0"])
     want = case_row(str(path), drifting_run, config, row["fitted_scale"], "motion", 1)
     assert row["fitted_rms_m"] == pytest.approx(want["slam_rms_m"], rel=1e-6)
@@ -156,7 +157,7 @@ def test_a_log_without_local_maps_keeps_the_given_noise(drifting_run):
     """No local map, no evidence about the noise: every rung scores 0, and the given alphas
     (factor 1) are kept rather than the ladder's first rung."""
     blind = drifting_run._replace(obs_index=np.full(drifting_run.num_frames, -1))
-    fit = fit_noise_scale(blind, CONFIG, (0.25, 0.5, 1.0, 2.0), seeds=(0,))
+    fit = fit_noise_scale(blind, CONFIG, (0.5, 1.0, 2.0), seeds=(0,))
     np.testing.assert_array_equal(fit.log_evidence, 0.0)
     assert fit.factor == 1.0 and not fit.on_edge and fit.kept  # the argmax (rung 1) only ties
     assert fit.config(CONFIG).motion == CONFIG.motion

@@ -75,7 +75,8 @@ def test_the_particles_spread_by_the_scaled_noise(proposal):
     times each frame's sigma_theta (eq. 3), so over many particles its variance is the sum of
     the frames' (s_t sigma_theta)^2; the informed proposal carries that sum in its prior
     covariance (linearised, and exact for the heading)."""
-    T, J = 12, 4096
+    T = 12
+    J = 4096 if proposal == "motion" else 16  # the variance over many; the covariance: each
     p = MotionParams(0.05, 0.02, 0.1)
     u = jnp.tile(jnp.array([0.5, 0.0, 0.1], jnp.float32), (T, 1))
     fallback = np.zeros(T, bool)
@@ -133,8 +134,10 @@ def test_the_tuner_runs_the_filter_with_the_scale(failing_run):
     obj = TU.sw_objectives(key, params, inputs, cfg)
     out = rbpf.run_filter(key, params, inputs.controls, inputs.obs_index, inputs.local_obs,
                           cfg, inputs.start, inputs.lattice_headings, inputs.fallback)
-    unscaled = rbpf.run_filter(key, params, inputs.controls, inputs.obs_index,
-                               inputs.local_obs, cfg, inputs.start, inputs.lattice_headings)
+    # the same frames at a scale of 1 (the scale is a traced parameter: no second compilation)
+    unscaled = rbpf.run_filter(key, params._replace(motion=params.motion._replace(
+        fallback_scale=jnp.float32(1.0))), inputs.controls, inputs.obs_index, inputs.local_obs,
+        cfg, inputs.start, inputs.lattice_headings, inputs.fallback)
     evidence = float(jnp.sum(out.infos.log_lik))
     np.testing.assert_allclose(float(obj.loglik), evidence, rtol=1e-6)
     assert abs(evidence - float(jnp.sum(unscaled.infos.log_lik))) > 1e-3

@@ -29,6 +29,21 @@ def short_run():
     return run
 
 
+@jax.jit
+def _scores(p: MotionParams, pose, u, eps):
+    """The summed transition score's value and gradient, and the gradient of the summed motion
+    log density of the poses the draws ``eps`` move ``pose`` to (one compilation for every
+    parameter value)."""
+    new = apply_motion(pose, u, eps, p)
+
+    def score(q):
+        return jnp.sum(TU.transition_score(eps, u, q))
+
+    def dens(q):
+        return jnp.sum(log_density(new, pose, u, q))
+    return score(p), jax.grad(score)(p), jax.grad(dens)(p)
+
+
 @pytest.mark.parametrize("alpha_cross", [0.0, 0.03])
 def test_transition_score_is_the_motion_log_density_gradient(alpha_cross):
     """Zero in value; in gradient, d/dtheta log p_theta(x_t | x_{t-1}, u_t) of motion.py."""
@@ -38,15 +53,8 @@ def test_transition_score_is_the_motion_log_density_gradient(alpha_cross):
     eps = jnp.asarray(rng.normal(size=(16, 3)), jnp.float32)
     p0 = MotionParams(jnp.float32(0.05), jnp.float32(0.02), jnp.float32(0.08),
                       jnp.float32(alpha_cross))
-    new = apply_motion(pose, u, eps, p0)
-
-    def score(p):
-        return jnp.sum(TU.transition_score(eps, u, p))
-
-    def dens(p):
-        return jnp.sum(log_density(new, pose, u, p))
-    assert float(score(p0)) == 0.0
-    g1, g2 = jax.grad(score)(p0), jax.grad(dens)(p0)
+    value, g1, g2 = _scores(p0, pose, u, eps)
+    assert float(value) == 0.0
     for a, b in zip(g1, g2):
         np.testing.assert_allclose(float(a), float(b), rtol=2e-3)
     assert (float(g1.alpha_cross) != 0.0) == (alpha_cross > 0)
