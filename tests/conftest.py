@@ -4,8 +4,9 @@ No persistent JAX compilation cache by default, in the test processes or in the 
 commands they start (``GSLAM_JAX_CACHE`` is set empty for those). Reading a cached program
 once crashed an xdist worker in CI (a segmentation fault in the executable's deserialisation),
 and the cache did not pay for itself: the whole suite took about as long without it
-(docs/notebook/test-suite.md has the figures). ``GSLAM_TEST_JAX_CACHE=DIR`` turns it on in DIR, for this process
-and every subprocess; a cache the user set (``JAX_COMPILATION_CACHE_DIR``) is left as it is.
+(docs/notebook/test-suite.md has the figures). ``GSLAM_TEST_JAX_CACHE=DIR`` turns it on in
+DIR, for this process and every subprocess; a cache the user set
+(``JAX_COMPILATION_CACHE_DIR``) is left as it is.
 
 A worker that crashes ends the run (``--max-worker-restart 0``) with the test it ran named:
 with ``--dist loadfile``, pytest-xdist's replacement worker can wait forever for work (its

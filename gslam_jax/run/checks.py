@@ -134,6 +134,11 @@ def _rounding_dtype(maps: np.ndarray, stored: np.dtype) -> np.dtype:
     return stored
 
 
+def _tolerance(n: np.ndarray, eps: float) -> np.ndarray:
+    """max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING n eps) for point counts ``n`` (float64)."""
+    return np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * eps)
+
+
 def variance_tolerance(maps: np.ndarray, stored: np.dtype) -> np.ndarray:
     """[M, L, L] relative tolerance of n sum z^2 - (sum z)^2 < 0 for the statistics ``maps``
     [M, L, L, 3] stored as ``stored``: max(VARIANCE_TOLERANCE, VARIANCE_ROUNDING n eps).
@@ -142,8 +147,7 @@ def variance_tolerance(maps: np.ndarray, stored: np.dtype) -> np.ndarray:
     floats whose every value is a float32 count as float32 (statistics accumulated in float32
     and widened, e.g. a float32 Run file loaded and saved again)."""
     eps = np.finfo(_rounding_dtype(maps, stored)).eps
-    n = np.asarray(maps[..., 0], np.float64)
-    return np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * eps)
+    return _tolerance(np.asarray(maps[..., 0], np.float64), eps)
 
 
 def check_statistics(maps: np.ndarray, stored: np.dtype, fail, where) -> None:
@@ -167,8 +171,7 @@ def check_statistics(maps: np.ndarray, stored: np.dtype, fail, where) -> None:
     def negative_variance(b: np.ndarray) -> np.ndarray:
         n, sz, szz = (b[..., c].astype(np.float64) for c in range(3))
         spread = n * szz - sz * sz  # n^2 times the variance of the heights
-        tol = np.maximum(VARIANCE_TOLERANCE, VARIANCE_ROUNDING * n * eps)
-        return spread < -tol * (n * np.abs(szz) + sz * sz)
+        return spread < -_tolerance(n, eps) * (n * np.abs(szz) + sz * sz)
 
     for bad, message in ((non_finite, "non-finite statistics in {}"),
                          (negative_n, "negative point count n in {}"),
