@@ -8,6 +8,14 @@ and the cache did not pay for itself: the whole suite took about as long without
 DIR, for this process and every subprocess; a cache the user set
 (``JAX_COMPILATION_CACHE_DIR``) is left as it is.
 
+XLA's CPU compiler runs with its classic loop emitters (``--xla_cpu_use_fusion_emitters=false``
+added to ``XLA_FLAGS``, for this process and every subprocess). Compilation is most of the
+suite's time, and this halves it (782 -> 377 s of backend compilation summed over the tests);
+the compiled programs compute the same IEEE operations, and run slower (the map alignment
+tests about 2x), but the whole suite takes 525 s instead of 737 s (docs/notebook/test-suite.md).
+The flag is added only where a probe shows the installed jaxlib accepts it (an unknown flag
+aborts the process); ``GSLAM_TEST_XLA_DEFAULTS=1`` keeps XLA's defaults, as ``gslam`` uses them.
+
 A worker that crashes ends the run (``--max-worker-restart 0``) with the test it ran named:
 with ``--dist loadfile``, pytest-xdist's replacement worker can wait forever for work (its
 issues 784 and 1378), so a crash would otherwise hold CI until its time limit.
@@ -27,6 +35,8 @@ file does not start last and keep one core busy while the other waits.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 
 
 def _cache_dir() -> str:
@@ -42,6 +52,30 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
         os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
     else:
         os.environ.setdefault("GSLAM_JAX_CACHE", "")  # and no user cache in ``gslam`` commands
+
+
+CLASSIC_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
+
+
+def _xla_accepts(flag: str) -> bool:
+    """Whether a JAX process starts and computes with ``flag`` added to ``XLA_FLAGS`` (XLA
+    aborts on a flag it does not know, so it is tried in a subprocess first)."""
+    env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip(),
+               JAX_PLATFORMS="cpu")
+    probe = "import jax.numpy as jnp; jnp.exp(jnp.arange(3.0)).block_until_ready()"
+    try:
+        done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
+                              timeout=120)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return done.returncode == 0
+
+
+# Every worker inherits the controller's environment, so only the first process probes.
+if (not os.environ.get("GSLAM_TEST_XLA_DEFAULTS", "").strip()
+        and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", "")
+        and _xla_accepts(CLASSIC_EMITTERS)):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {CLASSIC_EMITTERS}".strip()
 
 
 def pytest_configure(config) -> None:
