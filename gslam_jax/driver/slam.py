@@ -21,6 +21,7 @@ from gslam_jax import rbpf
 from gslam_jax.config import Config
 from gslam_jax.driver.chunk_checks import (check_map_status, check_observed_cells, check_weights,
                                            pool_ran_out)
+from gslam_jax.driver.machine import release_free_heap
 from gslam_jax.driver.map_axes import check_local_lattices, filtered_run
 from gslam_jax.driver.map_reuse import PriorMap, prior_state
 from gslam_jax.driver.observations import map_observations
@@ -71,6 +72,17 @@ def _scan_chunk(state: rbpf.FilterState, start: int, frames: tuple, obs: jax.Arr
         kept, cfg = kept._replace(maps=regrown[0]), regrown[1]
         growth.before(kept.maps)
         state = jax.tree.map(jnp.copy, kept)
+
+
+def _compile_scan(state: rbpf.FilterState, frames: tuple, obs: jax.Array, headings: jax.Array,
+                  params: rbpf.FilterParams, cfg: rbpf.FilterConfig) -> None:
+    """Compile ``rbpf.scan_frames`` for chunks like ``frames`` from a state shaped like
+    ``state`` (shapes only: ``jax.eval_shape``), then return the compiler's freed working
+    memory to the system (``release_free_heap``)."""
+    keys, controls, obs_index, fallback = frames
+    rbpf.scan_frames.lower(state, keys, controls, obs_index, obs, params, cfg, headings,
+                           fallback).compile()
+    release_free_heap()
 
 
 def _keep_chunk(kept: tuple | None, out: tuple, start: int, frames: int) -> tuple:
@@ -135,8 +147,20 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
         fallback = np.concatenate([fallback, np.zeros(pad, bool)])
     keys = jnp.concatenate([keys, jax.random.split(jax.random.key(0), pad)]) if pad else keys
 
+    def chunk_frames(start: int) -> tuple:
+        sl = slice(start, start + chunk)
+        return (keys[sl], jnp.asarray(controls[sl]), jnp.asarray(obs_index[sl]),
+                None if fallback is None else jnp.asarray(fallback[sl]))
+
+    t0 = time.perf_counter()
+    start_pose = jnp.asarray(run.start_pose(), jnp.float32)
     if prior is None:
-        state = rbpf.init(cfg, jnp.asarray(run.start_pose(), jnp.float32))
+        # Compiled before the particles' maps exist: the compiler's working memory (about
+        # 0.3 GB for the filter's scan) is freed and handed back before the maps are allocated,
+        # so it never adds to them (the first chunk's call finds the compiled scan).
+        _compile_scan(jax.eval_shape(lambda pose: rbpf.init(cfg, pose), start_pose),
+                      chunk_frames(0), obs, headings, params, cfg)
+        state = rbpf.init(cfg, start_pose)
     else:
         state = prior_state(prior._replace(start=run.start_pose()), cfg, key)
     kept = None
@@ -144,17 +168,13 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     # an automatic pool keeps a copy of each chunk's start to run it again if it runs out:
     # two pools live at once, so each may take half the memory
     growth = maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, available // 2, what)
-    t0 = time.perf_counter()
     compile_s = hook_s = 0.0
     for start in range(0, T + pad, chunk):
-        sl = slice(start, start + chunk)
-        c0 = time.perf_counter()
-        frames = (keys[sl], jnp.asarray(controls[sl]), jnp.asarray(obs_index[sl]),
-                  None if fallback is None else jnp.asarray(fallback[sl]))
-        state, out, cfg = _scan_chunk(state, start, frames, obs, headings, params, cfg,
-                                      growth)
-        if start == 0:
-            compile_s = time.perf_counter() - c0  # first chunk includes compilation
+        state, out, cfg = _scan_chunk(state, start, chunk_frames(start), obs, headings,
+                                      params, cfg, growth)
+        if start == 0:  # the compilation and the first chunk
+            compile_s = time.perf_counter() - t0
+            release_free_heap()
         check_weights(out[0], start, min(chunk, T - start), obs_index)
         check_map_status(out[0], start, cfg, automatic=growth is not None)
         kept = _keep_chunk(kept, out, start, T + pad)
