@@ -251,6 +251,13 @@ def test_one_candidate_reduces_to_the_motion_proposals_update():
     assert float(info_i.log_lik) == float(info_m.log_lik)
 
 
+@partial(jax.jit, static_argnames=("cfg",))
+def _draw(maps_, pose, prior_cov, z, unknown_u, obs, params, cfg):
+    """proposal.draw at a fixed exponent of 1, compiled once per configuration."""
+    return proposal.draw(maps_, pose, prior_cov, z, lambda lam, p: jnp.float32(1.0), unknown_u,
+                         obs, params, cfg)
+
+
 @pytest.mark.parametrize("stride", [1, 3])
 def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     """The update's weights with the informed proposal: phi log lambda at the drawn pose (eq.
@@ -262,11 +269,9 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     cfg = cfg._replace(proposal_cell_stride=stride)
     z = jax.random.normal(jax.random.key(4), (cfg.num_particles, 3))
     params = kernel.FilterParams()
-    # eager, not jitted: the update and the draw then share their compiled pieces
-    new, info = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
-    d = proposal.draw(state.maps, state.pose, state.prior_cov, z, lambda lam, p: jnp.float32(1.0),
-                      jnp.zeros((cfg.num_particles, 0)), compact_observation(local, cfg),
-                      params, cfg)
+    new, info = _update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
+    d = _draw(state.maps, state.pose, state.prior_cov, z, jnp.zeros((cfg.num_particles, 0)),
+              compact_observation(local, cfg), params, cfg)
     np.testing.assert_allclose(new.pose, d.pose, atol=1e-6)
     lam = np.array([_brute_log_lambda(np.asarray(p, np.float64), np.asarray(local), k, S, cfg,
                                       float(params.beta_prev)) for p in np.asarray(d.pose)])
