@@ -40,6 +40,21 @@ def _config(scale: float, particles: int = 8) -> Config:
                   motion=MotionSection(fallback_scale=scale))
 
 
+@pytest.fixture(scope="module")
+def slam_of(failing_run):
+    """``slam_of(scale, flagged=True)``: slam.run_slam of the failing run (without its
+    ``vo_failed`` flags when not ``flagged``) with ``_config(scale)``, run once per module and
+    shared by the tests below."""
+    done = {}
+
+    def run(scale: float, flagged: bool = True):
+        if (scale, flagged) not in done:
+            run_ = failing_run if flagged else failing_run._replace(vo_failed=None)
+            done[scale, flagged] = slam.run_slam(run_, _config(scale))
+        return done[scale, flagged]
+    return run
+
+
 def test_scaled_multiplies_every_std_and_draw():
     p = MotionParams(0.05, 0.01, 0.04, 0.02)
     u = jnp.array([[0.3, 0.05, 0.1], [0.0, 0.0, 0.2], [0.4, 0.0, 0.0]])
@@ -97,10 +112,10 @@ def test_the_particles_spread_by_the_scaled_noise(proposal):
         assert abs(np.var(heading) - T * sigma ** 2) > 0.5 * want  # not the unscaled spread
 
 
-def test_a_scale_of_one_is_the_filter_as_before(failing_run):
-    plain = slam.run_slam(failing_run._replace(vo_failed=None), _config(3.0))
-    ones = slam.run_slam(failing_run, _config(1.0))
-    scaled_run = slam.run_slam(failing_run, _config(3.0))
+def test_a_scale_of_one_is_the_filter_as_before(failing_run, slam_of):
+    plain = slam_of(3.0, flagged=False)
+    ones = slam_of(1.0)
+    scaled_run = slam_of(3.0)
     np.testing.assert_array_equal(ones.path, plain.path)
     before = failing_run.obs_index[:FAILED.start] >= 0
     # the same up to the burst, where the draws are the same; different after it
@@ -109,9 +124,9 @@ def test_a_scale_of_one_is_the_filter_as_before(failing_run):
     assert np.max(np.abs(scaled_run.path - plain.path)) > 1e-4
 
 
-def test_online_reproduces_the_batch_run_with_fallback_frames(failing_run):
+def test_online_reproduces_the_batch_run_with_fallback_frames(failing_run, slam_of):
     config = _config(3.0)
-    res = slam.run_slam(failing_run, config)
+    res = slam_of(3.0)
     live = Online(config, filter_config=slam.run_filter_config(failing_run, config))
     for t in range(failing_run.num_frames):
         m = failing_run.obs_index[t]
@@ -147,14 +162,14 @@ def test_gslam_run_reports_the_fallback_frames_and_their_scale(failing_run, tmp_
     path = tmp_path / "failing.npz"
     save_run(path, failing_run)
     assert main(["run", str(path), "--set", "filter.particles=8", "--set",
-                 "motion.fallback_scale=2.5", "--out", str(tmp_path / "out")]) == 0
+                 "motion.fallback_scale=2.5", "--no-map-check", "--out", str(tmp_path / "out")]) == 0
     assert ("note: 6 frames came from the fallback odometry (VO failed), their motion noise "
             "2.5x the VO's") in capsys.readouterr().out
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["vo_failures"] == 6 and summary["fallback_scale"] == 2.5
 
 
-def test_a_search_over_the_scale_scores_each_value_as_the_filter_does(failing_run):
+def test_a_search_over_the_scale_scores_each_value_as_the_filter_does(failing_run, slam_of):
     """``fallback_scale`` is a searchable setting: each searched value's objective is a
     plain filter run's with that value in the config (slam.run_slam, not the batched
     evaluation), the value 1 included, where the run carries the flags at a scale of 1."""
@@ -167,7 +182,7 @@ def test_a_search_over_the_scale_scores_each_value_as_the_filter_does(failing_ru
     res = search(failing_run, config, space, objective="loglik", values=values)
     got = {float(v[0]): float(o) for v, o in zip(res.values, res.objective)}
     for v in (1.0, 4.0, 8.0):
-        want = float(np.sum(slam.run_slam(failing_run, _config(v)).log_lik))
+        want = float(np.sum(slam_of(v).log_lik))
         assert got[v] == pytest.approx(want, rel=1e-4, abs=1e-3), v
     assert len({round(o, 3) for o in got.values()}) == 3  # the scale changes the evidence
     with pytest.raises(SP.SearchError, match="fallback_scale .* this run has none"):

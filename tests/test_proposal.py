@@ -4,6 +4,7 @@ and the filter with it."""
 
 from __future__ import annotations
 
+import functools
 import math
 from functools import partial
 
@@ -55,6 +56,18 @@ def _proposal_draws_and_correction(mu: jax.Array, q_chol: jax.Array):
     return g, correction
 
 
+@functools.lru_cache(maxsize=1)
+def _integration_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The brute-force integration's fine grid: its axis, its 141^3 points [N, 3] and N(g; 0, I)
+    at each (built once, shared by both precisions; read-only)."""
+    axis = np.linspace(-7, 7, 141)
+    G = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    prior_pdf = stats.multivariate_normal(np.zeros(3), np.eye(3)).pdf(G)
+    for a in (axis, G, prior_pdf):
+        a.flags.writeable = False
+    return axis, G, prior_pdf
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("precision", [np.diag([4.0, 9.0, 25.0]), np.diag([0.0, 9.0, 25.0])])
 def test_weights_are_exact_importance_weights_of_the_tempered_target(precision):
@@ -67,10 +80,8 @@ def test_weights_are_exact_importance_weights_of_the_tempered_target(precision):
     g, correction = _proposal_draws_and_correction(mu, q_chol)
     w = np.exp(np.asarray(correction, np.float64)
                + phi * _quadratic_score(np.asarray(g, np.float64), centre, precision))
-    axis = np.linspace(-7, 7, 141)
-    G = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    integrand = stats.multivariate_normal(np.zeros(3), np.eye(3)).pdf(G) * np.exp(
-        phi * _quadratic_score(G, centre, precision))
+    axis, G, prior_pdf = _integration_grid()
+    integrand = prior_pdf * np.exp(phi * _quadratic_score(G, centre, precision))
     brute = integrand.sum() * (axis[1] - axis[0]) ** 3
     A = phi * precision
     closed = math.exp(-0.5 * centre @ A @ np.linalg.solve(np.eye(3) + A, centre)) / math.sqrt(
@@ -240,6 +251,13 @@ def test_one_candidate_reduces_to_the_motion_proposals_update():
     assert float(info_i.log_lik) == float(info_m.log_lik)
 
 
+@partial(jax.jit, static_argnames=("cfg",))
+def _draw(maps_, pose, prior_cov, z, unknown_u, obs, params, cfg):
+    """proposal.draw at a fixed exponent of 1, compiled once per configuration."""
+    return proposal.draw(maps_, pose, prior_cov, z, lambda lam, p: jnp.float32(1.0), unknown_u,
+                         obs, params, cfg)
+
+
 @pytest.mark.parametrize("stride", [1, 3])
 def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     """The update's weights with the informed proposal: phi log lambda at the drawn pose (eq.
@@ -251,11 +269,9 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     cfg = cfg._replace(proposal_cell_stride=stride)
     z = jax.random.normal(jax.random.key(4), (cfg.num_particles, 3))
     params = kernel.FilterParams()
-    # eager, not jitted: the update and the draw then share their compiled pieces
-    new, info = kernel.update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
-    d = proposal.draw(state.maps, state.pose, state.prior_cov, z, lambda lam, p: jnp.float32(1.0),
-                      jnp.zeros((cfg.num_particles, 0)), compact_observation(local, cfg),
-                      params, cfg)
+    new, info = _update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
+    d = _draw(state.maps, state.pose, state.prior_cov, z, jnp.zeros((cfg.num_particles, 0)),
+              compact_observation(local, cfg), params, cfg)
     np.testing.assert_allclose(new.pose, d.pose, atol=1e-6)
     lam = np.array([_brute_log_lambda(np.asarray(p, np.float64), np.asarray(local), k, S, cfg,
                                       float(params.beta_prev)) for p in np.asarray(d.pose)])
@@ -265,20 +281,20 @@ def test_informed_weights_are_the_tempered_score_plus_the_correction(stride):
     assert float(info.exponent) == 1.0  # fixed tempering: the paper's beta alone
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("rule", ["prior", "normaliser"])
-def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
-    """Adaptive tempering with the informed proposal: the update's exponent is the rule's on
-    the first grid's brute-force scores (eq. 26): the candidate cloud's conditional ESS over
-    the prior ("prior") or the per-particle normalisers' ("normaliser"), and the normaliser's
-    exponent is the larger (it does not count the spread the proposal absorbs)."""
+@jax.jit  # one compilation for the rules' functions, not one per operation
+def _exponents(log_w, lam, prior, cloud):
     from gslam_jax.rbpf import tempering
 
+    return (tempering.normaliser_exponent(log_w, lam, prior, 0.9),
+            tempering.adaptive_exponent(cloud, lam.ravel(), 0.9))
+
+
+@functools.lru_cache(maxsize=1)
+def _first_grid_exponents() -> tuple[float, float]:
+    """Both rules' exponents on the first grid's brute-force scores (eq. 26) of the J = 6
+    small case: (normaliser, prior); computed once, for the test of either rule."""
     cfg, state, local, (k, S) = _small_case(points=3, J=6)
-    cfg = cfg._replace(tempering="adaptive", ess_target=0.9, proposal_exponent=rule)
-    z = jax.random.normal(jax.random.key(5), (cfg.num_particles, 3))
     params = kernel.FilterParams()
-    _, info = _update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
     grid, _ = proposal.candidate_grid(3, 2.0)
     chol = np.asarray(proposal.prior_factor(state.prior_cov))
     poses = np.asarray(state.pose)[:, None, :] + np.einsum("jab,kb->jka", chol, np.asarray(grid))
@@ -288,14 +304,24 @@ def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
     lam32, prior32 = jnp.asarray(lam, jnp.float32), jnp.asarray(log_prior, jnp.float32)
     cloud = np.asarray(state.log_w)[:, None] + log_prior
     cloud = cloud - np.logaddexp.reduce(cloud.ravel())
+    by_normaliser, by_prior = map(float, _exponents(state.log_w, lam32, prior32,
+                                                    jnp.asarray(cloud.ravel(), jnp.float32)))
+    return by_normaliser, by_prior
 
-    @jax.jit  # one compilation for the rules' functions, not one per operation
-    def exponents(log_w, lam, prior, cloud):
-        return (tempering.normaliser_exponent(log_w, lam, prior, 0.9),
-                tempering.adaptive_exponent(cloud, lam.ravel(), 0.9))
 
-    by_normaliser, by_prior = map(float, exponents(state.log_w, lam32, prior32,
-                                                   jnp.asarray(cloud.ravel(), jnp.float32)))
+@pytest.mark.slow
+@pytest.mark.parametrize("rule", ["prior", "normaliser"])
+def test_the_adaptive_exponent_is_chosen_from_the_first_grid(rule):
+    """Adaptive tempering with the informed proposal: the update's exponent is the rule's on
+    the first grid's brute-force scores (eq. 26): the candidate cloud's conditional ESS over
+    the prior ("prior") or the per-particle normalisers' ("normaliser"), and the normaliser's
+    exponent is the larger (it does not count the spread the proposal absorbs)."""
+    cfg, state, local, _ = _small_case(points=3, J=6)
+    cfg = cfg._replace(tempering="adaptive", ess_target=0.9, proposal_exponent=rule)
+    z = jax.random.normal(jax.random.key(5), (cfg.num_particles, 3))
+    params = kernel.FilterParams()
+    _, info = _update(state, local, jnp.zeros((cfg.num_particles, 0)), params, cfg, z)
+    by_normaliser, by_prior = _first_grid_exponents()
     assert 0.0 < by_prior < by_normaliser
     want = by_normaliser if rule == "normaliser" else by_prior
     assert float(info.exponent) == pytest.approx(want, rel=2e-3)

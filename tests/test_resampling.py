@@ -1,5 +1,7 @@
 """ESS (eq. 23) and the resamplers: unbiasedness and variance, by simulation."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,12 +13,17 @@ J = 10
 W = np.array([0.3, 0.25, 0.12, 0.1, 0.08, 0.06, 0.04, 0.03, 0.015, 0.005])
 
 
+@functools.lru_cache
 def offspring_counts(scheme: str, n_trials: int = 20000) -> np.ndarray:
+    """Offspring counts [n_trials, J] of ``scheme`` on W; drawn and compiled once per scheme
+    and shared by the tests below (read-only)."""
     keys = jax.random.split(jax.random.key(0), n_trials)
     w = jnp.asarray(W, jnp.float32)
     draw = jax.jit(jax.vmap(lambda k: resampling.resample(scheme, w, resampling.draw_uniforms(k, J))))
     anc = np.asarray(draw(keys))
-    return np.stack([np.bincount(a, minlength=J) for a in anc])
+    counts = np.stack([np.bincount(a, minlength=J) for a in anc])
+    counts.flags.writeable = False
+    return counts
 
 
 @pytest.mark.parametrize("scheme", sorted(resampling.RESAMPLERS))
@@ -34,7 +41,7 @@ def test_low_variance_schemes_beat_multinomial():
 
 
 def test_residual_keeps_deterministic_copies_and_fractional_parts():
-    counts = offspring_counts("residual", 5000)
+    counts = offspring_counts("residual")  # the unbiasedness test's 20000 draws
     floors = np.floor(J * W)
     assert (counts >= floors).all()  # floor(J w) copies always survive
     # The residual draw uses J w - floor(J w); with w - floor(J w) (the known bug) particle 0
