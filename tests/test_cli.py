@@ -182,7 +182,9 @@ def test_search_prints_the_best_score_and_writes_a_config(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
+def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys, monkeypatch):
+    from matplotlib.figure import Figure
+
     from gslam_jax.config import load_config
 
     run_file(tmp_path / "r.npz")
@@ -198,6 +200,9 @@ def test_tune_prints_its_loss_and_writes_a_config_that_runs(tmp_path, capsys):
     assert (cfg.motion.alpha_d, cfg.filter.beta_new, cfg.map.min_variance) == \
         (v["alpha_d"], v["beta_new"], v["min_variance"])
     assert v["alpha_d"] != 0.05 and cfg.filter.particles == 8
+    # the tuned config's run: its figures are written as empty files, not drawn (drawing is
+    # most of a run's time here; test_run_on_npz_writes_results and the map-axes test draw them)
+    monkeypatch.setattr(Figure, "savefig", lambda self, fname, *a, **kw: open(fname, "wb").close())
     rc = main(["run", str(tmp_path / "r.npz"), "--config", str(tmp_path / "t" / "tuned.toml"),
                "--out", str(tmp_path / "run"), "--no-map-check"])
     assert rc == 0

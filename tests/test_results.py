@@ -1,9 +1,13 @@
 """Results folders: complete or absent, never mixed; failures and interrupts leave nothing.
 
 The filter is replaced by a stand-in that returns the VO path (``fake_slam``): these tests are
-about the files around it, and run in a second or two.
+about the files around it, and run in a second or two. With ``fake_slam`` the figures are
+built but not drawn (``quick_figures``: each ``savefig`` writes a 1 x 1 PNG where the figure
+would go), as drawing them was most of these tests' time (about 1.5 CPU-s a run);
+``test_results_appear_complete_with_a_marker`` draws them, and test_cli.py's runs check them.
 """
 
+import base64
 import errno
 import json
 import time
@@ -30,8 +34,34 @@ def run_file(tmp_path_factory):
     return run, path
 
 
+# A 1 x 1 grey PNG: what ``quick_figures`` writes in place of a drawn figure.
+TINY_PNG = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAAAAAA6fptVAAAACklEQVR4nGNoAAAAggCB"
+                            "d81ytgAAAABJRU5ErkJggg==")
+
+
 @pytest.fixture
-def fake_slam(monkeypatch):
+def quick_figures(monkeypatch):
+    """``Figure.savefig`` writes ``TINY_PNG`` to the file it is given instead of drawing the
+    figure (the figures are still built, and every file is written where it would be)."""
+    from matplotlib.figure import Figure
+
+    def savefig(self, fname, *args, **kwargs):
+        if hasattr(fname, "write"):
+            fname.write(TINY_PNG)
+            return
+        with open(fname, "wb") as f:
+            f.write(TINY_PNG)
+    monkeypatch.setattr(Figure, "savefig", savefig)
+
+
+@pytest.fixture
+def fake_slam(drawn_fake_slam, quick_figures):
+    """``drawn_fake_slam`` with ``quick_figures``."""
+    return drawn_fake_slam
+
+
+@pytest.fixture
+def drawn_fake_slam(monkeypatch):
     """``slam.run_slam`` returning the VO path; ``calls`` lists the runs it was given."""
     calls = []
 
@@ -55,7 +85,7 @@ def _leftovers(folder):
     return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
 
 
-def test_results_appear_complete_with_a_marker(tmp_path, run_file, fake_slam, monkeypatch):
+def test_results_appear_complete_with_a_marker(tmp_path, run_file, drawn_fake_slam, monkeypatch):
     run, path = run_file
     out = tmp_path / "out"
     seen = []

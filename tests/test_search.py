@@ -226,10 +226,14 @@ def test_result_times_are_named_for_what_they_hold(small_run, tmp_path):
 @pytest.mark.slow
 def test_sharded_on_two_cpu_devices(tmp_path):
     """Sharded over a 2-device mesh gives the same objectives as one device (subprocess: the
-    device count must be set before JAX is imported)."""
+    device count must be set before JAX is imported). The test process's other XLA flags
+    (conftest.py's classic CPU emitters: half the compilation time) go with it."""
+    flags = " ".join([f for f in os.environ.get("XLA_FLAGS", "").split()
+                      if not f.startswith("--xla_force_host_platform_device_count")]
+                     + ["--xla_force_host_platform_device_count=2"])
     code = textwrap.dedent(f"""
         import os, sys
-        os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+        os.environ["XLA_FLAGS"] = {flags!r}
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         import jax, numpy as np
         assert len(jax.devices()) == 2, jax.devices()
