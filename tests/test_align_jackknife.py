@@ -16,10 +16,11 @@ from gslam_jax.gridmap.align import AlignParams, align_maps, map_blocks
 from test_gridmap import _AlignOnce
 
 RES = 0.16
-# Every search starts at 4 x 4 cells (0.64 m; the rocks spread 0.2-0.5 m), not at
-# the finer level the default budget allows maps this small: still global (every heading and
-# shift), refined to the fine lattice, and the brute force repeats it once per block.
-COARSE = 4
+# Every search starts at 8 x 8 cells (1.28 m; the rocks spread 0.2-0.5 m, pooled into the
+# coarse cells' variance), not at the finer level the default budget allows maps this small:
+# still global (every heading and shift), refined level by level to the fine lattice, and the
+# brute force repeats it once per block.
+COARSE = 8
 
 
 pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
