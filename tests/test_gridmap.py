@@ -226,9 +226,11 @@ def maps(tmp_path_factory) -> _Maps:
     folder = tmp_path_factory.mktemp("runs")
     grids = {}
     # A 9 x 9 m: its reverse search (A onto B, the mutual check) then starts at 4 x 4 cells,
-    # where 8 x 8 m was just inside the budget at 2 x 2 and cost ten times as much
+    # where 8 x 8 m was just inside the budget at 2 x 2 and cost ten times as much. C 22 x 22
+    # cells (its 2 x 2 blocks fit one bucket of 128): half the search of B's size, refused for
+    # the same reason (ambiguous, best z 15.6 above min_z)
     for name, grid in (("a", _observe(5, np.zeros(3), 4.5, 1)), ("b", _observe(5, TRUTH, 2.5, 2)),
-                       ("c", _observe(7, np.zeros(3), 2.5, 3))):
+                       ("c", _observe(7, np.zeros(3), 1.8, 3))):
         (folder / name).mkdir()
         save_map(folder / name / "map.npz", grid)
         grids[name] = load_map(folder / name)
