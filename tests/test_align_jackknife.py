@@ -11,16 +11,30 @@ import numpy as np
 import pytest
 
 from gslam_jax.gridmap import GridMap
+from gslam_jax.gridmap import align as align_mod
 from gslam_jax.gridmap.align import AlignParams, align_maps, map_blocks
+from test_gridmap import _AlignOnce
 
 RES = 0.16
-# Every search starts at 4 x 4 cells (0.64 m; the rocks spread 0.2-0.5 m), not at
-# the finer level the default budget allows maps this small: still global (every heading and
-# shift), refined to the fine lattice, and the brute force repeats it once per block.
-COARSE = 4
+# Every search starts at 8 x 8 cells (1.28 m; the rocks spread 0.2-0.5 m, pooled into the
+# coarse cells' variance), not at the finer level the default budget allows maps this small:
+# still global (every heading and shift), refined level by level to the fine lattice, and the
+# brute force repeats it once per block.
+COARSE = 8
 
 
 pytestmark = pytest.mark.slow  # long-running: scheduled first (tests/conftest.py)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _search_once():
+    """Each search on the lattices' axes (``_align_lattices``, which ``align_maps`` runs) is
+    made once per module, remembered by its exact inputs (``_AlignOnce``): the mutual check's
+    reverse search is the reverse alignment its test makes on its own, and its one-way search
+    is the bent map's alignment with blocks of the jackknife test."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(align_mod, "_align_lattices", _AlignOnce(align_mod._align_lattices))
+        yield
 
 
 def _terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:

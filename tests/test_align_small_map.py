@@ -10,9 +10,12 @@ from test_align_jackknife import _strip
 
 
 def test_a_small_map_searched_at_the_finest_level_is_aligned() -> None:
-    a = _strip(np.zeros(3), (4.0, 4.0), noise=1)
+    # A 6 x 6 m and B 11 x 11 cells (121: one bucket of 128 padded cells, where 12 x 12 took
+    # two), so that the exhaustive search at A's lattice costs a quarter of what 8 x 8 m and
+    # 12 x 12 cells did; still at level 1 (asserted) and over the same rocks
+    a = _strip(np.zeros(3), (3.0, 3.0), noise=1)
     truth = np.array([-1.2, 0.7, 0.4])  # over three rocks
-    b = _strip(truth, (1.0, 1.0), noise=2)  # 12 x 12 cells
+    b = _strip(truth, (0.9, 0.9), noise=2)  # 11 x 11 cells
     al = align_maps(a, b, AlignParams(mutual=False, jackknife=False), refuse=False)
     assert al.coarse == 1
     np.testing.assert_allclose(al.pose[:2], truth[:2], atol=0.16)

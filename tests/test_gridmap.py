@@ -194,7 +194,9 @@ class _AlignOnce:
     the same arguments) remembered by its exact inputs (the maps' bytes and every setting): it
     is a pure function, so a second call with the same maps (``gslam merge`` on the folders of
     maps the API tests aligned) gets the same Alignment, or the same refusal, without the
-    minute of search again. Any other input is aligned for real."""
+    minute of search again. A call without ``refuse`` gets what the same call with it returned
+    (an alignment that passed the checks is the one found without them). Any other input is
+    aligned for real."""
 
     def __init__(self, align):
         self.align, self.seen = align, {}
@@ -203,6 +205,11 @@ class _AlignOnce:
                  prior: PosePrior | None = None, refuse: bool = True) -> align_mod.Alignment:
         key = (_map_key(a), _map_key(b), params, refuse, None if prior is None else
                (np.asarray(prior.mean).tobytes(), np.asarray(prior.cov).tobytes()))
+        strict = key[:3] + (True,) + key[4:]
+        if key not in self.seen and strict in self.seen and self.seen[strict][1] is None:
+            # not refused with ``refuse``: the checks passed, and without them the same
+            # search returns the same Alignment
+            self.seen[key] = self.seen[strict]
         if key not in self.seen:
             try:
                 self.seen[key] = (self.align(a, b, params, prior=prior, refuse=refuse), None)
@@ -218,8 +225,12 @@ class _AlignOnce:
 def maps(tmp_path_factory) -> _Maps:
     folder = tmp_path_factory.mktemp("runs")
     grids = {}
-    for name, grid in (("a", _observe(5, np.zeros(3), 4.0, 1)), ("b", _observe(5, TRUTH, 2.5, 2)),
-                       ("c", _observe(7, np.zeros(3), 2.5, 3))):
+    # A 9 x 9 m: its reverse search (A onto B, the mutual check) then starts at 4 x 4 cells,
+    # where 8 x 8 m was just inside the budget at 2 x 2 and cost ten times as much. C 22 x 22
+    # cells (its 2 x 2 blocks fit one bucket of 128): half the search of B's size, refused for
+    # the same reason (ambiguous, best z 15.6 above min_z)
+    for name, grid in (("a", _observe(5, np.zeros(3), 4.5, 1)), ("b", _observe(5, TRUTH, 2.5, 2)),
+                       ("c", _observe(7, np.zeros(3), 1.8, 3))):
         (folder / name).mkdir()
         save_map(folder / name / "map.npz", grid)
         grids[name] = load_map(folder / name)
@@ -231,7 +242,8 @@ def align(maps):
     """The alignment every test of this section makes, merge_maps and ``gslam merge`` included
     (``_AlignOnce``): each pair of maps is searched once per module. The search on the
     lattices' axes is remembered too: maps on turned lattices are searched as the same maps
-    on their axes, so the reverse search of their mutual check is the unturned pair's."""
+    on their axes, so their search, and the reverse one of their mutual check, is the unturned
+    pair's."""
     once = _AlignOnce(merge_mod.align_maps)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(merge_mod, "align_maps", once)
@@ -243,9 +255,10 @@ def test_align_refuses_unrelated_or_featureless_maps(maps, align) -> None:
     with pytest.raises(AlignmentRefused, match="cannot align the maps") as err:
         align(a, other)
     assert err.value.alignment.overlap > 0
+    # B 16 x 16 cells: more than min_overlap (200), half the search of 20 x 20
     flat = GridMap(np.full((40, 40), 30.0), np.full((40, 40), 0.03), (0.0, 0.0), RES)
     with pytest.raises(AlignmentRefused):
-        align_maps(flat, GridMap(flat.k[:20, :20], flat.S[:20, :20], (0.0, 0.0), RES))
+        align_maps(flat, GridMap(flat.k[:16, :16], flat.S[:16, :16], (0.0, 0.0), RES))
     with pytest.raises(InputError, match="different resolutions"):
         align_maps(a, GridMap(other.k, other.S, other.origin, 0.2))
 
