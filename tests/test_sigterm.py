@@ -17,7 +17,8 @@ import textwrap
 import pytest
 from cached_runs import run_file
 
-# Sends SIGTERM 0.2 s into the XLA compilation of the filter's first chunk, then runs gslam.
+# Sends SIGTERM 0.2 s into the XLA compilation of the filter's scan (``run_slam`` compiles it
+# ahead of the first chunk, ``scan_frames.lower(...).compile()``), then runs gslam.
 _DRIVER = textwrap.dedent("""
     import os, signal, sys, threading
     import jax
@@ -30,6 +31,12 @@ _DRIVER = textwrap.dedent("""
     def scan_and_arm(*args, **kwargs):
         armed.append(True)
         return scan_frames(*args, **kwargs)
+
+    def lower_and_arm(*args, **kwargs):
+        armed.append(True)
+        return scan_frames.lower(*args, **kwargs)
+
+    scan_and_arm.lower = lower_and_arm
 
     def on_event(event, seconds, **kwargs):
         if armed and event == "/jax/core/compile/jaxpr_to_mlir_module_duration":
