@@ -10,9 +10,9 @@ DIR, for this process and every subprocess; a cache the user set
 
 XLA's CPU compiler runs with its classic loop emitters (``--xla_cpu_use_fusion_emitters=false``
 added to ``XLA_FLAGS``, for this process and every subprocess). Compilation is most of the
-suite's time, and this halves it (782 -> 377 s of backend compilation summed over the tests);
-the compiled programs compute the same IEEE operations, and run slower (the map alignment
-tests about 2x), but the whole suite takes 525 s instead of 737 s (docs/notebook/test-suite.md).
+suite's time, and this about halves it; the compiled programs compute the same IEEE
+operations and run slower, but the suite as a whole is faster (docs/notebook/test-suite.md
+has the figures).
 The flag is added only where a probe shows the installed jaxlib accepts it (an unknown flag
 aborts the process); ``GSLAM_TEST_XLA_DEFAULTS=1`` keeps XLA's defaults, as ``gslam`` uses them.
 

@@ -3,7 +3,7 @@
 The filter is replaced by a stand-in that returns the VO path (``fake_slam``): these tests are
 about the files around it, and run in a second or two. With ``fake_slam`` the figures are
 built but not drawn (``quick_figures``: each ``savefig`` writes a 1 x 1 PNG where the figure
-would go), as drawing them was most of these tests' time (about 1.5 CPU-s a run);
+would go), as drawing them was most of these tests' time;
 ``test_results_appear_complete_with_a_marker`` draws them, and test_cli.py's runs check them.
 """
 

@@ -163,7 +163,7 @@ def test_tiled_reference_reproduces_dense_filter():
     root = str(Path(gslam_jax.__file__).parent.parent)
     # No FMA contraction (AVX only). LLVM optimisation level 0: IEEE semantics either way (no
     # fast-math), the same numbers as the default level, in about 60% of the compile time.
-    # The suite's own XLA_FLAGS (conftest: the classic emitters) kept: 31 -> 23 CPU-s.
+    # The suite's own XLA_FLAGS (conftest: the classic emitters) are kept: faster to compile.
     path = os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=path,
                XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_max_isa=AVX "

@@ -87,8 +87,8 @@ def test_forward_values_equal_the_filter(short_run):
 
 
 # XLA's CPU fusion emitters (its default) for the programs of a test whose time is their
-# runtime, where tests/conftest.py has turned them off for the suite (classic emitters: half
-# the compilation time, but these 7 x 256 filter runs took 4x longer; the test 46 -> 20 CPU-s).
+# runtime, where tests/conftest.py has turned them off for the suite (the classic emitters
+# compile faster but run these 7 x 256 filter runs slower; docs/notebook/test-suite.md).
 RUNTIME_BOUND = ({"xla_cpu_use_fusion_emitters": True}
                  if "xla_cpu_use_fusion_emitters=false" in os.environ.get("XLA_FLAGS", "")
                  else None)

@@ -127,8 +127,8 @@ def _malloc_trim():
 def release_free_heap() -> bool:
     """Return the C heap's free pages to the system (glibc's ``malloc_trim(0)``); False where
     there is no such call. XLA's compiler frees its working memory once a program is built, but
-    glibc keeps it mapped: after the filter's compilation about 0.3 GB of a run's resident
-    memory is free heap (docs/particle-budget.md, "The process around the maps")."""
+    glibc keeps it mapped as part of the process's resident memory (docs/particle-budget.md,
+    "2026-12-07 (night)", has the figures)."""
     trim = _malloc_trim()
     if trim is None:
         return False

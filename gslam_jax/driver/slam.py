@@ -88,7 +88,7 @@ def _compile_scan(state: rbpf.FilterState, frames: tuple, obs: jax.Array, headin
 def _keep_chunk(kept: tuple | None, out: tuple, start: int, frames: int) -> tuple:
     """Copy one chunk's per-frame outputs (``out``, on the host) into ``kept``, arrays of
     ``frames`` frames allocated at the first chunk: the run's outputs are held once, not once
-    per chunk and again when joined (at J = 2000 over KITTI 00's loop, 0.3 GB each)."""
+    per chunk and again when joined."""
     if kept is None:
         kept = jax.tree.map(lambda x: np.empty((frames,) + x.shape[1:], x.dtype), out)
     for whole, part in zip(jax.tree.leaves(kept), jax.tree.leaves(out)):
@@ -155,9 +155,9 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
     t0 = time.perf_counter()
     start_pose = jnp.asarray(run.start_pose(), jnp.float32)
     if prior is None:
-        # Compiled before the particles' maps exist: the compiler's working memory (about
-        # 0.3 GB for the filter's scan) is freed and handed back before the maps are allocated,
-        # so it never adds to them (the first chunk's call finds the compiled scan).
+        # Compiled before the particles' maps exist: the compiler's working memory is freed
+        # and handed back before the maps are allocated, so it never adds to them (the first
+        # chunk's call finds the compiled scan).
         _compile_scan(jax.eval_shape(lambda pose: rbpf.init(cfg, pose), start_pose),
                       chunk_frames(0), obs, headings, params, cfg)
         state = rbpf.init(cfg, start_pose)
@@ -174,7 +174,8 @@ def run_slam(run: Run, config: Config, progress: Callable[[int, int], None] | No
                                       params, cfg, growth)
         if start == 0:  # the compilation and the first chunk
             compile_s = time.perf_counter() - t0
-            release_free_heap()
+            if prior is not None:  # the first chunk compiled the scan
+                release_free_heap()
         check_weights(out[0], start, min(chunk, T - start), obs_index)
         check_map_status(out[0], start, cfg, automatic=growth is not None)
         kept = _keep_chunk(kept, out, start, T + pad)
