@@ -1,5 +1,7 @@
 """Facts about the machine: CPU model, usable cores, physical (or container) memory, the
-accelerator's memory limit, and the environment printed beside every figure this project reports.
+accelerator's memory limit, and the environment printed beside every figure this project reports;
+and the one call on the process's memory that goes with them, handing the C heap's free pages
+back to the system (``release_free_heap``).
 
 Its own module so that the host driver (``slam``: the map-memory check) and the benchmarks
 (``bench``, ``search``, ``table1``, ``tiled.compare``, experiments) read them without importing
