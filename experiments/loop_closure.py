@@ -29,6 +29,8 @@ it): where none is within the closure's 1 m, no weighting at the revisit can clo
 and more particles are what it needs. The summary splits each (proposal, J)'s closures by
 that cloud.
 
+Each row holds its filter and wall seconds and the process's peak RSS so far (``peak_rss_mib``:
+that run's own where a process runs one seed at one J, as the kilometre runs are made).
 Prints one line per run, then per (proposal, J) the closure rate at each length and the
 longest loop closed in >= 80 % of the seeds; with --progress also a line on stderr per chunk of
 frames filtered (runs at J = 2000 and more take hours on a small machine). Runs made apart (a
@@ -41,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import tempfile
 import time
@@ -183,6 +186,7 @@ def run_loop(loop: Loop, seed: int, config, particles: list[int], proposals: lis
             row.update(revisit=list(revisit), store=res.store, map_margin_m=config.map.margin,
                        extent_violations=res.extent_violations,
                        filter_seconds=res.seconds, wall_seconds=time.perf_counter() - t0,
+                       peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                        approach_frame=cloud.frame, approach_nearest_m=cloud.nearest_m,
                        approach_nearest_heading_deg=cloud.nearest_heading_deg,
                        **cloud.within, **score(run, res, revisit))
@@ -302,7 +306,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"VO {r['vo_error_m']:6.2f} m "
                   f"{'closed' if r['vo_closed'] else 'open'} | nearest particle before the "
                   f"revisit {r['approach_nearest_m']:.2f} m ({r['approach_within_1m']} within "
-                  f"1 m) | {r['wall_seconds']:.0f} s", flush=True)
+                  f"1 m) | {r['wall_seconds']:.0f} s, peak RSS {r['peak_rss_mib']:.0f} MiB",
+                  flush=True)
         write()
 
     with tempfile.TemporaryDirectory() as tmp:
