@@ -280,13 +280,45 @@ def _extent(obs: Observation, L: int, G: int) -> Array:
                       jnp.max(jnp.where(used, cb, -big), axis=1)], axis=1)
 
 
-def _hits(path: Array, count: Array, box: Array, heading: Array, mv: _Move, C: int,
+def _meets(a0: Array, a1: Array, b0: Array, b1: Array) -> Array:
+    """Whether the half-open ranges [a0, a1) and [b0, b1) overlap."""
+    return (a0 < b1) & (b0 < a1)
+
+
+def _enters(lo_i: Array, hi_i: Array, lo_j: Array, hi_j: Array, mv: _Move, C: int) -> Array:
+    """Whether boxes of map cells [lo_i, hi_i) x [lo_j, hi_j) meet the cells a window takes in
+    (``mv``): its entering rows within its columns, or its entering columns within its rows."""
+    o = mv.origin
+    in_rows = _meets(lo_i, hi_i, o[0], o[0] + C)
+    in_cols = _meets(lo_j, hi_j, o[1], o[1] + C)
+    new_rows = _meets(lo_i, hi_i, mv.rows[0], mv.rows[1]) & (mv.rows[1] > mv.rows[0])
+    new_cols = _meets(lo_j, hi_j, mv.cols[0], mv.cols[1]) & (mv.cols[1] > mv.cols[0])
+    return (new_rows & in_cols) | (new_cols & in_rows)
+
+
+def _map_cell(x: Array) -> Array:
+    """Map cell (row or column) of a position in cells, clipped into int32 (NaN: 0)."""
+    return jnp.clip(jnp.nan_to_num(jnp.floor(x)), -2 ** 24, 2 ** 24).astype(jnp.int32)
+
+
+def _near(path: Array, recorded: Array, mv: _Move, C: int, cfg: FilterConfig) -> Array:
+    """[U] the past local maps of one particle that may land in the cells its window takes in,
+    by a test without the heading: every observed cell of a local map lands within ``reach``
+    cells of the particle's cell at that update, so a square of that half-side around it
+    holds all of them. A superset of ``_hits``' maps, for a fraction of its arithmetic."""
+    r = reach(cfg) + 1
+    i = _map_cell((path[:, 0] - cfg.map_origin[0]) / cfg.resolution)
+    j = _map_cell((path[:, 1] - cfg.map_origin[1]) / cfg.resolution)
+    return recorded & _enters(i - r, i + r + 1, j - r, j + r + 1, mv, C)
+
+
+def _hits(path: Array, recorded: Array, box: Array, heading: Array, mv: _Move, C: int,
           cfg: FilterConfig) -> Array:
-    """[U, G] the groups of the past local maps of one particle whose written cells may land in
-    the cells its window takes in: each group's box of written cells (``_extent``) turned by
-    the particle's heading at that update, its bounding box in map cells widened by a cell
-    for rounding (``observation_cells``' floor), against the window and the entering band."""
-    U = path.shape[0]
+    """[U, G] the groups of U past local maps (``recorded`` [U]: those that hold one) of one
+    particle whose written cells may land in the cells its window takes in: each group's box
+    of written cells (``_extent``) turned by the particle's heading at that update, its
+    bounding box in map cells widened by a cell for rounding (``observation_cells``' floor),
+    against the window and the entering band."""
     px = ((path[:, 0] - cfg.map_origin[0]) / cfg.resolution)[:, None]
     py = ((path[:, 1] - cfg.map_origin[1]) / cfg.resolution)[:, None]
     t = (path[:, 2] + heading)[:, None]
@@ -295,24 +327,10 @@ def _hits(path: Array, count: Array, box: Array, heading: Array, mv: _Move, C: i
     ha, hb = 0.5 * (box[..., 1] - box[..., 0]), 0.5 * (box[..., 3] - box[..., 2])
     ci, cj = px + c * ma - s * mb, py + s * ma + c * mb
     ei, ej = jnp.abs(c) * ha + jnp.abs(s) * hb, jnp.abs(s) * ha + jnp.abs(c) * hb
-
-    def cell(x):
-        return jnp.clip(jnp.nan_to_num(jnp.floor(x)), -2 ** 24, 2 ** 24).astype(jnp.int32)
-
-    lo_i, hi_i = cell(ci - ei) - 1, cell(ci + ei) + 2  # [lo, hi) map rows
-    lo_j, hi_j = cell(cj - ej) - 1, cell(cj + ej) + 2
-    o = mv.origin
-
-    def meets(a0, a1, b0, b1):
-        return (a0 < b1) & (b0 < a1)
-
-    in_rows = meets(lo_i, hi_i, o[0], o[0] + C)
-    in_cols = meets(lo_j, hi_j, o[1], o[1] + C)
-    new_rows = meets(lo_i, hi_i, mv.rows[0], mv.rows[1]) & (mv.rows[1] > mv.rows[0])
-    new_cols = meets(lo_j, hi_j, mv.cols[0], mv.cols[1]) & (mv.cols[1] > mv.cols[0])
+    lo_i, hi_i = _map_cell(ci - ei) - 1, _map_cell(ci + ei) + 2  # [lo, hi) map rows
+    lo_j, hi_j = _map_cell(cj - ej) - 1, _map_cell(cj + ej) + 2
     wrote = box[..., 0] <= box[..., 1]
-    recorded = (jnp.arange(U) < count)[:, None]
-    return recorded & wrote & ((new_rows & in_cols) | (new_cols & in_rows))
+    return recorded[:, None] & wrote & _enters(lo_i, hi_i, lo_j, hi_j, mv, C)
 
 
 def _zero_entered(x: Array, ids: Array, mv: _Move, width: int) -> Array:
@@ -358,13 +376,8 @@ def _refill(store: WindowMaps, k: Array, S: Array, ids: Array, mv: _Move, cfg: F
     live = ids < J
     idc = jnp.minimum(ids, J - 1)
     path = store.path[idc]
-    hit = jax.vmap(lambda p, m: _hits(p, store.count, store.obs_box, store.obs_heading, m, C,
-                                      cfg))(path, mv) & live[:, None, None]  # [P, U, G]
-    maps_hit = jnp.any(hit, axis=2)
-    n_maps = jnp.sum(maps_hit, axis=1)
-    which = jax.vmap(lambda h: jnp.nonzero(h, size=R, fill_value=U)[0])(maps_hit)  # [P, R]
-    pair_hit = jnp.take_along_axis(hit, jnp.minimum(which, U - 1)[:, :, None], axis=1)
-    pair_hit = (pair_hit & (which < U)[:, :, None]).reshape(-1, R * G)
+    which, pair_hit, n_maps = _selected(store, path, live, mv, C, cfg, R)
+    pair_hit = pair_hit.reshape(-1, R * G)
     pairs = jax.vmap(lambda h: jnp.nonzero(h, size=R * G, fill_value=R * G)[0])(pair_hit)
     n_pairs = jnp.sum(pair_hit, axis=1)
     pairs = jnp.concatenate([pairs, jnp.full((pairs.shape[0], G), R * G, pairs.dtype)], 1)
@@ -392,6 +405,43 @@ def _refill(store: WindowMaps, k: Array, S: Array, ids: Array, mv: _Move, cfg: F
 
     k, S = lax.fori_loop(0, (jnp.max(n_pairs) + G - 1) // G, one, (k, S))
     return k, S, jnp.any(n_maps > R)
+
+
+def _selected(store: WindowMaps, path: Array, live: Array, mv: _Move, C: int,
+              cfg: FilterConfig, R: int) -> tuple[Array, Array, Array]:
+    """For particles with paths ``path`` [P, U, 3] (``live`` [P]) whose windows move by ``mv``:
+    the first R past local maps in update order that have groups to replay (``_hits``), as
+    (which [P, R] update indices, U: none; hit [P, R, G] their groups; n [P] how many there
+    are in all). The groups are tested only for the maps ``_near`` keeps, up to R of them; a
+    particle near more than R tests all U maps (the same answer, for more arithmetic)."""
+    U = store.obs_box.shape[0]
+    recorded = jnp.arange(U) < store.count
+
+    def choose(h: Array, valid: Array) -> tuple[Array, Array, Array]:  # [P, V, G] -> R maps
+        maps_hit = jnp.any(h, axis=2)
+        pick = jax.vmap(lambda m: jnp.nonzero(m, size=R, fill_value=h.shape[1])[0])(maps_hit)
+        some = pick < h.shape[1]
+        pick = jnp.minimum(pick, h.shape[1] - 1)
+        hit = jnp.take_along_axis(h, pick[:, :, None], axis=1) & some[:, :, None]
+        return (jnp.where(some, jnp.take_along_axis(valid, pick, axis=1), U), hit,
+                jnp.sum(maps_hit, axis=1))
+
+    near = jax.vmap(lambda p, m: _near(p, recorded, m, C, cfg))(path, mv) & live[:, None]
+
+    def by_candidates(_):
+        cand = jax.vmap(lambda m: jnp.nonzero(m, size=R, fill_value=U)[0])(near)  # [P, R]
+        u = jnp.minimum(cand, U - 1)
+        h = jax.vmap(lambda p, u1, c, m: _hits(p[u1], c < U, store.obs_box[u1],
+                                               store.obs_heading[u1], m, C, cfg))(
+            path, u, cand, mv)
+        return choose(h, cand)
+
+    def by_all(_):
+        h = jax.vmap(lambda p, m: _hits(p, recorded, store.obs_box, store.obs_heading, m, C,
+                                        cfg))(path, mv) & live[:, None, None]
+        return choose(h, jnp.broadcast_to(jnp.arange(U), (path.shape[0], U)))
+
+    return lax.cond(jnp.max(jnp.sum(near, axis=1)) > R, by_all, by_candidates, None)
 
 
 def chunk(J: int) -> int:
