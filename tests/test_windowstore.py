@@ -15,6 +15,7 @@ import pytest
 from gslam_jax import rbpf
 from gslam_jax.config import ConfigError
 from gslam_jax.rbpf import maps, windowstore
+from gslam_jax.rbpf.types import Observation
 
 L = 16          # local map side: reach 13 cells
 SIDE = 160      # map side, cells of 0.16 m
@@ -187,3 +188,55 @@ def test_a_particle_that_outruns_its_window_is_reported():
     assert bits & windowstore.MISSED
     with pytest.raises(maps.WindowStoreError, match="tile"):
         maps.check_status(bits, cfg)
+
+
+
+def test_a_refill_replays_what_a_search_of_every_past_map_replays(monkeypatch):
+    """``_refill`` with its heading-free pre-test of the past local maps (``_near``) against
+    the same refill with every recorded map put through the groups' boxes: the same cells
+    refilled with the same sums, bit for bit, with R large enough for the pre-test's maps and
+    with R below them (the refill then searches every map itself)."""
+    rng = np.random.default_rng(5)
+    P, U, M = 12, 60, 64
+    cfg = _config("window", J=P, history=U, observed_cells=M)
+    C = windowstore.side(cfg)
+    # local maps of M of their outer cells observed, seen from poses scattered about the
+    # map's middle (ground mapped over and over)
+    a, b = np.meshgrid(np.arange(L), np.arange(L), indexing="ij")
+    centre = np.hypot(a - L // 2 + 0.5, b - L // 2 + 0.5)
+    cells_in = np.flatnonzero(centre.ravel() > 7.0)  # the outer 100 cells, 7-10.6 out
+    path = rng.normal(0.0, [3.0, 3.0, 2.0], (U, P, 3)).astype(np.float32)
+    path[..., :2] += 0.5 * SIDE * cfg.resolution
+    store = windowstore.init(cfg)
+    record = jax.jit(windowstore._record, static_argnums=3)
+    for u in range(U - 7):
+        index = np.sort(rng.choice(cells_in, M, replace=False)).astype(np.int32)
+        k = rng.integers(0, 4, M).astype(np.float32)
+        obs = Observation(jnp.asarray(index), jnp.asarray(k), jnp.asarray(0.1 * k),
+                          jnp.int32(0), jnp.float32(rng.uniform(-0.5, 0.5)))
+        store = record(store, jnp.asarray(path[u]), obs, cfg)
+    # windows about the map's middle, each moved by up to 20 cells an axis
+    origin = np.full((P, 2), SIDE // 2 - C // 2, np.int32)
+    new = origin + rng.integers(-20, 21, (P, 2)).astype(np.int32)
+    lo, hi = np.where(new > origin, origin + C, new), np.where(new > origin, new + C, origin)
+    ids = jnp.asarray(np.where(np.arange(P) < P - 1, np.arange(P), P), jnp.int32)  # a pad
+    mv = windowstore._Move(jnp.asarray(new), jnp.asarray(np.stack([lo[:, 0], hi[:, 0]], 1)),
+                           jnp.asarray(np.stack([lo[:, 1], hi[:, 1]], 1)))
+    store = store._replace(origin=jnp.asarray(new))
+    zero = jnp.zeros((P, C, C), jnp.float32)
+
+    def refill(R):  # a new function each time: traced with the ``_near`` of the moment
+        return jax.jit(lambda *a: windowstore._refill(*a, cfg, R))(store, zero, zero, ids, mv)
+
+    near = jax.vmap(lambda p, m: windowstore._near(p, jnp.arange(U) < store.count, m, C, cfg))(
+        store.path, mv)
+    most = int(jnp.max(jnp.sum(near, axis=1)))
+    assert 4 < most < U
+    pre = [refill(R) for R in (U, 4)]
+    monkeypatch.setattr(windowstore, "_near", lambda path, recorded, mv, C, cfg: recorded)
+    every = [refill(R) for R in (U, 4)]
+    for got, want in zip(pre, every):
+        assert float(jnp.sum(want[0] > 0)) > 100  # cells were refilled
+        np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(want[0]))
+        np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(want[1]))
+        assert bool(got[2]) == bool(want[2])
