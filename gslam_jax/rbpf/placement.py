@@ -9,7 +9,7 @@ from jax import Array
 
 from gslam_jax.rbpf.types import FilterConfig
 
-__all__ = ["observation_cells"]
+__all__ = ["observation_cells", "observation_rows_cols"]
 
 
 def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig,
@@ -27,6 +27,14 @@ def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig,
     two local cells and others none (docs/notebook/results.md, "The map frame's orientation").
     """
     H, W = cfg.map_shape
+    gi, gj = observation_rows_cols(pose, local_index, cfg, lattice_heading)
+    on_map = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
+    return jnp.where(on_map, gi * W + gj, H * W), on_map
+
+
+def observation_rows_cols(pose: Array, local_index: Array, cfg: FilterConfig,
+                          lattice_heading: Array | float = 0.0) -> tuple[Array, Array]:
+    """``observation_cells``' map row and column of each local cell, on the map or not."""
     L = cfg.local_size
     # Robot position in cells, and local cell centres in cells (small numbers: float32-safe).
     px = (pose[0] - cfg.map_origin[0]) / cfg.resolution
@@ -37,5 +45,4 @@ def observation_cells(pose: Array, local_index: Array, cfg: FilterConfig,
     c, s = jnp.cos(heading), jnp.sin(heading)
     gi = jnp.floor(px + (c * ca - s * cb)).astype(jnp.int32)
     gj = jnp.floor(py + (s * ca + c * cb)).astype(jnp.int32)
-    on_map = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
-    return jnp.where(on_map, gi * W + gj, H * W), on_map
+    return gi, gj

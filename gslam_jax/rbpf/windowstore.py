@@ -39,7 +39,7 @@ import numpy as np
 from jax import Array, lax
 
 from gslam_jax.rbpf.densestore import gather_particles
-from gslam_jax.rbpf.placement import observation_cells
+from gslam_jax.rbpf.placement import observation_cells, observation_rows_cols
 from gslam_jax.rbpf.types import FilterConfig, Observation
 
 __all__ = ["WindowMaps", "MISSED", "HISTORY_FULL", "REFILL_OVERFLOW", "UNSET", "observed_reach",
@@ -137,11 +137,22 @@ def _slots(store: WindowMaps, rows: Array, cells_: Array, width: int
     """Flat index into ``k.reshape(-1)`` of flat map cells ``cells_`` [n, M] of particles
     ``rows`` [n] and whether each lies in its particle's window."""
     C = store.k.shape[1]
-    gi, gj = cells_ // width, cells_ % width
+    # cells_ >= 0: truncating division is floor division, without its sign fix-ups
+    gi, gj = lax.div(cells_, jnp.int32(width)), lax.rem(cells_, jnp.int32(width))
     o = store.origin[rows]
-    inside = ((gi >= o[:, :1]) & (gi < o[:, :1] + C) & (gj >= o[:, 1:]) & (gj < o[:, 1:] + C))
-    slot = rows[:, None] * (C * C) + (gi % C) * C + gj % C
-    return jnp.where(inside, slot, 0), inside
+    slot, inside = _window_slot(gi, gj, o[:, :1], o[:, 1:], C)
+    return jnp.where(inside, rows[:, None] * (C * C) + slot, 0), inside
+
+
+def _window_slot(gi: Array, gj: Array, oi: Array, oj: Array, C: int) -> tuple[Array, Array]:
+    """Slot (row * C + column) in a C x C toroidal window with origin (oi, oj) of global cells
+    (gi, gj), and whether each lies in the window [oi, oi + C) x [oj, oj + C). The origin's
+    slot is taken modulo C once; a cell's is that plus its offset, less C past the end (no
+    division per cell)."""
+    di, dj = gi - oi, gj - oj  # in [0, C) inside the window
+    inside = (di >= 0) & (di < C) & (dj >= 0) & (dj < C)
+    si, sj = jnp.remainder(oi, C) + di, jnp.remainder(oj, C) + dj
+    return jnp.where(si >= C, si - C, si) * C + jnp.where(sj >= C, sj - C, sj), inside
 
 
 def read(store: WindowMaps, rows: Array, cells_: Array, on_map: Array, width: int
@@ -353,14 +364,13 @@ def _replay_slots(pose: Array, index: Array, mv: _Move, C: int, cfg: FilterConfi
     """Window slot (C * C: none) of each of the cells ``index`` of a past local map seen from
     ``pose`` that lands in the cells the window took in (``mv``), placed as the update placed
     them."""
-    W = cfg.map_shape[1]
-    flat, on_map = observation_cells(pose, index, cfg, heading)
-    gi, gj = flat // W, flat % W
-    o = mv.origin
-    inside = (gi >= o[0]) & (gi < o[0] + C) & (gj >= o[1]) & (gj < o[1] + C)
+    H, W = cfg.map_shape
+    gi, gj = observation_rows_cols(pose, index, cfg, heading)
+    on_map = (gi >= 0) & (gi < H) & (gj >= 0) & (gj < W)
+    slot, inside = _window_slot(gi, gj, mv.origin[0], mv.origin[1], C)
     entered = (((gi >= mv.rows[0]) & (gi < mv.rows[1]))
                | ((gj >= mv.cols[0]) & (gj < mv.cols[1])))
-    return jnp.where(on_map & inside & entered, (gi % C) * C + gj % C, C * C)
+    return jnp.where(on_map & inside & entered, slot, C * C)
 
 
 def _refill(store: WindowMaps, k: Array, S: Array, ids: Array, mv: _Move, cfg: FilterConfig,
