@@ -128,6 +128,30 @@ def test_weights_resampling_and_ancestors_match_the_dense_store(runs):
                                rtol=0, atol=1e-5)
 
 
+def test_the_informed_proposal_matches_the_dense_store():
+    """The informed proposal reads each particle's map at its candidate poses, around the
+    pose the window was placed for: the same poses, weights, resampling decisions and
+    ancestors as the dense store's on the test's run."""
+    controls, obs_index, local_obs, start = _loop_run(np.random.default_rng(3))
+    out = {}
+    for store in ("dense", "window"):
+        cfg = maps.resolve_history(_config(store, resample_ratio=0.6, proposal="informed"),
+                                   int(local_obs.shape[0]), np.asarray(local_obs))
+        out[store] = jax.jit(rbpf.run_filter, static_argnums=5)(
+            jax.random.key(7), rbpf.FilterParams(), controls, obs_index, local_obs, cfg, start)
+    dense, window = out["dense"], out["window"]
+    assert int(jnp.max(window.infos.map_status)) == 0
+    assert 0 < int(np.sum(dense.infos.resampled)) < dense.infos.resampled.size
+    np.testing.assert_array_equal(np.asarray(window.infos.resampled),
+                                  np.asarray(dense.infos.resampled))
+    np.testing.assert_array_equal(np.asarray(window.infos.ancestors),
+                                  np.asarray(dense.infos.ancestors))
+    np.testing.assert_allclose(np.asarray(window.infos.log_w), np.asarray(dense.infos.log_w),
+                               rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(window.infos.pose), np.asarray(dense.infos.pose),
+                               rtol=0, atol=1e-5)
+
+
 def test_every_particle_map_is_the_dense_one(runs):
     """The whole maps replayed from the paths (``to_dense``) and the windows' cells against the
     dense maps: equal (the same additions in the same order)."""
