@@ -108,6 +108,36 @@ def test_an_automatic_shared_pool_grows_as_the_frames_come(frames, batch, monkey
     np.testing.assert_array_equal(live.map().k, res.kmap)
 
 
+def test_a_window_store_history_grows_as_the_local_maps_come(frames, batch, monkeypatch):
+    """On the window store with an automatic history ([map] pool_tiles = 0) that starts at 8
+    local maps (the run has 15), Online doubles it when it is full, says so, and still reproduces the
+    (dense) batch run; a history the config fixes does not grow."""
+    from gslam_jax.rbpf import maps
+
+    run, _ = frames
+    res, cfg = batch
+    monkeypatch.setattr(maps, "LIVE_HISTORY", 8)
+    live = Online(CONFIG, filter_config=cfg._replace(store="window", pool_tiles=0))
+    assert live.cfg.pool_tiles == 8
+    with pytest.warns(maps.MapStoreNotice, match=r"^frame \d+: .*history grew from 8 to 16 "):
+        for t in range(run.num_frames):
+            m = run.obs_index[t]
+            live.push(run.controls[t], run.local_maps[m] if m >= 0 else None, run.timestamps[t])
+    updates = int(np.sum(run.obs_index >= 0))
+    assert int(live.state.maps.count) == updates > 8
+    assert live.cfg.pool_tiles == 16
+    np.testing.assert_array_equal(np.stack(live.best), res.best_pose)
+    np.testing.assert_array_equal(live.map().k, res.kmap)
+
+    fixed = Online(dataclasses.replace(CONFIG, map=dataclasses.replace(CONFIG.map, pool_tiles=2)),
+                   filter_config=cfg._replace(store="window", pool_tiles=2))
+    with pytest.raises(maps.WindowStoreError, match="history"):
+        for t in range(run.num_frames):
+            m = run.obs_index[t]
+            fixed.push(run.controls[t], run.local_maps[m] if m >= 0 else None,
+                       run.timestamps[t])
+
+
 def test_a_given_extent_sizes_the_filter_as_the_batch_run(frames, batch):
     run, _ = frames
     _, cfg = batch

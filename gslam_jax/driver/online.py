@@ -208,7 +208,8 @@ class Online:
               or sensor is not None):
             raise ConfigError("Online: give either filter_config or map_extent, local_size, "
                               "observed_cells and sensor, not both")
-        cfg = filter_config.validate()
+        # a live run's window-store history starts at maps.LIVE_HISTORY and grows (_growth)
+        cfg = maps.resolve_history(filter_config.validate(), maps.LIVE_HISTORY)
         available, what = sizing.map_memory()
         H, W = cfg.map_shape
         maps.check_memory(cfg, available, what, extent=f" (the live map, {H * cfg.resolution:.4g}"
@@ -223,7 +224,9 @@ class Online:
         self.settings = observations.obs_settings(config)
         self.key = jax.random.key(config.filter.seed if seed is None else seed)
         self.state = rbpf.init(cfg, jnp.asarray(start_on_axes, jnp.float32))
-        self._growth = maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, available, what)
+        self._growth = (maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, available, what)
+                        or maps.HistoryGrowth.automatic(cfg, config.map.pool_tiles, available,
+                                                        what))
         self._zero_obs = jnp.zeros((cfg.local_size, cfg.local_size, 2), jnp.float32)
         self._builder = LocalMapBuilder(self.localmap, axes_heading=self.heading)
         self._vo_pose = self.start.copy()
@@ -364,7 +367,8 @@ class Online:
                 f"(x {lo[0]:.2f} .. {hi[0]:.2f} m, y {lo[1]:.2f} .. {hi[1]:.2f} m) for "
                 f"{int(info.extent_violations)} particles, whose cells beyond it were skipped; "
                 "the map does not grow: give Online a larger map_extent")
-        if self._growth is not None:  # an automatic shared pool running low grows (recompiles)
+        if self._growth is not None:  # an automatic pool or history running low grows
+            # (the filter step recompiles)
             grown, self.cfg = self._growth.after(self.state.maps, self.cfg, batch.map_free, t + 1)
             self.state = self.state._replace(maps=grown)
         return OnlineFrame(pose=best, mean=mean, ess=float(info.ess), updated=bool(info.updated),

@@ -39,13 +39,15 @@ __all__ = ["Maps", "DenseMaps", "TileStore", "MapStoreNotice", "init", "read", "
            "sample_known", "finish_update", "resample", "particle_map", "to_dense", "known_bits",
            "status", "free_tiles", "page_window", "pool_tiles", "whole_maps_tiles", "prior_tiles",
            "map_bytes", "peak_bytes", "choose_store", "check_memory", "check_status",
-           "pool_ran_out", "grow_pool", "PoolGrowth", "WindowMaps", "resolve_history",
+           "pool_ran_out", "grow_pool", "PoolGrowth", "HistoryGrowth", "LIVE_HISTORY",
+           "WindowMaps", "resolve_history",
            "WindowStoreError"]
 
 Maps = Union[DenseMaps, TileStore, WindowMaps]
 """The particles' maps (``FilterState.maps``): the dense, shared tile or window store."""
 
 AUTO_POOL_MAPS = 4  # ``pool_tiles``: whole maps of shared history an automatic pool holds
+LIVE_HISTORY = 64   # local maps a live run's window-store history holds before it first grows
 
 
 class MapStoreNotice(UserWarning):
@@ -77,8 +79,8 @@ def _check_window(cfg: FilterConfig, prior) -> None:
                           '"dense" or "shared"')
     if cfg.pool_tiles < 1:
         raise ConfigError('[map] store = "window" needs its history sized: [map] pool_tiles = '
-                          'the local maps the run has (a run sizes it itself, '
-                          '``maps.resolve_history``)')
+                          'the local maps the run has (a run sizes it itself and a live run '
+                          'grows it, ``maps.resolve_history``, ``maps.HistoryGrowth``)')
 
 
 def resolve_history(cfg: FilterConfig, num_updates: int, local_maps=None) -> FilterConfig:
@@ -438,3 +440,44 @@ class PoolGrowth:
                       f"({map_bytes(grown) / 2**20:.1f} MiB of {self.what}); the filter step "
                       f"compiles again for it. [map] pool_tiles = N fixes the pool's size",
                       MapStoreNotice, stacklevel=4)
+
+
+class HistoryGrowth:
+    """The window store's history grown between frames of a live run (``online.Online`` with
+    ``[map] pool_tiles = 0``), whose local maps are not known before it starts: it starts at
+    ``LIVE_HISTORY`` (``resolve_history``) and doubles whenever it is full, before the next
+    update would overflow it. Growing changes no value; the filter step recompiles for the new
+    history, and ``MapStoreNotice`` says so. Where the memory has no room for the doubled
+    history, it is left full and the next update stops the run naming the setting."""
+
+    def __init__(self, available: int, what: str):
+        self.available, self.what = available, what
+
+    @classmethod
+    def automatic(cls, cfg: FilterConfig, pool_tiles_setting: int, available: int, what: str
+                  ) -> "HistoryGrowth | None":
+        """A HistoryGrowth for the window store when ``[map] pool_tiles``
+        (``pool_tiles_setting``) is 0, the memory being ``available`` bytes of ``what``; None
+        otherwise."""
+        if cfg.store != "window" or pool_tiles_setting:
+            return None
+        return cls(available, what)
+
+    def before(self, maps_: Maps) -> None:
+        """Nothing to note as a chunk starts (``PoolGrowth``'s interface)."""
+
+    def after(self, maps_: Maps, cfg: FilterConfig, map_free: Array | np.ndarray, frame: int
+              ) -> tuple[Maps, FilterConfig]:
+        """The maps and filter config for the next chunk, after the chunk that ended at
+        ``frame``: the history doubled where it is full."""
+        held = windowstore.history(cfg)
+        if int(maps_.count) < held:
+            return maps_, cfg
+        grown = cfg._replace(pool_tiles=2 * held)
+        if map_bytes(grown) > self.available:
+            return maps_, cfg
+        warnings.warn(f"frame {frame}: the window map store's history grew from {held} to "
+                      f"{2 * held} local maps ({map_bytes(grown) / 2**20:.1f} MiB of "
+                      f"{self.what}); the filter step compiles again for it. [map] pool_tiles "
+                      f"= N fixes the history's size", MapStoreNotice, stacklevel=3)
+        return windowstore.grow_history(maps_, 2 * held), grown

@@ -44,8 +44,8 @@ from gslam_jax.rbpf.types import FilterConfig, Observation
 
 __all__ = ["WindowMaps", "MISSED", "HISTORY_FULL", "REFILL_OVERFLOW", "UNSET", "observed_reach",
            "reach", "groups", "chunk", "side",
-           "init", "nbytes", "read", "write", "finish_update", "resample", "to_dense",
-           "particle_map"]
+           "init", "nbytes", "grow_history", "read", "write", "finish_update", "resample",
+           "to_dense", "particle_map"]
 
 MISSED = 1           # status bit: an update wrote a map cell outside the particle's window
 HISTORY_FULL = 2     # status bit: more updates than the history holds (``history``)
@@ -130,6 +130,24 @@ def nbytes(cfg: FilterConfig) -> int:
     cells, heading and groups' boxes)."""
     J, C, U, M = cfg.num_particles, side(cfg), history(cfg), cfg.max_observed
     return J * (C * C * 8 + 8 + U * 12) + U * (M * 12 + 4 + groups(M) * 16) + 8
+
+
+def grow_history(store: WindowMaps, updates: int) -> WindowMaps:
+    """``store`` with room for ``updates`` local maps in its history (at least the U it has):
+    the paths and local maps recorded so far kept, the rest empty. Changes no map."""
+    grow = updates - store.obs_k.shape[0]
+    if grow < 0:
+        raise ValueError(f"grow_history: {updates} updates is fewer than the "
+                         f"{store.obs_k.shape[0]} the history holds")
+
+    def pad(x: Array, axis: int) -> Array:
+        widths = [(0, 0)] * x.ndim
+        widths[axis] = (0, grow)
+        return jnp.pad(x, widths)
+
+    return store._replace(path=pad(store.path, 1), obs_index=pad(store.obs_index, 0),
+                          obs_k=pad(store.obs_k, 0), obs_S=pad(store.obs_S, 0),
+                          obs_heading=pad(store.obs_heading, 0), obs_box=pad(store.obs_box, 0))
 
 
 def _slots(store: WindowMaps, rows: Array, cells_: Array, width: int
