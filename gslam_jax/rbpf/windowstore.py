@@ -189,19 +189,24 @@ def read(store: WindowMaps, rows: Array, cells_: Array, on_map: Array, width: in
 def _placed(store: WindowMaps, rows: Array, cells_: Array, written: Array, width: int
             ) -> WindowMaps:
     """Windows of particles ``rows`` not yet placed, centred on the bounding box of their
-    written cells (their maps are empty, so any place is exact)."""
+    written cells (their maps are empty, so any place is exact). Where every window is placed
+    (every update after a particle's first that wrote), the cells are not looked at."""
     C = store.k.shape[1]
-    gi, gj = cells_ // width, cells_ % width
     big = jnp.iinfo(jnp.int32).max
-
-    def centre(g: Array) -> Array:
-        lo = jnp.min(jnp.where(written, g, big), axis=1)
-        hi = jnp.max(jnp.where(written, g, -1), axis=1)
-        return jnp.where(hi >= 0, (lo + hi) // 2 - C // 2, UNSET)
-
     o = store.origin[rows]
-    fresh = jnp.stack([centre(gi), centre(gj)], axis=1)
-    return store._replace(origin=store.origin.at[rows].set(jnp.where(o == UNSET, fresh, o)))
+
+    def fresh() -> Array:
+        gi, gj = cells_ // width, cells_ % width
+
+        def centre(g: Array) -> Array:
+            lo = jnp.min(jnp.where(written, g, big), axis=1)
+            hi = jnp.max(jnp.where(written, g, -1), axis=1)
+            return jnp.where(hi >= 0, (lo + hi) // 2 - C // 2, UNSET)
+
+        return jnp.where(o == UNSET, jnp.stack([centre(gi), centre(gj)], axis=1), o)
+
+    new = lax.cond(jnp.any(o == UNSET), fresh, lambda: o)
+    return store._replace(origin=store.origin.at[rows].set(new))
 
 
 def write(store: WindowMaps, rows: Array, cells_: Array, k: Array, S: Array,
