@@ -113,16 +113,18 @@ def test_no_import_cycles():
 
 STORE_MODULES = {"rbpf.densestore", "rbpf.tilestore", "rbpf.tilebytes", "rbpf.tilesample",
                  "rbpf.windowstore"}
+# Diagnostics that time a store by switching its own functions off: the one place past the seam.
+STORE_DIAGNOSTICS = {"experiments/window_update_parts.py": {"rbpf.windowstore"}}
 
 
 def test_the_map_stores_are_reached_only_through_rbpf():
-    """The map-store seam (``rbpf.maps``): no module outside rbpf/, and no experiment, imports
-    a store's own modules."""
+    """The map-store seam (``rbpf.maps``): no module outside rbpf/, and no experiment but the
+    store diagnostics named in ``STORE_DIAGNOSTICS``, imports a store's own modules."""
     experiments = PACKAGE.parent / "experiments"
     importers = {**{m: imp for m, imp in _graph().items() if m.split(".")[0] != "rbpf"},
                  **{f"experiments/{p.name}": _imports(p) for p in experiments.glob("*.py")}}
     wrong = sorted(f"{m} imports {t}" for m, imp in importers.items() for t in imp
-                   if t in STORE_MODULES)
+                   if t in STORE_MODULES and t not in STORE_DIAGNOSTICS.get(m, ()))
     assert not wrong, "\n".join(wrong)
 
 
