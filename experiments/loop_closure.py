@@ -267,6 +267,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from-json", type=Path, nargs="+",
                     help="run nothing: summarise (and --plot) the rows of these --json files")
     args = ap.parse_args(argv)
+    missing = [str(f) for f in args.kitti if not Path(f).is_file()]
+    if missing:
+        raise SystemExit(f"--kitti: no such pose file: {', '.join(missing)} (relative paths are "
+                         f"from {Path.cwd()})")
     if args.from_json:
         rows = read_rows(args.from_json)
         try:
