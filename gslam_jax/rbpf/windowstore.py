@@ -339,7 +339,8 @@ def _near(path: Array, recorded: Array, mv: _Move, C: int, cfg: FilterConfig) ->
     """[U] the past local maps of one particle that may land in the cells its window takes in,
     by a test without the heading: every observed cell of a local map lands within ``reach``
     cells of the particle's cell at that update, so a square of that half-side around it
-    holds all of them. A superset of ``_hits``' maps, for a fraction of its arithmetic."""
+    holds all of them. Every map with a cell that can land there passes; a map that ``_hits``
+    keeps only because a group's box (wider than its cells) reaches the band may not."""
     r = reach(cfg) + 1
     i = _map_cell((path[:, 0] - cfg.map_origin[0]) / cfg.resolution)
     j = _map_cell((path[:, 1] - cfg.map_origin[1]) / cfg.resolution)
@@ -445,8 +446,10 @@ def _selected(store: WindowMaps, path: Array, live: Array, mv: _Move, C: int,
     """For particles with paths ``path`` [P, U, 3] (``live`` [P]) whose windows move by ``mv``:
     the first R past local maps in update order that have groups to replay (``_hits``), as
     (which [P, R] update indices, U: none; hit [P, R, G] their groups; n [P] how many there
-    are in all). The groups are tested only for the maps ``_near`` keeps, up to R of them; a
-    particle near more than R tests all U maps (the same answer, for more arithmetic)."""
+    are in all). The groups are tested only for the maps ``_near`` keeps, up to R of them;
+    where a particle has more than R near, all U maps are tested. Either way the replayed
+    cells are the same (a map ``_near`` drops lands none in the band), though n may count
+    fewer maps than the search of all U."""
     U = store.obs_box.shape[0]
     recorded = jnp.arange(U) < store.count
 
