@@ -65,18 +65,37 @@ def _loop_run(rng: np.random.Generator, updates: int = 88):
             jnp.asarray(np.stack([k, S], -1)), jnp.asarray(start))
 
 
-@pytest.fixture(scope="module")
-def runs():
+def _filter_runs(**kw) -> dict:
+    """store -> (cfg, run_filter's output) of the dense and window stores on ``_loop_run``'s
+    run, with ``_config``'s settings plus ``kw``."""
     controls, obs_index, local_obs, start = _loop_run(np.random.default_rng(3))
-    n_maps = int(local_obs.shape[0])
-    params = rbpf.FilterParams()
     out = {}
     for store in ("dense", "window"):
-        cfg = maps.resolve_history(_config(store, resample_ratio=0.6), n_maps,
-                                   np.asarray(local_obs))
+        cfg = maps.resolve_history(_config(store, resample_ratio=0.6, **kw),
+                                   int(local_obs.shape[0]), np.asarray(local_obs))
         out[store] = (cfg, jax.jit(rbpf.run_filter, static_argnums=5)(
-            jax.random.key(7), params, controls, obs_index, local_obs, cfg, start))
+            jax.random.key(7), rbpf.FilterParams(), controls, obs_index, local_obs, cfg, start))
     return out
+
+
+def _assert_same_filter(dense, window) -> None:
+    """The window store's run has the dense store's resampling decisions (both kinds occur)
+    and ancestors, and its log weights and poses to 1e-5, with no map error."""
+    assert int(jnp.max(window.infos.map_status)) == 0
+    resampled = np.asarray(dense.infos.resampled)
+    assert 0 < resampled.sum() < resampled.size  # both decisions occur
+    np.testing.assert_array_equal(np.asarray(window.infos.resampled), resampled)
+    np.testing.assert_array_equal(np.asarray(window.infos.ancestors),
+                                  np.asarray(dense.infos.ancestors))
+    np.testing.assert_allclose(np.asarray(window.infos.log_w), np.asarray(dense.infos.log_w),
+                               rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(window.infos.pose), np.asarray(dense.infos.pose),
+                               rtol=0, atol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return _filter_runs()
 
 
 def test_the_window_is_sized_by_the_observed_reach(runs):
@@ -114,42 +133,15 @@ def test_the_path_leaves_the_window_and_comes_back(runs):
 
 
 def test_weights_resampling_and_ancestors_match_the_dense_store(runs):
-    cfg, dense = runs["dense"]
-    _, window = runs["window"]
-    assert int(jnp.max(window.infos.map_status)) == 0
-    resampled = np.asarray(dense.infos.resampled)
-    assert 0 < resampled.sum() < resampled.size  # both decisions occur
-    np.testing.assert_array_equal(np.asarray(window.infos.resampled), resampled)
-    np.testing.assert_array_equal(np.asarray(window.infos.ancestors),
-                                  np.asarray(dense.infos.ancestors))
-    np.testing.assert_allclose(np.asarray(window.infos.log_w), np.asarray(dense.infos.log_w),
-                               rtol=1e-5, atol=1e-5)
-    np.testing.assert_allclose(np.asarray(window.infos.pose), np.asarray(dense.infos.pose),
-                               rtol=0, atol=1e-5)
+    _assert_same_filter(runs["dense"][1], runs["window"][1])
 
 
 def test_the_informed_proposal_matches_the_dense_store():
     """The informed proposal reads each particle's map at its candidate poses, around the
     pose the window was placed for: the same poses, weights, resampling decisions and
     ancestors as the dense store's on the test's run."""
-    controls, obs_index, local_obs, start = _loop_run(np.random.default_rng(3))
-    out = {}
-    for store in ("dense", "window"):
-        cfg = maps.resolve_history(_config(store, resample_ratio=0.6, proposal="informed"),
-                                   int(local_obs.shape[0]), np.asarray(local_obs))
-        out[store] = jax.jit(rbpf.run_filter, static_argnums=5)(
-            jax.random.key(7), rbpf.FilterParams(), controls, obs_index, local_obs, cfg, start)
-    dense, window = out["dense"], out["window"]
-    assert int(jnp.max(window.infos.map_status)) == 0
-    assert 0 < int(np.sum(dense.infos.resampled)) < dense.infos.resampled.size
-    np.testing.assert_array_equal(np.asarray(window.infos.resampled),
-                                  np.asarray(dense.infos.resampled))
-    np.testing.assert_array_equal(np.asarray(window.infos.ancestors),
-                                  np.asarray(dense.infos.ancestors))
-    np.testing.assert_allclose(np.asarray(window.infos.log_w), np.asarray(dense.infos.log_w),
-                               rtol=1e-5, atol=1e-5)
-    np.testing.assert_allclose(np.asarray(window.infos.pose), np.asarray(dense.infos.pose),
-                               rtol=0, atol=1e-5)
+    out = _filter_runs(proposal="informed")
+    _assert_same_filter(out["dense"][1], out["window"][1])
 
 
 def test_every_particle_map_is_the_dense_one(runs):
