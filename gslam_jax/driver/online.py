@@ -224,9 +224,7 @@ class Online:
         self.settings = observations.obs_settings(config)
         self.key = jax.random.key(config.filter.seed if seed is None else seed)
         self.state = rbpf.init(cfg, jnp.asarray(start_on_axes, jnp.float32))
-        self._growth = (maps.PoolGrowth.automatic(cfg, config.map.pool_tiles, available, what)
-                        or maps.HistoryGrowth.automatic(cfg, config.map.pool_tiles, available,
-                                                        what))
+        self._growth = maps.live_growth(cfg, config.map.pool_tiles, available, what)
         self._zero_obs = jnp.zeros((cfg.local_size, cfg.local_size, 2), jnp.float32)
         self._builder = LocalMapBuilder(self.localmap, axes_heading=self.heading)
         self._vo_pose = self.start.copy()

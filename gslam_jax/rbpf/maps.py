@@ -40,6 +40,7 @@ __all__ = ["Maps", "DenseMaps", "TileStore", "MapStoreNotice", "init", "read", "
            "status", "free_tiles", "page_window", "pool_tiles", "whole_maps_tiles", "prior_tiles",
            "map_bytes", "peak_bytes", "choose_store", "check_memory", "check_status",
            "pool_ran_out", "grow_pool", "PoolGrowth", "HistoryGrowth", "LIVE_HISTORY",
+           "live_growth",
            "WindowMaps", "resolve_history",
            "WindowStoreError"]
 
@@ -481,3 +482,12 @@ class HistoryGrowth:
                       f"{self.what}); the filter step compiles again for it. [map] pool_tiles "
                       f"= N fixes the history's size", MapStoreNotice, stacklevel=3)
         return windowstore.grow_history(maps_, 2 * held), grown
+
+
+def live_growth(cfg: FilterConfig, pool_tiles_setting: int, available: int, what: str
+                ) -> PoolGrowth | HistoryGrowth | None:
+    """What a live run (``online.Online``) grows between frames for the store ``cfg.store``:
+    the shared store's automatic pool (``PoolGrowth``), the window store's automatic history
+    (``HistoryGrowth``), or nothing."""
+    return (PoolGrowth.automatic(cfg, pool_tiles_setting, available, what)
+            or HistoryGrowth.automatic(cfg, pool_tiles_setting, available, what))
